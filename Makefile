@@ -1,0 +1,42 @@
+# Two commands on a fresh clone: `make demo` and `make test`. Both set up .venv/ first (once).
+VENV   := .venv
+PY     := $(VENV)/bin/python
+BOW    := $(VENV)/bin/bowsynth
+STAMP  := $(VENV)/.installed-stamp
+OUTDIR := out
+
+.PHONY: setup demo test models bench bench-quick clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# the CPU build of torch lies on this machine; a bare `torch` would pull a multi-GB CUDA build
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: $(STAMP)
+	mkdir -p $(OUTDIR)
+	$(BOW) render --preset paper-fb100 $(OUTDIR)/demo.wav
+	$(BOW) compare $(OUTDIR)/demo.wav --plot $(OUTDIR)/demo.png
+	$(BOW) render --method fdm --preset scratch-g2 $(OUTDIR)/scratch-g2-fdm.wav
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+# The shipped operators: one command each, at most 15 minutes each on a 2-core CPU.
+models: $(STAMP)
+	$(BOW) train --preset paper-fb10 --minutes 8 --out models/paper-fb10.safetensors --force
+	$(BOW) train --preset paper-fb100 --minutes 8 --out models/paper-fb100.safetensors --force
+	$(BOW) train --preset paper-fb1000 --minutes 12 --out models/paper-fb1000.safetensors --force
+
+bench: $(STAMP)
+	$(BOW) bench --out docs/bench
+
+bench-quick: $(STAMP)
+	$(BOW) bench --quick
+
+clean:
+	rm -rf $(OUTDIR) .pytest_cache

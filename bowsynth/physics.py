@@ -1,0 +1,87 @@
+"""The bowed mass: friction law, ODE (physical and dimensionless), energy, scalings.
+
+The single source of truth for the physics; the FDM, the training losses and the metrics import it.
+
+    u_tt + w^2 u = -F_B phi(u_t - v_B),   phi(eta) = sqrt(2a) eta exp(-a eta^2 + 1/2)
+
+State (q, p) = (w u, u_t), both in m/s. In dimensionless time tau = w t:
+    q' = p,  p' = -q - beta phi(p - v_B),  beta = F_B / w.
+Functions work on floats, numpy arrays and torch tensors alike (they only use arithmetic and `exp`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+E_HALF = math.exp(0.5)
+
+
+def _exp(x):
+    # torch tensors carry their own exp (keeps autograd); numba compiles an overload (see fdm.py)
+    return x.exp() if hasattr(x, "exp") else np.exp(x)
+
+
+def omega(f0: float) -> float:
+    """Angular frequency w = 2 pi f0 (rad/s)."""
+    return 2.0 * math.pi * f0
+
+
+def beta(fb: float, f0: float) -> float:
+    """Dimensionless bow force beta = F_B / w: with v_B and a, it fixes the dimensionless dynamics."""
+    return fb / omega(f0)
+
+
+def phi(eta, a: float):
+    """Soft friction law; |phi| <= 1, reached at |eta| = 1/sqrt(2a)."""
+    return math.sqrt(2.0 * a) * eta * _exp(-a * eta * eta + 0.5)
+
+
+def dphi(eta, a: float):
+    """d phi / d eta; its minimum is -2 sqrt(2a) / e at eta^2 = 3 / (2a)."""
+    return math.sqrt(2.0 * a) * _exp(-a * eta * eta + 0.5) * (1.0 - 2.0 * a * eta * eta)
+
+
+def rhs_physical(q, p, w: float, fb: float, vb: float, a: float):
+    """(dq/dt, dp/dt) of the first-order system in seconds."""
+    return w * p, -w * q - fb * phi(p - vb, a)
+
+
+def rhs_tau(q, p, b: float, vb: float, a: float):
+    """(dq/dtau, dp/dtau) in dimensionless time tau = w t, with b = beta = F_B / w."""
+    return p, -q - b * phi(p - vb, a)
+
+
+def linear_flow(q0, p0, tau):
+    """Exact flow of the frictionless oscillator: a rotation of (q, p) by tau."""
+    c, s = np.cos(tau), np.sin(tau)
+    return q0 * c + p0 * s, -q0 * s + p0 * c
+
+
+def energy(q, p):
+    """Energy per unit mass, (u_t^2 + w^2 u^2) / 2 = (p^2 + q^2) / 2 (J/kg)."""
+    return 0.5 * (q * q + p * p)
+
+
+def friction_power(p, fb: float, vb: float, a: float):
+    """Power per unit mass done by the bow on the mass: dE/dt = -F_B phi(p - v_B) p."""
+    return -fb * phi(p - vb, a) * p
+
+
+def max_stable_step(fb: float, a: float) -> float:
+    """Largest time step for which Bilbao's scheme has a unique solution: k < e / (F_B sqrt(2a))."""
+    if fb <= 0:
+        return math.inf
+    return math.e / (fb * math.sqrt(2.0 * a))
+
+
+def min_oversample(fb: float, a: float, sample_rate: float) -> int:
+    """Smallest integer oversampling factor that keeps the FDM step below the uniqueness bound.
+
+    A 1 % safety margin keeps the Newton solve well conditioned right at the bound.
+    """
+    kmax = 0.99 * max_stable_step(fb, a)
+    if math.isinf(kmax):
+        return 1
+    return max(1, math.ceil(1.0 / (sample_rate * kmax)))

@@ -1,0 +1,40 @@
+"""Render: what every engine (FDM or operator) returns, and the one entry point that picks the engine."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .scene import Scene
+
+
+@dataclass
+class Render:
+    """A rendered scene: float64 arrays, one value per output sample at the scene's sample rate.
+
+    q = w u and p = u_t (m/s); u the mass displacement (m); t in s. `seconds` is the wall time the engine took.
+    """
+
+    scene: Scene
+    t: np.ndarray
+    q: np.ndarray
+    p: np.ndarray
+    method: str
+    seconds: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.q / self.scene.omega
+
+    @property
+    def realtime_factor(self) -> float:
+        """Seconds of audio per second of wall time."""
+        return self.scene.duration / self.seconds if self.seconds > 0 else float("inf")
+
+    def signal(self, name: str = "u") -> np.ndarray:
+        """The named signal: 'u' (displacement), 'p' (velocity) or 'q'."""
+        if name not in ("u", "p", "q"):
+            raise ValueError(f"signal must be u, p or q, got {name!r}")
+        return getattr(self, name)

@@ -1,0 +1,114 @@
+"""Scene: a typed, validated description of one render, and the presets that name common ones."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import physics
+from .errors import SceneError, UsageError
+
+PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
+
+MIN_RATE, MAX_RATE = 8_000, 384_000
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One render: a bowed mass at pitch f0, bowed with force fb at speed vb, for duration seconds.
+
+    Units: f0 Hz; fb bow force per unit mass (m/s^2); vb m/s; a friction shape (s^2/m^2); duration s;
+    sample_rate Hz; q0 = w u(0) and p0 = u_t(0) in m/s.
+    """
+
+    f0: float = 100.0
+    fb: float = 100.0
+    vb: float = 0.2
+    a: float = 100.0
+    duration: float = 1.0
+    sample_rate: int = 44_100
+    q0: float = 0.0
+    p0: float = 0.0
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise SceneError(f"{f.name} must be a number, got {v!r}")
+            if not math.isfinite(v):
+                raise SceneError(f"{f.name} must be finite, got {v}")
+        if self.sample_rate != int(self.sample_rate):
+            raise SceneError(f"sample_rate must be a whole number of Hz, got {self.sample_rate}")
+        object.__setattr__(self, "sample_rate", int(self.sample_rate))
+        if not MIN_RATE <= self.sample_rate <= MAX_RATE:
+            raise SceneError(f"sample_rate must be in [{MIN_RATE}, {MAX_RATE}] Hz, got {self.sample_rate}")
+        if self.f0 <= 0:
+            raise SceneError(f"f0 must be > 0 Hz, got {self.f0}")
+        if self.f0 >= self.sample_rate / 2:
+            raise SceneError(f"f0 must be below Nyquist ({self.sample_rate / 2:g} Hz), got {self.f0}")
+        if self.fb < 0:
+            raise SceneError(f"fb must be >= 0 m/s^2, got {self.fb}")
+        if self.a <= 0:
+            raise SceneError(f"a must be > 0 s^2/m^2, got {self.a}")
+        if self.duration <= 0:
+            raise SceneError(f"duration must be > 0 s, got {self.duration}")
+        if self.duration * self.sample_rate < 2:
+            raise SceneError(f"duration must hold at least 2 samples, got {self.duration} s")
+        if self.duration > 3600:
+            raise SceneError(f"duration must be <= 3600 s, got {self.duration}")
+
+    @property
+    def omega(self) -> float:
+        return physics.omega(self.f0)
+
+    @property
+    def beta(self) -> float:
+        return physics.beta(self.fb, self.f0)
+
+    @property
+    def n_samples(self) -> int:
+        return int(round(self.duration * self.sample_rate))
+
+    def replace(self, **changes) -> "Scene":
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Scene":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise SceneError(f"unknown scene field(s): {', '.join(sorted(unknown))} (known: {', '.join(sorted(names))})")
+        return cls(**d)
+
+
+def list_presets() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
+
+
+def load_preset(name: str) -> dict:
+    """The scene fields a preset sets (a dict, so CLI flags can override them before validation)."""
+    path = PRESET_DIR / f"{name}.toml"
+    if not path.is_file():
+        raise UsageError(f"unknown preset {name!r}; known presets: {', '.join(list_presets()) or 'none'}")
+    with path.open("rb") as fh:
+        data = tomllib.load(fh)
+    data.pop("description", None)
+    return data
+
+
+def preset_description(name: str) -> str:
+    with (PRESET_DIR / f"{name}.toml").open("rb") as fh:
+        return tomllib.load(fh).get("description", "")
+
+
+def make_scene(preset: str | None = None, **overrides) -> Scene:
+    """A Scene from an optional preset, with the non-None overrides applied on top."""
+    fields = load_preset(preset) if preset else {}
+    fields.update({k: v for k, v in overrides.items() if v is not None})
+    return Scene.from_dict(fields)

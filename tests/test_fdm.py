@@ -1,0 +1,81 @@
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from bowsynth import Scene, physics, render_fdm
+from bowsynth.fdm import OversampleWarning, fdm_batch, run_fdm_raw
+
+
+def test_fb0_is_harmonic_oscillator_to_second_order():
+    s = Scene(fb=0.0, q0=0.1, p0=-0.05, duration=0.05)
+    errs = []
+    for os_ in (1, 2, 4):
+        r = render_fdm(s, oversample=os_)
+        q_ex, p_ex = physics.linear_flow(s.q0, s.p0, s.omega * r.t)
+        errs.append(max(np.abs(r.q - q_ex).max(), np.abs(r.p - p_ex).max()))
+    assert errs[0] < 1e-3 * math.hypot(s.q0, s.p0)
+    assert 3.6 < errs[0] / errs[1] < 4.4 and 3.6 < errs[1] / errs[2] < 4.4
+
+
+@pytest.mark.parametrize("fb", [100.0, 1000.0])
+def test_second_order_convergence(fb):
+    s = Scene(fb=fb, duration=0.03)
+    ref = render_fdm(s, oversample=128)
+    errs = [np.abs(render_fdm(s, oversample=o).p - ref.p).max() for o in (2, 4, 8)]
+    for e1, e2 in zip(errs, errs[1:]):
+        assert 3.5 < e1 / e2 < 4.5
+
+
+def test_initial_state_exact_and_u_is_q_over_omega():
+    s = Scene(fb=100, q0=0.03, p0=0.1, duration=0.01, f0=150)
+    r = render_fdm(s)
+    assert r.q[0] == s.q0 and r.p[0] == s.p0
+    np.testing.assert_allclose(r.u, r.q / (2 * math.pi * 150))
+    assert r.t.dtype == np.float64 and len(r.t) == s.n_samples
+
+
+def test_reproduces_authors_matlab_render(anchors):
+    d = np.load(anchors / "paper_fdm_fb50_44k.npz")
+    q_ref, p_ref = d["q"], d["p"]
+    w, k = 2 * math.pi * 100, 1 / 44100
+    # their index 0 and 1 both hold u = 0: q_ref[n + 1] = w u^n of a scheme started from u^{-1} = u^0 = 0
+    u, _ = run_fdm_raw(0.0, 0.0, len(q_ref) - 1, 1, k, w, 50.0, 0.2, 100.0)
+    q = w * u
+    assert np.abs(q - q_ref[1:]).max() / np.abs(q_ref).max() < 1e-5
+    p = np.diff(q) / (w * k)  # their p is staggered
+    assert np.abs(p - p_ref[1:len(p) + 1]).max() / np.abs(p_ref).max() < 1e-4
+
+
+def test_batch_agrees_with_single_voice():
+    rng = np.random.default_rng(0)
+    q0, p0 = rng.uniform(-0.3, 0.3, 6), rng.uniform(-0.3, 0.3, 6)
+    s = Scene(fb=1000, duration=0.004)
+    q, p = fdm_batch(q0, p0, s.n_samples, 1, 1 / s.sample_rate, s.omega, s.fb, s.vb, s.a)
+    for i in range(len(q0)):
+        r = render_fdm(s.replace(q0=q0[i], p0=p0[i]))
+        assert np.abs(r.q - q[i]).max() < 1e-12 and np.abs(r.p - p[i]).max() < 1e-12
+
+
+def test_uniqueness_bound_raises_oversampling():
+    s = Scene(fb=10_000, duration=0.01)
+    assert 1 / 44100 > physics.max_stable_step(10_000, 100)
+    with pytest.warns(OversampleWarning, match="oversampling raised from 1 to 2"):
+        r = render_fdm(s)
+    assert r.info["oversample"] == 2 and np.all(np.isfinite(r.p))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert render_fdm(s, oversample=4).info["oversample"] == 4
+    with pytest.raises(ValueError, match="uniqueness"):
+        fdm_batch([0.0], [0.0], 3, 1, 1 / 44100, s.omega, 10_000, 0.2, 100)
+
+
+def test_energy_balance():
+    # dE/dt = -F_B phi(p - v_B) p: integrate the bow's power and compare with the energy change
+    s = Scene(fb=100, duration=0.05)
+    r = render_fdm(s, oversample=16)
+    e = physics.energy(r.q, r.p)
+    pw = physics.friction_power(r.p, s.fb, s.vb, s.a)
+    work = np.concatenate([[0], np.cumsum(0.5 * (pw[1:] + pw[:-1]) / s.sample_rate)])
+    assert np.abs(e - e[0] - work).max() < 1e-3 * e.max()
