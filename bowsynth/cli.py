@@ -97,20 +97,188 @@ def render(
 
 
 @app.command()
+def train(
+    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[float] = FbOpt,
+    vb: Optional[float] = VbOpt, a: Optional[float] = AOpt,
+    q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
+    minutes: Optional[float] = typer.Option(None, "--minutes", help="Wall-clock budget in minutes (default 5 when --steps is not given)."),
+    steps: Optional[int] = typer.Option(None, "--steps", help="Optimiser steps (with --minutes, whichever ends first)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed: same seed and machine, same model (with --steps)."),
+    optimizer: str = typer.Option("adam", "--optimizer", help="adam or soap (pytorch-optimizer's SOAP)."),
+    lbfgs: float = typer.Option(0.0, "--lbfgs", help="Share of the --minutes budget for an L-BFGS finish (0 to 0.9)."),
+    hybrid: bool = typer.Option(True, "--hybrid/--no-hybrid", help="Add the FDM data loss (default) or train purely physics-informed."),
+    window_ms: Optional[float] = typer.Option(None, "--window-ms", help="Window length in ms at the scene's f0 (default: one period of the free oscillator)."),
+    width: int = typer.Option(64, "--width", help="Hidden width of branch and trunk."),
+    depth: int = typer.Option(4, "--depth", help="Hidden layers of branch and trunk."),
+    n_data: int = typer.Option(4096, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band."),
+    checkpoint_every: float = typer.Option(60.0, "--checkpoint-every", help="Seconds between checkpoints."),
+    out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Model file (default ./models/<name>.safetensors)."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing model file."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint beside --out."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+):
+    """Train a PI-DeepONet for a scene (its F_B / w, v_B, a and the states a render from its initial state visits)."""
+    from . import api
+
+    scene = _scene(preset, f0, fb, vb, a, None, None, q0, p0)
+    if minutes is not None and not minutes > 0:
+        raise UsageError(f"--minutes must be > 0, got {minutes}")
+    if steps is not None and steps < 1:
+        raise UsageError(f"--steps must be >= 1, got {steps}")
+    if not 0 <= lbfgs <= 0.9:
+        raise UsageError(f"--lbfgs must be in [0, 0.9], got {lbfgs}")
+    if window_ms is not None and not window_ms > 0:
+        raise UsageError(f"--window-ms must be > 0, got {window_ms}")
+    if width < 1 or depth < 1:
+        raise UsageError("--width and --depth must be >= 1")
+    if n_data < 16:
+        raise UsageError(f"--n-data must be >= 16, got {n_data}")
+    if not checkpoint_every > 0:
+        raise UsageError(f"--checkpoint-every must be > 0 s, got {checkpoint_every}")
+    res = api.train(scene, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs, hybrid=hybrid,
+                    window_ms=window_ms, width=width, depth=depth, n_data=n_data,
+                    checkpoint_seconds=checkpoint_every, out=out_path, force=force, resume=resume,
+                    progress=not quiet, console=err)
+    v = res.model.meta.validation
+    _say(False, f"model written to {res.path} ({res.model.id})")
+    _say(False, f"validation (1 s from the scene's initial state vs FDM x{v.get('ref_oversample')}): "
+                f"NMSE(p) {_num(v.get('nmse'), '.3g')}, NCC {_num(v.get('ncc_percent'), '.3f')} %, "
+                f"pitch error {_num(v.get('cents'), '+.3f')} cents")
+
+
+def _num(v, fmt: str) -> str:
+    return "n/a" if v is None else format(v, fmt)
+
+
+@app.command()
+def models():
+    """List the operator models found in ./models and the shipped ones, with their domains and scores."""
+    from .rollout import available_models
+
+    ms = available_models()
+    if not ms:
+        out.print("no models found (train one with `bowsynth train --fb 100`)")
+    for m in ms:
+        d, v = m.domain, m.meta.validation
+        sc = m.meta.scene
+        out.print(f"[bold]{m.path}[/bold]  {m.id}\n    trained for fb={sc['fb']:g} f0={sc['f0']:g} vb={d.vb:g} a={d.a:g} "
+                  f"(F_B/w={d.beta:.4g}), window {d.window:.3g} tau; validation NMSE(p) {_num(v.get('nmse'), '.3g')}, "
+                  f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
+
+
+@app.command()
+def compare(
+    wav: Path = typer.Argument(..., help="A WAV written by `bowsynth render` (or any mono WAV, with scene flags)."),
+    other: Optional[Path] = typer.Argument(None, help="A second WAV: compare the two directly instead of with the FDM."),
+    reference: str = typer.Option("audio", "--reference", help="audio: the FDM at the file's rate; high: also a x100 FDM as ground truth."),
+    json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Write waveform, error and spectrogram plots to this PNG."),
+    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[float] = FbOpt,
+    vb: Optional[float] = VbOpt, a: Optional[float] = AOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
+):
+    """Compare a render against the FDM: NMSE, NCC, pitch (cents), harmonics, spectrum, and speed."""
+    import json
+
+    from .compare import compare_wav, format_table, plot_comparison
+    from .wav import check_output_path, read_wav
+
+    if reference not in ("audio", "high"):
+        raise UsageError(f"--reference must be audio or high, got {reference!r}")
+    if plot is not None:
+        check_output_path(plot)
+        if plot.suffix.lower() != ".png":
+            raise UsageError(f"--plot writes a PNG; give a .png file name, got {plot}")
+    scene = None
+    info = read_wav(wav)
+    if info.meta is None and other is None:
+        if all(v is None for v in (preset, f0, fb, vb, a)):
+            raise UsageError(f"{wav} has no bowsynth metadata; give the scene with --fb/--vb/--f0/... flags")
+        scene = _scene(preset, f0, fb, vb, a, len(info.samples) / info.sample_rate, info.sample_rate, q0, p0)
+    c = compare_wav(wav, other, scene=scene, reference=reference)
+    if json_out:
+        out.print_json(json.dumps(c.to_json()))
+    else:
+        out.print(format_table(c))
+    if plot is not None:
+        plot_comparison(c, plot, info.sample_rate)
+        if not json_out:
+            out.print(f"plot written to {plot}")
+
+
+@app.command()
 def bench(
     what: str = typer.Argument("all", help="What to benchmark: fdm, or all (FDM and operators, speed against error)."),
     quick: bool = typer.Option(False, "--quick", help="A small, fast run."),
     json_out: bool = typer.Option(False, "--json", help="Print JSON instead of Markdown."),
+    out_prefix: Optional[Path] = typer.Option(None, "--out", help="Also write PREFIX.md, PREFIX.json and PREFIX.png."),
 ):
-    """Benchmark speed against error."""
+    """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
 
     from . import bench as B
+    from .scene import PRESET_DIR
 
     if what not in ("fdm", "all"):
         raise UsageError(f"bench target must be fdm or all, got {what!r}")
-    rows = B.bench_fdm(quick=quick)
-    out.print(json.dumps(rows, indent=2) if json_out else B.fdm_table(rows), soft_wrap=True)
+    if out_prefix is not None:
+        from .wav import check_output_path
+
+        check_output_path(out_prefix.with_suffix(".md"))
+    if what == "fdm":
+        rows = B.bench_fdm(quick=quick)
+        out.print(json.dumps(rows, indent=2) if json_out else B.fdm_table(rows), soft_wrap=True)
+        return
+    anchors = PRESET_DIR.parent.parent / "shared" / "anchors"
+    res = B.run_all(quick=quick, out_prefix=out_prefix, anchor_dir=anchors)
+    md, js = B.to_markdown(res), json.dumps(B.to_json(res), indent=2)
+    if out_prefix is not None:
+        from .wav import atomic_write
+
+        atomic_write(out_prefix.with_suffix(".md"), lambda t: Path(t).write_text(md + "\n"))
+        atomic_write(out_prefix.with_suffix(".json"), lambda t: Path(t).write_text(js + "\n"))
+    out.print(js if json_out else md, soft_wrap=True)
+
+
+@app.command()
+def score(
+    output: Path = typer.Argument(..., help="A directory (one WAV per voice) or, with --mix, a WAV file."),
+    score_file: Optional[Path] = typer.Option(None, "--score", help="TOML score with [[voice]] tables (see README)."),
+    presets_list: Optional[str] = typer.Option(None, "--presets", help="Comma-separated preset names, one voice each."),
+    duration: Optional[float] = DurOpt,
+    method: str = typer.Option("operator", "--method", "-m", help="operator (one batched rollout) or fdm (one by one)."),
+    model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the one covering each voice)."),
+    mix: bool = typer.Option(False, "--mix", help="Write one mixed WAV instead of one file per voice."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
+):
+    """Render many voices at once (a chord, a sweep) from a TOML score or a list of presets."""
+    import time
+
+    from .score import load_score, render_voices, voices_from_presets, write_voices
+    from .wav import check_output_path
+
+    if (score_file is None) == (presets_list is None):
+        raise UsageError("give exactly one of --score FILE.toml or --presets a,b,c")
+    if method not in ("operator", "fdm"):
+        raise UsageError(f"--method must be operator or fdm, got {method!r}")
+    if score_file is not None:
+        voices = load_score(score_file)
+        if duration is not None:
+            voices = [type(v)(v.name, v.scene.replace(duration=duration)) for v in voices]
+    else:
+        voices = voices_from_presets([n.strip() for n in presets_list.split(",") if n.strip()], duration=duration)
+    if mix:
+        check_output_path(output)
+    elif output.exists() and not output.is_dir():
+        raise UsageError(f"{output} is a file; without --mix give a directory")
+    elif not output.exists() and not output.parent.is_dir():
+        raise UsageError(f"output directory {output.parent} does not exist")
+    t0 = time.perf_counter()
+    renders = render_voices(voices, method=method, model=model)
+    secs = time.perf_counter() - t0
+    paths = write_voices(voices, renders, output, mix=mix)
+    audio = sum(v.scene.duration for v in voices)
+    _say(quiet, f"rendered {len(voices)} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
+                f"({audio / secs:.0f}x real time in all); wrote {', '.join(str(p) for p in paths)}")
 
 
 def main() -> None:

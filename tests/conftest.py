@@ -13,3 +13,26 @@ def anchors():
     if not ANCHORS.is_dir():
         pytest.skip("shared/anchors not beside the checkout")
     return ANCHORS
+
+
+def tiny_config(steps=150, **kw):
+    from bowsynth.network import NetConfig
+    from bowsynth.train import TrainConfig
+
+    return TrainConfig(minutes=None, steps=steps, n_data=256, data_times=32, data_oversample=4, batch_states=64,
+                       batch_times=32, band_seconds=0.3, checkpoint_seconds=1e9,
+                       net=NetConfig(width=16, depth=2, k=8, ff_branch=8, ff_trunk=8), **kw)
+
+
+@pytest.fixture(scope="session")
+def tiny_model(tmp_path_factory):
+    """A tiny operator for fb 100, trained for a few seconds (shared by the tests that need a model)."""
+    from bowsynth import Scene
+    from bowsynth.train import Trainer
+
+    tr = Trainer(Scene(fb=100), tiny_config(steps=300), "tiny")
+    tr.run()
+    model = tr.model()
+    path = tmp_path_factory.mktemp("models") / "tiny.safetensors"
+    model.save(path)
+    return path

@@ -1,0 +1,166 @@
+"""Compare a rendered WAV against the FDM (audio rate, optionally a high-rate ground truth) or another WAV."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import UsageError
+from .fdm import render_fdm
+from .metrics import compare_signals
+from .scene import Scene
+from .wav import WavInfo, read_wav
+
+HIGH_OVERSAMPLE = 100
+
+
+@dataclass
+class Comparison:
+    """Metrics of each compared signal against each reference, plus the render times."""
+
+    scene: Scene | None
+    signal: str
+    columns: dict = field(default_factory=dict)  # label -> metrics dict
+    seconds: dict = field(default_factory=dict)  # label -> render wall time
+    series: dict = field(default_factory=dict, repr=False)  # label -> signal, for plots
+
+    def to_json(self) -> dict:
+        def clean(v):
+            return None if isinstance(v, float) and not math.isfinite(v) else v
+
+        speed = None
+        a, f = self.seconds.get("file"), self.seconds.get("fdm")
+        if a and f:
+            speed = f / a
+        return {"scene": self.scene.to_dict() if self.scene else None, "signal": self.signal,
+                "metrics": {k: {m: clean(v) for m, v in d.items()} for k, d in self.columns.items()},
+                "render_seconds": self.seconds, "speed_ratio_fdm_over_file": speed}
+
+
+def _fdm_signal(scene: Scene, signal: str, oversample: int):
+    r = render_fdm(scene, oversample=oversample)
+    return r.signal(signal), r.seconds
+
+
+def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "audio") -> Comparison:
+    """Compare the WAV at `path` with the FDM render of its scene (from its metadata, else `scene`), or with the
+    WAV `other`. reference='high' adds a high-rate FDM (x100) as ground truth for both."""
+    if reference not in ("audio", "high"):
+        raise UsageError(f"--reference must be audio or high, got {reference!r}")
+    a = read_wav(path)
+    if other is not None:
+        b = read_wav(other)
+        if a.sample_rate != b.sample_rate:
+            raise UsageError(f"sample rates differ: {a.sample_rate} Hz and {b.sample_rate} Hz")
+        n = min(len(a.samples), len(b.samples))
+        x, y = a.physical[:n], b.physical[:n]
+        c = Comparison(a.scene or b.scene, (a.meta or b.meta or {}).get("signal", "u"))
+        c.columns[f"{a.path.name} vs {b.path.name}"] = compare_signals(x, y, a.sample_rate)
+        c.seconds = {"file": (a.meta or {}).get("render_seconds"), "other": (b.meta or {}).get("render_seconds")}
+        c.series = {a.path.name: x, b.path.name: y}
+        return c
+    sc = a.scene or scene
+    if sc is None:
+        raise UsageError(f"{a.path} has no bowsynth metadata; give the scene with --fb/--vb/--f0/... flags")
+    if a.sample_rate != sc.sample_rate:
+        raise UsageError(f"{a.path} is at {a.sample_rate} Hz but its scene says {sc.sample_rate} Hz")
+    sig = (a.meta or {}).get("signal", "u")
+    x = a.physical
+    fdm, fdm_s = _fdm_signal(sc, sig, 1)
+    n = min(len(x), len(fdm))
+    x, fdm = x[:n], fdm[:n]
+    c = Comparison(sc, sig)
+    c.columns["file vs FDM"] = compare_signals(x, fdm, sc.sample_rate)
+    c.seconds = {"file": (a.meta or {}).get("render_seconds"), "fdm": fdm_s}
+    c.series = {"file": x, "FDM": fdm}
+    if reference == "high":
+        hi, hi_s = _fdm_signal(sc, sig, HIGH_OVERSAMPLE)
+        hi = hi[:n]
+        c.columns[f"file vs FDM x{HIGH_OVERSAMPLE}"] = compare_signals(x, hi, sc.sample_rate)
+        c.columns[f"FDM vs FDM x{HIGH_OVERSAMPLE}"] = compare_signals(fdm, hi, sc.sample_rate)
+        c.seconds[f"fdm_x{HIGH_OVERSAMPLE}"] = hi_s
+        c.series[f"FDM x{HIGH_OVERSAMPLE}"] = hi
+    return c
+
+
+ROWS = [("nmse", "NMSE", "{:.3g}"), ("ncc_percent", "NCC (%)", "{:.4f}"), ("f0_hz", "f0 (Hz)", "{:.4f}"),
+        ("f0_ref_hz", "f0 of reference (Hz)", "{:.4f}"), ("cents", "pitch error (cents)", "{:+.3f}"),
+        ("harmonic_error_db", "harmonic amplitude error (dB)", "{:.3f}"),
+        ("lsd_db", "log-spectral distance (dB)", "{:.3f}")]
+
+
+def format_table(c: Comparison):
+    from rich.table import Table
+
+    t = Table(title=f"signal {c.signal}" + (f", scene fb={c.scene.fb:g} f0={c.scene.f0:g} vb={c.scene.vb:g} "
+                                             f"a={c.scene.a:g} {c.scene.duration:g} s" if c.scene else ""))
+    t.add_column("metric")
+    for label in c.columns:
+        t.add_column(label, justify="right")
+    for key, name, fmt in ROWS:
+        vals = []
+        for d in c.columns.values():
+            v = d.get(key)
+            vals.append("n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v))
+        t.add_row(name, *vals)
+    for label, s in c.seconds.items():
+        if s is not None:
+            t.add_row(f"render time, {label} (s)", f"{s:.4f}", *[""] * (len(c.columns) - 1))
+    j = c.to_json()
+    if j["speed_ratio_fdm_over_file"]:
+        t.add_row("speed: FDM time / file time", f"{j['speed_ratio_fdm_over_file']:.2f}x", *[""] * (len(c.columns) - 1))
+    return t
+
+
+def plot_comparison(c: Comparison, path, sample_rate: int) -> None:
+    """Waveform overlays (onset, steady state), the error over time and both spectrograms, as one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .wav import atomic_write
+
+    labels = list(c.series)
+    x, ref = c.series[labels[0]], c.series[labels[-1] if len(labels) < 3 else labels[2]]
+    ref_label = labels[-1] if len(labels) < 3 else labels[2]
+    t = np.arange(len(x)) / sample_rate
+    span = min(len(x), int(0.04 * sample_rate))
+    fig, ax = plt.subplots(3, 2, figsize=(12, 10))
+    for axis, sl, title in ((ax[0, 0], slice(0, span), "onset"), (ax[0, 1], slice(len(x) - span, len(x)), "steady state")):
+        axis.plot(t[sl], ref[sl], "k-", lw=2, alpha=0.5, label=ref_label)
+        axis.plot(t[sl], x[sl], "r--", lw=1, label=labels[0])
+        axis.set_title(f"{title} ({c.signal})")
+        axis.set_xlabel("t (s)")
+        axis.legend(loc="upper right", fontsize=8)
+    floor = 1e-12 * (np.max(np.abs(ref)) + 1e-300)  # float32 storage puts exact agreement around here
+    err = np.maximum(np.abs(x - ref), floor)
+    ax[1, 0].semilogy(t, err, lw=0.5)
+    ax[1, 0].set_title(f"|{labels[0]} - {ref_label}|")
+    ax[1, 0].set_xlabel("t (s)")
+    block = max(1, sample_rate // 100)
+    nb = len(x) // block
+    if nb > 1:
+        e = np.sqrt(np.mean((x[:nb * block] - ref[:nb * block]).reshape(nb, block) ** 2, axis=1))
+        ax[1, 1].semilogy(t[:nb * block:block], e / (np.std(ref) + 1e-300))
+    ax[1, 1].set_title("RMS error per 10 ms / std(reference)")
+    ax[1, 1].set_xlabel("t (s)")
+    nfft = min(4096, max(64, len(x) // 8))
+    images, top = [], -np.inf
+    for axis, sig, title in ((ax[2, 0], x, labels[0]), (ax[2, 1], ref, ref_label)):
+        spec, _, _, im = axis.specgram(sig, NFFT=nfft, Fs=sample_rate, noverlap=nfft // 2, cmap="magma")
+        images.append(im)
+        top = max(top, 10 * np.log10(spec.max() + 1e-300))
+    for im in images:  # one colour scale for both, so a difference shows as a difference
+        im.set_clim(top - 100, top)
+    for axis, title in ((ax[2, 0], labels[0]), (ax[2, 1], ref_label)):
+        axis.set_ylim(0, min(sample_rate / 2, 4000))
+        axis.set_title(f"spectrogram: {title}")
+        axis.set_xlabel("t (s)")
+        axis.set_ylabel("Hz")
+    fig.tight_layout()
+    atomic_write(__import__("pathlib").Path(path), lambda tmp: fig.savefig(tmp, dpi=80, format="png"))
+    plt.close(fig)

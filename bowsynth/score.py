@@ -1,0 +1,118 @@
+"""Many voices at once: a TOML score (or a list of presets) rendered in one batched operator rollout.
+
+    # score.toml
+    [defaults]          # optional, applied to every voice
+    duration = 2.0
+    [[voice]]
+    name = "root"
+    preset = "paper-fb100"
+    [[voice]]
+    name = "fifth"
+    preset = "paper-fb100"
+    f0 = 150.0
+    fb = 150.0          # same F_B / w, so the same model plays it
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UsageError
+from .render import Render
+from .scene import Scene, make_scene
+
+
+@dataclass
+class Voice:
+    name: str
+    scene: Scene
+
+
+def load_score(path) -> list[Voice]:
+    p = Path(path)
+    if not p.is_file():
+        raise UsageError(f"score file {p} not found")
+    try:
+        with p.open("rb") as fh:
+            data = tomllib.load(fh)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise UsageError(f"score {p} is not valid TOML ({e})") from None
+    defaults = data.get("defaults", {})
+    voices = data.get("voice")
+    if not isinstance(voices, list) or not voices:
+        raise UsageError(f"score {p} has no [[voice]] entries")
+    out = []
+    for i, v in enumerate(voices):
+        if not isinstance(v, dict):
+            raise UsageError(f"score {p}: voice {i + 1} is not a table")
+        fields = {**defaults, **v}
+        name = str(fields.pop("name", f"voice{i + 1}"))
+        preset = fields.pop("preset", None)
+        try:
+            out.append(Voice(name, make_scene(preset, **fields)))
+        except UsageError as e:
+            raise UsageError(f"score {p}, voice {name!r}: {e}") from None
+    return out
+
+
+def voices_from_presets(names: list[str], **overrides) -> list[Voice]:
+    return [Voice(n, make_scene(n, **overrides)) for n in names]
+
+
+def render_voices(voices: list[Voice], method: str = "operator", model=None) -> list[Render]:
+    from .fdm import render_fdm
+    from .rollout import render_operator
+
+    scenes = [v.scene for v in voices]
+    if method == "fdm":
+        return [render_fdm(s) for s in scenes]
+    return render_operator(scenes, model=model)
+
+
+def safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "voice"
+
+
+def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u") -> list[Path]:
+    """One WAV per voice into the directory `out`, or (mix=True) their sum into the file `out`."""
+    from .wav import atomic_write, write_wav
+
+    if not mix:
+        out.mkdir(parents=True, exist_ok=True)
+        paths = []
+        for v, r in zip(voices, renders):
+            path = out / f"{safe_name(v.name)}.wav"
+            write_wav(path, r, signal=signal)
+            paths.append(path)
+        return paths
+    rates = {r.scene.sample_rate for r in renders}
+    if len(rates) != 1:
+        raise UsageError(f"a mix needs one sample rate; the voices use {sorted(rates)}")
+    rate = rates.pop()
+    n = max(len(r.t) for r in renders)
+    x = np.zeros(n)
+    for r in renders:
+        s = r.signal(signal)
+        x[:len(s)] += s / (np.max(np.abs(s)) or 1.0)  # each voice at equal loudness
+    if not np.all(np.isfinite(x)):
+        raise ValueError("refusing to write non-finite samples")
+    gain = 0.891 / (np.max(np.abs(x)) or 1.0)
+    meta = json.dumps({"bowsynth_mix": 1, "voices": {v.name: v.scene.to_dict() for v in voices}, "gain": gain},
+                      separators=(",", ":"))
+
+    import soundfile as sf
+
+    def _write(tmp):
+        with sf.SoundFile(tmp, "w", rate, 1, subtype="FLOAT", format="WAV") as f:
+            f.comment = meta[:2000]
+            f.software = "bowsynth"
+            f.write((x * gain).astype(np.float32))
+
+    atomic_write(out, _write)
+    return [out]

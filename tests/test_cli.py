@@ -1,0 +1,115 @@
+"""The whole CLI path through typer's CliRunner: train, render, compare, and the one-line errors."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from bowsynth.cli import app, main
+from bowsynth.wav import read_wav
+
+runner = CliRunner()
+
+
+def run_main(args, capsys, monkeypatch):
+    """Run the real entry point (which turns errors into one line and an exit code)."""
+    monkeypatch.setattr("sys.argv", ["bowsynth", *args])
+    with pytest.raises(SystemExit) as e:
+        main()
+        raise SystemExit(0)
+    cap = capsys.readouterr()
+    return e.value.code or 0, cap.out, cap.err
+
+
+def test_train_render_compare(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    model = tmp_path / "m.safetensors"
+    code, out, err = run_main(["train", "--fb", "100", "--steps", "60", "--width", "16", "--depth", "2",
+                               "--out", str(model), "--quiet"], capsys, monkeypatch)
+    assert code == 0, err
+    assert "model written to" in out and "NMSE(p)" in out and model.exists()
+    # never overwrite without --force
+    code, _, err = run_main(["train", "--fb", "100", "--steps", "5", "--out", str(model), "--quiet"], capsys, monkeypatch)
+    assert code == 2 and "--force" in err and err.count("\n") == 1
+    wav = tmp_path / "out.wav"
+    code, out, err = run_main(["render", "--fb", "100", "--duration", "0.3", "--model", str(model),
+                               "--fallback", "fdm", str(wav)], capsys, monkeypatch)
+    assert code == 0, err
+    assert "real time" in out
+    info = read_wav(wav)
+    assert info.meta["method"].startswith("operator") and info.meta["model"].startswith("fb100")
+    assert info.scene.fb == 100 and info.sample_rate == 44100 and np.all(np.isfinite(info.samples))
+    code, out, err = run_main(["compare", str(wav), "--json"], capsys, monkeypatch)
+    assert code == 0, err
+    j = json.loads(out)
+    m = j["metrics"]["file vs FDM"]
+    assert {"nmse", "ncc_percent", "cents"} <= set(m) and "render_seconds" in j
+    assert m["nmse"] < 1.0
+
+
+def test_fdm_wav_compares_to_zero(tmp_path, monkeypatch, capsys):
+    wav = tmp_path / "f.wav"
+    code, _, err = run_main(["render", "--method", "fdm", "--fb", "100", "-d", "0.5", "--signal", "p", str(wav)],
+                            capsys, monkeypatch)
+    assert code == 0, err
+    png = tmp_path / "plot.png"
+    code, out, err = run_main(["compare", str(wav), "--json", "--plot", str(png)], capsys, monkeypatch)
+    assert code == 0, err
+    m = json.loads(out)["metrics"]["file vs FDM"]
+    assert m["nmse"] < 1e-12 and abs(m["cents"]) < 1e-6
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # two files directly
+    code, out, err = run_main(["compare", str(wav), str(wav), "--json"], capsys, monkeypatch)
+    assert code == 0 and json.loads(out)["metrics"][f"{wav.name} vs {wav.name}"]["nmse"] == 0
+
+
+def test_metadata_round_trip_after_move(tmp_path):
+    from bowsynth import Scene, render_fdm
+    from bowsynth.wav import write_wav
+
+    sc = Scene(fb=30, vb=0.15, f0=123.5, duration=0.2, sample_rate=48000, q0=0.01)
+    r = render_fdm(sc)
+    write_wav(tmp_path / "a.wav", r)
+    os.rename(tmp_path / "a.wav", tmp_path / "b.wav")
+    info = read_wav(tmp_path / "b.wav")
+    assert info.scene == sc and info.meta["method"] == "fdm" and info.meta["signal"] == "u"
+    np.testing.assert_allclose(info.physical, r.u, rtol=1e-6, atol=1e-7 * np.abs(r.u).max())
+    assert not list(tmp_path.glob(".*tmp"))  # no temp file left behind
+
+
+def test_no_model_covers_scene(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
+    code, _, err = run_main(["render", "--fb", "123", "--vb", "0.3", str(tmp_path / "x.wav")], capsys, monkeypatch)
+    assert code == 1
+    assert "no model covers" in err and "bowsynth train --fb 123 --f0 100 --vb 0.3 --a 100" in err
+    assert err.count("\n") == 1 and not (tmp_path / "x.wav").exists()
+
+
+def test_rollout_forced_out_of_domain_stops_cleanly(tmp_path, tiny_model, monkeypatch, capsys):
+    from bowsynth.model import load_model
+
+    m = load_model(tiny_model)
+    # shrink the domain around the start so the rollout leaves it within the first windows
+    d = m.domain
+    d.mask[:] = False
+    d.mask[d.mask.shape[0] // 2 - 1: d.mask.shape[0] // 2 + 1, :] = True
+    d.q_lo, d.q_hi = -1e-3, 1e-3
+    small = tmp_path / "small.safetensors"
+    m.save(small)
+    wav = tmp_path / "y.wav"
+    code, _, err = run_main(["render", "--fb", "100", "-d", "0.2", "--model", str(small), str(wav)], capsys, monkeypatch)
+    assert code == 1 and "left the model's trained states" in err and "--fallback fdm" in err
+    assert not wav.exists()
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.2", "--model", str(small), "--fallback", "fdm",
+                               str(wav)], capsys, monkeypatch)
+    assert code == 0 and "finished with the FDM" in out and np.all(np.isfinite(read_wav(wav).samples))
+
+
+def test_help_everywhere():
+    for cmd in ("render", "train", "compare", "bench", "models", "presets"):
+        r = runner.invoke(app, [cmd, "--help"])
+        assert r.exit_code == 0 and "Usage" in r.output
+    assert "m/s^2" in runner.invoke(app, ["render", "--help"]).output

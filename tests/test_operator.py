@@ -1,0 +1,147 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bowsynth import DomainError, ModelFileError, Scene, render_fdm
+from bowsynth.model import load_model
+from bowsynth.network import DeepONet, NetConfig
+from bowsynth.rollout import render_operator
+from bowsynth.train import Trainer, default_weights, loss_terms
+from conftest import tiny_config
+
+
+def _net():
+    net = DeepONet(NetConfig(width=16, depth=2, k=8, ff_branch=8, ff_trunk=8), seed=1).double()
+    net.set_scales([0.0, -0.05], [0.3, 0.3], [0.1, 0.2], 2 * math.pi)
+    return net
+
+
+def test_forward_mode_time_derivative_matches_finite_difference():
+    net = _net()
+    x0 = torch.randn(5, 2, dtype=torch.float64) * 0.2
+    tau = torch.linspace(0.1, 6.0, 7, dtype=torch.float64)
+    _, dx = net.forward_with_dt(x0, tau)
+    h = 1e-6
+    fd = (net(x0, tau + h) - net(x0, tau - h)) / (2 * h)
+    assert torch.allclose(dx, fd, atol=1e-7, rtol=1e-6)
+
+
+def test_hard_initial_condition_is_exact():
+    net = _net()
+    x0 = torch.randn(9, 2, dtype=torch.float64)
+    x = net(x0, torch.tensor([0.0, 1.0], dtype=torch.float64))
+    assert torch.equal(x[:, 0], x0)
+
+
+def test_linear_flow_is_exact_without_correction():
+    net = _net()
+    for p in net.parameters():
+        torch.nn.init.zeros_(p)
+    x0 = torch.tensor([[0.1, -0.2]], dtype=torch.float64)
+    tau = torch.tensor([0.0, 0.5, 3.0], dtype=torch.float64)
+    x = net(x0, tau)[0]
+    assert torch.allclose(x[:, 0], 0.1 * torch.cos(tau) - 0.2 * torch.sin(tau))
+
+
+def test_tiny_training_lowers_loss_and_rolls_out_finite():
+    sc = Scene(fb=100)
+    tr = Trainer(sc, tiny_config(steps=120), "t")
+    batch = tr.batch()
+    before = sum(v for v in loss_terms(tr.net, batch, sc, tr.weights).values()).item()
+    tr.run()
+    after = sum(v for v in loss_terms(tr.net, batch, sc, tr.weights).values()).item()
+    assert after < 0.5 * before
+    r = render_operator(sc.replace(duration=0.2), model=tr.model(), fallback="fdm")
+    assert np.all(np.isfinite(r.q)) and np.all(np.isfinite(r.p))
+
+
+def test_same_seed_same_model():
+    sc = Scene(fb=10)
+    a, b = (Trainer(sc, tiny_config(steps=20), "t") for _ in range(2))
+    a.run(), b.run()
+    for (k, va), vb in zip(a.net.state_dict().items(), b.net.state_dict().values()):
+        assert torch.equal(va, vb), k
+
+
+def test_save_load_round_trip(tiny_model):
+    m = load_model(tiny_model)
+    m2 = load_model(tiny_model)
+    x0 = torch.tensor([[0.01, 0.02], [0.1, -0.1]])
+    tau = torch.linspace(0, 6, 5)
+    with torch.no_grad():
+        assert torch.equal(m.net(x0, tau), m2.net(x0, tau))
+    assert m.meta.domain.beta == pytest.approx(Scene(fb=100).beta)
+    assert m.id.startswith("tiny@") and m.meta.format_version == 1
+
+
+def test_domain_check(tiny_model):
+    m = load_model(tiny_model)
+    assert m.covers(Scene(fb=100))
+    assert m.covers(Scene(fb=300, f0=300))  # same F_B / w: one model serves every pitch
+    assert not m.covers(Scene(fb=1000))
+    assert not m.covers(Scene(fb=100, vb=0.3))
+    assert not m.covers(Scene(fb=100, q0=5.0))
+    why = m.domain.mismatch(Scene(fb=100, q0=5.0, a=50))
+    assert any("initial state" in w for w in why) and any(w.startswith("a =") for w in why)
+    with pytest.raises(DomainError, match="does not cover"):
+        render_operator(Scene(fb=1000), model=m)
+
+
+def test_corrupt_and_foreign_model_files(tmp_path, tiny_model):
+    data = tiny_model.read_bytes()
+    cases = {"truncated": data[: len(data) // 2], "random": np.random.default_rng(0).bytes(4096), "empty": b""}
+    for name, blob in cases.items():
+        p = tmp_path / f"{name}.safetensors"
+        p.write_bytes(blob)
+        with pytest.raises(ModelFileError):
+            load_model(p)
+    from safetensors.torch import save_file
+
+    foreign = tmp_path / "foreign.safetensors"
+    save_file({"w": torch.zeros(3)}, str(foreign))
+    with pytest.raises(ModelFileError, match="not a bowsynth model"):
+        load_model(foreign)
+    with pytest.raises(ModelFileError, match="not found"):
+        load_model(tmp_path / "missing.safetensors")
+
+
+def test_wrong_shapes_and_version_rejected(tmp_path, tiny_model):
+    import json
+
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    with safe_open(str(tiny_model), framework="pt") as f:
+        meta = json.loads(f.metadata()["bowsynth"])
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    bad = dict(tensors, **{"bias": torch.zeros(5)})
+    save_file(bad, str(tmp_path / "shape.safetensors"), metadata={"bowsynth": json.dumps(meta)})
+    with pytest.raises(ModelFileError, match="damaged"):
+        load_model(tmp_path / "shape.safetensors")
+    save_file(tensors, str(tmp_path / "v9.safetensors"), metadata={"bowsynth": json.dumps({**meta, "format_version": 9})})
+    with pytest.raises(ModelFileError, match="format version 9"):
+        load_model(tmp_path / "v9.safetensors")
+
+
+def test_default_weights_drop_friction_residual_when_stiff():
+    assert "fric" in default_weights(Scene(fb=100), hybrid=True)
+    assert "fric" not in default_weights(Scene(fb=1000), hybrid=True)
+    assert set(default_weights(Scene(fb=1000), hybrid=False)) == {"kin", "fric"}
+
+
+def test_checkpoint_resume_continues_identically(tmp_path):
+    sc = Scene(fb=100)
+    full = Trainer(sc, tiny_config(steps=40), "t")
+    full.run()
+    first = Trainer(sc, tiny_config(steps=20), "t")
+    first.run()
+    ck = tmp_path / "c.ckpt.safetensors"
+    first.save_checkpoint(ck)
+    second = Trainer(sc, tiny_config(steps=40), "t")
+    second.load_checkpoint(ck)
+    assert second.step == 20
+    second.run()
+    for va, vb in zip(full.net.state_dict().values(), second.net.state_dict().values()):
+        assert torch.allclose(va, vb, atol=1e-6)
