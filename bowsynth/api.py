@@ -29,7 +29,7 @@ def load_model(path):
     return _l(path)
 
 
-def train(scene: Scene, minutes=None, steps=None, seed=0, optimizer="adam", lbfgs=0.0, hybrid=True, window_ms=None,
+def train(scene: Scene, minutes=None, steps=None, seed=0, optimizer="soap", lbfgs=0.0, hybrid=True, window_ms=None,
           width=64, depth=4, n_data=None, checkpoint_seconds=60.0, out=None, force=False, resume=False,
           progress=False, console=None, config=None):
     """Train an operator for `scene`, save it to `out` (default ./models/<name>.safetensors) and validate it.
@@ -101,7 +101,7 @@ def _progress(console, enabled, tr):
 
         def on_step(rec):
             if tr.step % 25 == 0:
-                terms = " ".join(f"{k} {v:.2e}" for k, v in rec.items() if k != "lr")
+                terms = " ".join(f"{k} {v:.1e}" for k, v in rec.items() if k != "lr")
                 prog.update(task, completed=1000 * tr.progress(), terms=f"step {tr.step} {terms}")
 
         yield on_step

@@ -104,7 +104,7 @@ def train(
     minutes: Optional[float] = typer.Option(None, "--minutes", help="Wall-clock budget in minutes (default 5 when --steps is not given)."),
     steps: Optional[int] = typer.Option(None, "--steps", help="Optimiser steps (with --minutes, whichever ends first)."),
     seed: int = typer.Option(0, "--seed", help="Random seed: same seed and machine, same model (with --steps)."),
-    optimizer: str = typer.Option("adam", "--optimizer", help="adam or soap (pytorch-optimizer's SOAP)."),
+    optimizer: str = typer.Option("soap", "--optimizer", help="soap (pytorch-optimizer's SOAP) or adam."),
     lbfgs: float = typer.Option(0.0, "--lbfgs", help="Share of the --minutes budget for an L-BFGS finish (0 to 0.9)."),
     hybrid: bool = typer.Option(True, "--hybrid/--no-hybrid", help="Add the FDM data loss (default) or train purely physics-informed."),
     window_ms: Optional[float] = typer.Option(None, "--window-ms", help="Window length in ms at the scene's f0 (default: one period of the free oscillator)."),
@@ -141,6 +141,10 @@ def train(
                     progress=not quiet, console=err)
     v = res.model.meta.validation
     _say(False, f"model written to {res.path} ({res.model.id})")
+    if v.get("error"):
+        err.print(f"warning: validation rollout failed: {v['error']}; train longer (--minutes) before rendering with it",
+                  soft_wrap=True)
+        return
     _say(False, f"validation (1 s from the scene's initial state vs FDM x{v.get('ref_oversample')}): "
                 f"NMSE(p) {_num(v.get('nmse'), '.3g')}, NCC {_num(v.get('ncc_percent'), '.3f')} %, "
                 f"pitch error {_num(v.get('cents'), '+.3f')} cents")
@@ -285,6 +289,7 @@ def main() -> None:
     """Entry point: run the app, turning known failures into one line on stderr and an exit code."""
     debug = "--debug" in sys.argv[1:]
     warnings.simplefilter("default")
+    warnings.filterwarnings("ignore", message=".*torch.jit.script.*")  # raised inside pytorch-optimizer
     warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"
     try:
         app(standalone_mode=False)

@@ -24,6 +24,7 @@ class NetConfig:
     ff_trunk: int = 32
     sigma_branch: float = 1.0
     sigma_trunk: float = 2.0
+    linear_flow: bool = True  # carry the exact frictionless flow R(tau) x0 in the output (False: x0, for ablation)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -101,12 +102,17 @@ class DeepONet(nn.Module):
         n = torch.einsum("bjk,mjk->bmj", bf, tf) + self.bias  # (B, M, 2)
         q0, p0 = x0[:, 0:1], x0[:, 1:2]
         c, sn = torch.cos(tau)[None, :], torch.sin(tau)[None, :]
-        lq, lp = q0 * c + p0 * sn, p0 * c - q0 * sn
+        if self.cfg.linear_flow:
+            lq, lp = q0 * c + p0 * sn, p0 * c - q0 * sn
+            dlin = torch.stack([lp, -lq], dim=-1)  # R' x0 = (p_lin, -q_lin)
+        else:
+            lq, lp = q0 * torch.ones_like(c), p0 * torch.ones_like(c)
+            dlin = torch.zeros(*lq.shape, 2)
         x = torch.stack([lq, lp], dim=-1) + s * self.corr_scale * n
         if dtf is None:
             return x
         dn = torch.einsum("bjk,mjk->bmj", bf, dtf)  # dN/ds
-        dx = torch.stack([lp, -lq], dim=-1) + self.corr_scale / self.window * (n + s * dn)  # R' x0 = (p_lin, -q_lin)
+        dx = dlin + self.corr_scale / self.window * (n + s * dn)
         return x, dx
 
     def forward(self, x0, tau):

@@ -11,6 +11,7 @@ import math
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from .errors import DomainError, ModelFileError, UsageError
@@ -65,40 +66,29 @@ def find_model(scene: Scene) -> OperatorModel:
 
 
 class NumpyOperator:
-    """The trained network's weights as numpy arrays, for fast inference without autograd."""
+    """The trained network's weights as float64 numpy arrays, for the compiled rollout."""
 
     def __init__(self, model: OperatorModel):
         net = model.net
         self.k = net.cfg.k
         sd = {k: v.detach().double().numpy() for k, v in net.state_dict().items()}
-        self.branch = self._mlp(sd, "branch")
+        g = lambda name: (np.ascontiguousarray(sd[f"branch.{name}.weight"].T), sd[f"branch.{name}.bias"].copy())  # noqa: E731
+        n_hidden = sum(1 for k in sd if k.startswith("branch.hidden.") and k.endswith(".weight"))
+        self.ff = np.ascontiguousarray(2 * np.pi * sd["branch.ff.B"])
+        self.U, self.V = g("U"), g("V")
+        self.H0 = g("hidden.0")
+        rest = [g(f"hidden.{i}") for i in range(1, n_hidden)]
+        width = self.U[0].shape[1]
+        self.Hw = np.ascontiguousarray(np.array([w for w, _ in rest]).reshape(-1, width, width))
+        self.Hb = np.ascontiguousarray(np.array([b for _, b in rest]).reshape(-1, width))
+        self.out = g("out")
         self.center, self.halfrange = sd["center"], sd["halfrange"]
         self.corr_scale, self.window, self.bias = sd["corr_scale"], float(sd["window"]), sd["bias"]
         self.net = net
 
-    @staticmethod
-    def _mlp(sd, pre):
-        n = 0
-        while f"{pre}.hidden.{n}.weight" in sd:
-            n += 1
-        g = lambda name: (sd[f"{pre}.{name}.weight"].T.copy(), sd[f"{pre}.{name}.bias"])  # noqa: E731
-        return {"B": 2 * np.pi * sd[f"{pre}.ff.B"], "U": g("U"), "V": g("V"),
-                "hidden": [g(f"hidden.{i}") for i in range(n)], "out": g("out")}
-
-    def branch_features(self, x0: np.ndarray) -> np.ndarray:
-        m = self.branch
-        z = ((x0 - self.center) / self.halfrange) @ m["B"]
-        h = np.concatenate([np.cos(z), np.sin(z)], axis=-1)
-        u = np.tanh(h @ m["U"][0] + m["U"][1])
-        v = np.tanh(h @ m["V"][0] + m["V"][1])
-        for w, b in m["hidden"]:
-            z = np.tanh(h @ w + b)
-            h = v + z * (u - v)
-        return (h @ m["out"][0] + m["out"][1]).reshape(-1, 2, self.k)
-
     def window_basis(self, dtau: float):
-        """For samples at tau_j = j dtau, j = 0..n (n = samples per window): the trunk part of the output,
-        already multiplied by s c, as (2, k, n+1), with the rotation cos/sin and the s c bias term."""
+        """For samples at tau_j = j dtau, j = 0..n (n = samples per window): cos, sin of the rotation, the trunk
+        features already multiplied by s c as (2, k, n+1), and the bias term s c b as (2, n+1)."""
         import torch
 
         n = int(math.floor(self.window / dtau + 1e-9))
@@ -106,9 +96,63 @@ class NumpyOperator:
         s = tau / self.window
         with torch.inference_mode():
             tf = self.net.trunk_features(torch.tensor(s, dtype=torch.float32)).double().numpy()  # (n+1, 2, k)
-        basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n+1)
-        bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n+1)
+        basis = np.ascontiguousarray(np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :])
+        bias = np.ascontiguousarray(self.bias[:, None] * self.corr_scale[:, None] * s[None, :])
+        if not self.net.cfg.linear_flow:  # ablation models: the output carries x0, not R(tau) x0
+            return n, np.ones_like(tau), np.zeros_like(tau), basis, bias
         return n, np.cos(tau), np.sin(tau), basis, bias
+
+
+@numba.njit(cache=True)
+def _rollout_kernel(x0, n_samples, n, cosv, sinv, bq, bp, biasq, biasp, center, halfrange, ff, Uw, Ub, Vw, Vb,
+                    H0w, H0b, Hw, Hb, Ow, Ob, k, box, mask, check, q_out, p_out):
+    """The whole rollout compiled: per window one branch evaluation and one matmul per state variable.
+    Returns (-1, 0) on success, else (first sample of the failing window, 1 non-finite | 2 left the domain)."""
+    B = x0.shape[0]
+    x = x0.copy()
+    g = mask.shape[0]
+    for start in range(0, n_samples, n):
+        z = ((x - center) / halfrange) @ ff
+        h = np.concatenate((np.cos(z), np.sin(z)), axis=1)
+        u = np.tanh(h @ Uw + Ub)
+        v = np.tanh(h @ Vw + Vb)
+        zz = np.tanh(h @ H0w + H0b)
+        h = v + zz * (u - v)
+        for layer in range(Hw.shape[0]):
+            zz = np.tanh(h @ Hw[layer] + Hb[layer])
+            h = v + zz * (u - v)
+        o = h @ Ow + Ob
+        tq = np.ascontiguousarray(o[:, :k]) @ bq
+        tp = np.ascontiguousarray(o[:, k:]) @ bp
+        m = min(n, n_samples - start)
+        bad = False
+        for b in range(B):
+            q0 = x[b, 0]
+            p0 = x[b, 1]
+            for j in range(n + 1):
+                tq[b, j] += q0 * cosv[j] + p0 * sinv[j] + biasq[j]
+                tp[b, j] += p0 * cosv[j] - q0 * sinv[j] + biasp[j]
+            for j in range(m):
+                q_out[b, start + j] = tq[b, j]
+                p_out[b, start + j] = tp[b, j]
+                if not (np.isfinite(tq[b, j]) and np.isfinite(tp[b, j])):
+                    bad = True
+            x[b, 0] = tq[b, n]
+            x[b, 1] = tp[b, n]
+        if bad:
+            return start, 1
+        if check and start + n < n_samples:
+            for b in range(B):
+                qq, pp = x[b, 0], x[b, 1]
+                if not (np.isfinite(qq) and np.isfinite(pp)):
+                    return start, 1
+                if not (box[0] <= qq <= box[1] and box[2] <= pp <= box[3]):
+                    return start + n, 2
+                i = min(max(int((qq - box[0]) / (box[1] - box[0]) * g), 0), g - 1)
+                jj = min(max(int((pp - box[2]) / (box[3] - box[2]) * g), 0), g - 1)
+                if not mask[i, jj]:
+                    return start + n, 2
+    return -1, 0
 
 
 def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: float, check_domain: bool = True):
@@ -117,28 +161,27 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
     Returns q, p (B, n_samples) and, if the rollout left the domain or went non-finite, the index of the first
     sample of the failing window and a reason; otherwise (q, p, None, None).
     """
-    op = NumpyOperator(model)
-    n, c, s, basis, bias = op.window_basis(dtau)
+    op = model.__dict__.get("_numpy_op")
+    if op is None:  # weights don't change after loading: convert once per model
+        op = model.__dict__["_numpy_op"] = NumpyOperator(model)
+    cache = model.__dict__.setdefault("_basis_cache", {})
+    if dtau not in cache:
+        cache[dtau] = op.window_basis(dtau)
+    n, c, s, basis, bias = cache[dtau]
     if n < 1:
         raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
     x = np.array(x0, dtype=float).reshape(-1, 2)
-    B = len(x)
-    q = np.empty((B, n_samples))
-    p = np.empty((B, n_samples))
-    bq, bp = basis[0], basis[1]
-    for start in range(0, n_samples, n):
-        bf = op.branch_features(x)  # (B, 2, k)
-        traj_q = np.outer(x[:, 0], c) + np.outer(x[:, 1], s) + bf[:, 0] @ bq + bias[0]
-        traj_p = np.outer(x[:, 1], c) - np.outer(x[:, 0], s) + bf[:, 1] @ bp + bias[1]
-        m = min(n, n_samples - start)
-        q[:, start:start + m] = traj_q[:, :m]
-        p[:, start:start + m] = traj_p[:, :m]
-        x = np.stack([traj_q[:, n], traj_p[:, n]], axis=1)
-        if not np.all(np.isfinite(traj_q)) or not np.all(np.isfinite(traj_p)):
-            return q, p, start, "the rollout turned non-finite"
-        if check_domain and start + n < n_samples and not np.all(model.domain.contains(x[:, 0], x[:, 1])):
-            return q, p, start + n, "the rollout left the model's trained states"
-    return q, p, None, None
+    q = np.empty((len(x), n_samples))
+    p = np.empty((len(x), n_samples))
+    d = model.domain
+    fail, code = _rollout_kernel(
+        x, n_samples, n, c, s, np.ascontiguousarray(basis[0]), np.ascontiguousarray(basis[1]), bias[0].copy(),
+        bias[1].copy(), op.center, op.halfrange, op.ff, op.U[0], op.U[1], op.V[0], op.V[1], op.H0[0], op.H0[1],
+        op.Hw, op.Hb, op.out[0], op.out[1], op.k, np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]),
+        np.ascontiguousarray(d.mask), bool(check_domain), q, p)
+    if fail < 0:
+        return q, p, None, None
+    return q, p, fail, ("the rollout turned non-finite" if code == 1 else "the rollout left the model's trained states")
 
 
 def _resolve(scene: Scene, model) -> OperatorModel:

@@ -47,11 +47,14 @@ def test_linear_flow_is_exact_without_correction():
 
 def test_tiny_training_lowers_loss_and_rolls_out_finite():
     sc = Scene(fb=100)
-    tr = Trainer(sc, tiny_config(steps=120), "t")
+    tr = Trainer(sc, tiny_config(steps=400), "t")
     batch = tr.batch()
-    before = sum(v for v in loss_terms(tr.net, batch, sc, tr.weights).values()).item()
+    def loss():
+        return sum(tr.weights[k] * v for k, v in loss_terms(tr.net, batch, sc, tr.weights).items()).item()
+
+    before = loss()
     tr.run()
-    after = sum(v for v in loss_terms(tr.net, batch, sc, tr.weights).values()).item()
+    after = loss()
     assert after < 0.5 * before
     r = render_operator(sc.replace(duration=0.2), model=tr.model(), fallback="fdm")
     assert np.all(np.isfinite(r.q)) and np.all(np.isfinite(r.p))
@@ -135,13 +138,33 @@ def test_checkpoint_resume_continues_identically(tmp_path):
     sc = Scene(fb=100)
     full = Trainer(sc, tiny_config(steps=40), "t")
     full.run()
-    first = Trainer(sc, tiny_config(steps=20), "t")
-    first.run()
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_20(rec):
+        if first.step == 20:
+            raise Stop
+
+    first = Trainer(sc, tiny_config(steps=40), "t")
+    with pytest.raises(Stop):
+        first.run(on_step=stop_at_20)
     ck = tmp_path / "c.ckpt.safetensors"
     first.save_checkpoint(ck)
     second = Trainer(sc, tiny_config(steps=40), "t")
     second.load_checkpoint(ck)
     assert second.step == 20
     second.run()
+    assert second.step == 40
     for va, vb in zip(full.net.state_dict().values(), second.net.state_dict().values()):
         assert torch.allclose(va, vb, atol=1e-6)
+
+
+def test_soap_steps_lower_the_loss():
+    sc = Scene(fb=100)
+    tr = Trainer(sc, tiny_config(steps=60, optimizer="soap", lr=3e-3), "t")
+    batch = tr.batch()
+    loss = lambda: sum(tr.weights[k] * v for k, v in loss_terms(tr.net, batch, sc, tr.weights).items()).item()  # noqa: E731
+    before = loss()
+    tr.run()
+    assert loss() < before

@@ -1,0 +1,182 @@
+"""Bad input, safe files, nothing lost: one clear line, the right exit code, no traceback, files kept."""
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from bowsynth import Scene, SceneError
+from bowsynth.cli import main
+
+BOW = [sys.executable, "-m", "bowsynth"]
+
+
+def run_main(args, capsys, monkeypatch):
+    monkeypatch.setattr("sys.argv", ["bowsynth", *args])
+    with pytest.raises(SystemExit) as e:
+        main()
+        raise SystemExit(0)
+    cap = capsys.readouterr()
+    return e.value.code or 0, cap.out, cap.err
+
+
+BAD = [
+    (["render", "--method", "fdm", "--fb", "nan", "x.wav"], 2, "fb must be finite"),
+    (["render", "--method", "fdm", "--fb", "-5", "x.wav"], 2, "fb must be >= 0"),
+    (["render", "--method", "fdm", "--f0", "30000", "x.wav"], 2, "Nyquist"),
+    (["render", "--method", "fdm", "--sr", "1000", "x.wav"], 2, "sample_rate must be in"),
+    (["render", "--method", "fdm", "--duration", "0", "x.wav"], 2, "duration must be > 0"),
+    (["render", "--method", "fdm", "--preset", "nope", "x.wav"], 2, "unknown preset"),
+    (["render", "--method", "fdm", "--fb", "abc", "x.wav"], 2, "--fb"),
+    (["render", "--method", "banana", "x.wav"], 2, "--method must be"),
+    (["render", "--method", "fdm", "missing_dir/x.wav"], 2, "does not exist"),
+    (["render", "--model", "nomodel.safetensors", "x.wav"], 1, "not found"),
+    (["render", "--model", "garbage.safetensors", "x.wav"], 1, "not a readable model file"),
+    (["compare", "nofile.wav"], 2, "not found"),
+    (["compare", "garbage.wav"], 2, "not a readable audio file"),
+    (["compare", "plain.wav"], 2, "no bowsynth metadata"),
+    (["train", "--fb", "100", "--steps", "0"], 2, "--steps must be >= 1"),
+    (["train", "--fb", "100", "--optimizer", "sgd", "--steps", "1", "--out", "m.safetensors"], 2, "--optimizer"),
+    (["train", "--fb", "100", "--resume", "--out", "m.safetensors"], 2, "no checkpoint"),
+    (["score", "outdir"], 2, "exactly one of"),
+    (["score", "--score", "bad.toml", "outdir"], 2, "not valid TOML"),
+    (["bench", "gpu"], 2, "fdm or all"),
+]
+
+
+@pytest.mark.parametrize("args,code,needle", BAD, ids=[" ".join(b[0][:3]) for b in BAD])
+def test_bad_input_one_line(args, code, needle, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
+    (tmp_path / "garbage.safetensors").write_bytes(b"\x00garbage" * 10)
+    (tmp_path / "garbage.wav").write_bytes(b"RIFF0000WAVEjunk" * 4)
+    (tmp_path / "bad.toml").write_text("[[voice]\nfb = ")
+    import soundfile as sf
+
+    sf.write(tmp_path / "plain.wav", np.zeros(100), 44100)
+    got, out, err = run_main(args, capsys, monkeypatch)
+    assert got == code, err
+    assert needle in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "x.wav").exists()
+
+
+def test_unwritable_output_directory(tmp_path, monkeypatch, capsys):
+    if os.geteuid() == 0:
+        # root ignores permissions: use a path under a regular file instead
+        (tmp_path / "f").write_text("")
+        code, _, err = run_main(["render", "--method", "fdm", str(tmp_path / "f" / "x.wav")], capsys, monkeypatch)
+        assert code == 2 and "does not exist" in err
+        return
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    code, _, err = run_main(["render", "--method", "fdm", str(ro / "x.wav")], capsys, monkeypatch)
+    assert code == 2 and "not writable" in err
+
+
+def test_existing_wav_is_replaced_atomically_and_kept_on_failure(tmp_path, monkeypatch, capsys):
+    wav = tmp_path / "keep.wav"
+    wav.write_bytes(b"precious")
+    # a failing render (bad scene) must leave the existing file untouched
+    code, _, _ = run_main(["render", "--method", "fdm", "--fb", "-1", str(wav)], capsys, monkeypatch)
+    assert code == 2 and wav.read_bytes() == b"precious"
+    code, _, _ = run_main(["render", "--method", "fdm", "-d", "0.05", str(wav)], capsys, monkeypatch)
+    assert code == 0 and wav.read_bytes()[:4] == b"RIFF"
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.wav"]
+
+
+def test_no_nan_reaches_a_wav(tmp_path):
+    from bowsynth.render import Render
+    from bowsynth.wav import write_wav
+
+    sc = Scene(duration=0.01)
+    r = Render(sc, np.zeros(441), np.full(441, np.nan), np.zeros(441), method="x")
+    with pytest.raises(ValueError, match="non-finite"):
+        write_wav(tmp_path / "n.wav", r)
+    assert not list(tmp_path.iterdir())
+
+
+@settings(max_examples=150, deadline=None)
+@given(f0=st.floats(allow_nan=True, allow_infinity=True), fb=st.floats(allow_nan=True, allow_infinity=True),
+       a=st.floats(allow_nan=True, allow_infinity=True), duration=st.floats(allow_nan=True, allow_infinity=True),
+       rate=st.integers(-10, 10**6))
+def test_scene_accepts_exactly_the_valid_values(f0, fb, a, duration, rate):
+    valid = (all(math.isfinite(v) for v in (f0, fb, a, duration)) and f0 > 0 and fb >= 0 and a > 0
+             and 0 < duration <= 3600 and 8000 <= rate <= 384000 and f0 < rate / 2 and duration * rate >= 2)
+    try:
+        s = Scene(f0=f0, fb=fb, a=a, duration=duration, sample_rate=rate)
+    except SceneError as e:
+        assert not valid, f"rejected a valid scene: {e}"
+        assert str(e).split()[0] in {"f0", "fb", "a", "duration", "sample_rate"}
+    else:
+        assert valid and s.sample_rate == rate
+
+
+ARG = st.sampled_from(["--fb", "--f0", "--vb", "--a", "--duration", "--sr", "--q0", "--p0", "--preset", "--method",
+                       "--signal", "--oversample", "--fallback", "--bogus", "-d", "--quiet"])
+VAL = st.one_of(st.sampled_from(["nan", "inf", "-inf", "-1", "0", "1e400", "abc", "", "paper-fb10", "fdm", "u", "p",
+                                 "none", "1e-9", "99999999"]),
+                st.floats(allow_nan=False, width=32).map(str), st.text(max_size=5))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(args=st.lists(st.tuples(ARG, VAL), max_size=4))
+def test_cli_never_tracebacks(args, tmp_path, monkeypatch, capsys):
+    flat = ["render", "--method", "fdm", "-d", "0.01"] + [x for pair in args for x in pair] + [str(tmp_path / "h.wav")]
+    code, out, err = run_main(flat, capsys, monkeypatch)
+    assert "Traceback" not in err and "internal error" not in err, err
+    if code != 0:
+        assert code in (1, 2) and err.strip().count("\n") <= 1 + err.count("warning:")
+
+
+def test_kill_training_then_resume(tmp_path):
+    """SIGKILL a training run after its first checkpoint; --resume continues from it to a finished model."""
+    out = tmp_path / "k.safetensors"
+    ckpt = tmp_path / "k.ckpt.safetensors"
+    common = ["train", "--fb", "100", "--width", "16", "--depth", "2", "--n-data", "64", "--out", str(out), "--quiet",
+              "--checkpoint-every", "0.5"]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(BOW + common + ["--steps", "1000000", "--minutes", "10"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    t0 = time.time()
+    while not ckpt.exists() and time.time() - t0 < 120:
+        time.sleep(0.2)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert ckpt.exists() and not out.exists()
+    from safetensors import safe_open
+    import json
+
+    with safe_open(str(ckpt), framework="pt") as f:
+        step = json.loads(f.metadata()["bowsynth_checkpoint"])["step"]
+    assert step > 0
+    r = subprocess.run(BOW + common + ["--steps", str(step + 20), "--resume"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert out.exists() and not ckpt.exists()
+    from bowsynth.model import load_model
+
+    assert load_model(out).meta.training["steps_done"] == step + 20
+
+
+def test_ctrl_c_keeps_a_checkpoint(tmp_path):
+    out = tmp_path / "c.safetensors"
+    proc = subprocess.Popen(BOW + ["train", "--fb", "100", "--width", "16", "--depth", "2", "--n-data", "64", "--out",
+                                   str(out), "--quiet", "--steps", "1000000", "--minutes", "10"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(12)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert "checkpoint saved" in err and "--resume" in err and err.count("\n") == 1
+    assert (tmp_path / "c.ckpt.safetensors").exists() and not out.exists()
