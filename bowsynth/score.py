@@ -15,7 +15,6 @@
 
 from __future__ import annotations
 
-import json
 import re
 import tomllib
 from dataclasses import dataclass
@@ -81,7 +80,7 @@ def safe_name(name: str) -> str:
 
 def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u") -> list[Path]:
     """One WAV per voice into the directory `out`, or (mix=True) their sum into the file `out`."""
-    from .wav import atomic_write, write_wav
+    from .wav import PEAK, write_float_wav, write_wav
 
     if not mix:
         out.mkdir(parents=True, exist_ok=True)
@@ -100,19 +99,7 @@ def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u") -> li
     for r in renders:
         s = r.signal(signal)
         x[:len(s)] += s / (np.max(np.abs(s)) or 1.0)  # each voice at equal loudness
-    if not np.all(np.isfinite(x)):
-        raise ValueError("refusing to write non-finite samples")
-    gain = 0.891 / (np.max(np.abs(x)) or 1.0)
-    meta = json.dumps({"bowsynth_mix": 1, "voices": {v.name: v.scene.to_dict() for v in voices}, "gain": gain},
-                      separators=(",", ":"))
-
-    import soundfile as sf
-
-    def _write(tmp):
-        with sf.SoundFile(tmp, "w", rate, 1, subtype="FLOAT", format="WAV") as f:
-            f.comment = meta[:2000]
-            f.software = "bowsynth"
-            f.write((x * gain).astype(np.float32))
-
-    atomic_write(out, _write)
+    gain = PEAK / (np.max(np.abs(x)) or 1.0)
+    # no scene of its own: `compare` on a mix asks for the scene flags
+    write_float_wav(out, x * gain, rate, {"bowsynth_mix": 1, "voices": [v.name for v in voices], "gain": gain})
     return [out]

@@ -92,16 +92,25 @@ def write_wav(path, render: Render, signal: str = "u") -> dict:
         "render_seconds": render.seconds,
         "model": render.info.get("model_id"),
     }
+    write_float_wav(path, x * gain, render.scene.sample_rate, meta)
+    return meta
+
+
+def write_float_wav(path, x: np.ndarray, sample_rate: int, meta: dict) -> None:
+    """Atomically write samples (already scaled to +-1) as 32-bit float WAV with `meta` as JSON in the comment."""
+    if not np.all(np.isfinite(x)):
+        raise ValueError("refusing to write non-finite samples")
     text = json.dumps(meta, separators=(",", ":"))
+    if len(text) > 2000:  # libsndfile keeps INFO strings up to about this length
+        raise ValueError("WAV metadata too long")
 
     def _write(tmp):
-        with sf.SoundFile(tmp, "w", render.scene.sample_rate, 1, subtype="FLOAT", format="WAV") as f:
+        with sf.SoundFile(tmp, "w", sample_rate, 1, subtype="FLOAT", format="WAV") as f:
             f.comment = text
             f.software = "bowsynth"
-            f.write((x * gain).astype(np.float32))
+            f.write(np.asarray(x, dtype=np.float32))
 
     atomic_write(Path(path), _write)
-    return meta
 
 
 def read_wav(path) -> WavInfo:

@@ -7,20 +7,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from bowsynth.cli import app, main
+from bowsynth.cli import app
+from conftest import run_main
 from bowsynth.wav import read_wav
 
 runner = CliRunner()
-
-
-def run_main(args, capsys, monkeypatch):
-    """Run the real entry point (which turns errors into one line and an exit code)."""
-    monkeypatch.setattr("sys.argv", ["bowsynth", *args])
-    with pytest.raises(SystemExit) as e:
-        main()
-        raise SystemExit(0)
-    cap = capsys.readouterr()
-    return e.value.code or 0, cap.out, cap.err
 
 
 def test_train_render_compare(tmp_path, monkeypatch, capsys):

@@ -14,18 +14,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, SceneError
-from bowsynth.cli import main
+from conftest import run_main
 
 BOW = [sys.executable, "-m", "bowsynth"]
-
-
-def run_main(args, capsys, monkeypatch):
-    monkeypatch.setattr("sys.argv", ["bowsynth", *args])
-    with pytest.raises(SystemExit) as e:
-        main()
-        raise SystemExit(0)
-    cap = capsys.readouterr()
-    return e.value.code or 0, cap.out, cap.err
 
 
 BAD = [
