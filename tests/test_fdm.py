@@ -79,3 +79,15 @@ def test_energy_balance():
     pw = physics.friction_power(r.p, s.fb, s.vb, s.a)
     work = np.concatenate([[0], np.cumsum(0.5 * (pw[1:] + pw[:-1]) / s.sample_rate)])
     assert np.abs(e - e[0] - work).max() < 1e-3 * e.max()
+
+
+def test_paper_operator_scores_reproduced(anchors):
+    """Our FDM x100 and NMSE score the paper's own rollouts as the anchors README says they score."""
+    from bowsynth.bench import bench_paper_anchors
+
+    rows = {r["case"]: r for r in bench_paper_anchors(anchors)}
+    expect = {"paper_deeponet_fb10": (1.4e-4, 2.5e-4), "paper_deeponet_fb100": (8.1e-7, 9.5e-7),
+              "paper_deeponet_hybrid_fb1000": (6.9e-3, 1.72)}
+    for case, (e01, e05) in expect.items():
+        assert rows[case]["nmse_p_0.1s"] == pytest.approx(e01, rel=0.15), case
+        assert rows[case]["nmse_p_0.5s"] == pytest.approx(e05, rel=0.15), case

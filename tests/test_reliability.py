@@ -171,3 +171,12 @@ def test_ctrl_c_keeps_a_checkpoint(tmp_path):
     assert proc.returncode == 130
     assert "checkpoint saved" in err and "--resume" in err and err.count("\n") == 1
     assert (tmp_path / "c.ckpt.safetensors").exists() and not out.exists()
+
+
+def test_written_files_get_normal_permissions(tmp_path, monkeypatch, capsys):
+    wav = tmp_path / "perm.wav"
+    code, _, _ = run_main(["render", "--method", "fdm", "-d", "0.02", str(wav)], capsys, monkeypatch)
+    assert code == 0
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert wav.stat().st_mode & 0o777 == 0o666 & ~mask
