@@ -23,6 +23,7 @@ ABLATIONS = {
         ("pure physics-informed (--no-hybrid)", {"hybrid": False}),
         ("no exact linear flow in the output", {"net.linear_flow": False}),
         ("window pi (5 ms at 100 Hz)", {"window": 3.141592653589793}),
+        ("no data windows at the render's own window starts", {"start_share": 0.0}),
         ("friction residual weight 0.3", {"weights": {"data": 1, "end": 1, "kin": 1, "fric": 0.3}}),
         ("L-BFGS finish on the last 30 %", {"lbfgs_fraction": 0.3}),
     ],

@@ -47,6 +47,7 @@ class TrainConfig:
     band_seconds: float = 1.0
     margin: float = 0.05  # of the band's range, around the band
     n_data: int = 4096
+    start_share: float = 0.125  # share of the data windows that start where a render's windows start (see below)
     data_times: int = 64
     data_oversample: int = 40  # FDM data rate, as a multiple of the scene's audio rate
     batch_states: int = 1024
@@ -241,6 +242,17 @@ class Trainer:
         self.sampler = StateSampler(band, self.domain, cfg.margin, box, self.rng)
         # FDM trajectories from band states: the data loss, and the correction scale c even without it
         x0 = self.sampler(cfg.n_data if cfg.hybrid else min(cfg.n_data, 512))
+        if cfg.hybrid and cfg.start_share > 0:
+            # A render from the scene's initial state starts its windows at exactly these band states; its onset
+            # windows are visited once and were its largest error. Train on them, with a little noise so that
+            # other sample rates and pitches (other window alignments) stay covered.
+            n_win = max(1, int(self.window / (scene.omega / scene.sample_rate) + 1e-9))
+            starts = band[::n_win]
+            m = min(len(x0), int(cfg.start_share * len(x0)))
+            pick = starts[np.arange(m) % len(starts)]
+            jitter = self.rng.normal(0, 1, pick.shape) * self.sampler.sd * 0.2
+            jitter[: len(starts)] = 0.0
+            x0[:m] = pick + jitter
         tau, x = fdm_windows(scene, x0, self.window, cfg.data_times, cfg.data_oversample)
         if cfg.net.linear_flow:
             lq, lp = physics.linear_flow(x0[:, 0:1], x0[:, 1:2], tau[None, :])
