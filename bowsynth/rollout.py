@@ -121,25 +121,21 @@ def _rollout_kernel(x0, n_samples, n, cosv, sinv, bq, bp, biasq, biasp, center, 
         for layer in range(Hw.shape[0]):
             zz = np.tanh(h @ Hw[layer] + Hb[layer])
             h = v + zz * (u - v)
-        o = h @ Ow + Ob
+        o = (h @ Ow + Ob).astype(np.float32)
+        # the correction term in float32 (its relative error 1e-7 is far below any model's), the rest in float64
         tq = np.ascontiguousarray(o[:, :k]) @ bq
         tp = np.ascontiguousarray(o[:, k:]) @ bp
         m = min(n, n_samples - start)
-        bad = False
         for b in range(B):
             q0 = x[b, 0]
             p0 = x[b, 1]
-            for j in range(n + 1):
-                tq[b, j] += q0 * cosv[j] + p0 * sinv[j] + biasq[j]
-                tp[b, j] += p0 * cosv[j] - q0 * sinv[j] + biasp[j]
             for j in range(m):
-                q_out[b, start + j] = tq[b, j]
-                p_out[b, start + j] = tp[b, j]
-                if not (np.isfinite(tq[b, j]) and np.isfinite(tp[b, j])):
-                    bad = True
-            x[b, 0] = tq[b, n]
-            x[b, 1] = tp[b, n]
-        if bad:
+                q_out[b, start + j] = tq[b, j] + (q0 * cosv[j] + p0 * sinv[j] + biasq[j])
+                p_out[b, start + j] = tp[b, j] + (p0 * cosv[j] - q0 * sinv[j] + biasp[j])
+            x[b, 0] = tq[b, n] + (q0 * cosv[n] + p0 * sinv[n] + biasq[n])
+            x[b, 1] = tp[b, n] + (p0 * cosv[n] - q0 * sinv[n] + biasp[n])
+        # NaN and inf propagate into sums: one check per window instead of one per sample
+        if not (np.isfinite(tq.sum()) and np.isfinite(tp.sum()) and np.isfinite(x.sum())):
             return start, 1
         if check and start + n < n_samples:
             for b in range(B):
@@ -152,6 +148,35 @@ def _rollout_kernel(x0, n_samples, n, cosv, sinv, bq, bp, biasq, biasp, center, 
                 jj = min(max(int((pp - box[2]) / (box[3] - box[2]) * g), 0), g - 1)
                 if not mask[i, jj]:
                     return start + n, 2
+    return -1, 0
+
+
+NUMPY_BATCH = 8  # from this many voices on, numpy's vectorised tanh and BLAS beat the compiled loop (measured)
+
+
+def _rollout_numpy(op, x, n_samples, n, c, s, basis, bias, d, check, q_out, p_out):
+    """The same rollout as `_rollout_kernel`, one numpy call per layer: faster for many voices at once."""
+    bq, bp = basis[0].astype(np.float32), basis[1].astype(np.float32)
+    k = op.k
+    for start in range(0, n_samples, n):
+        z = ((x - op.center) / op.halfrange) @ op.ff
+        h = np.concatenate((np.cos(z), np.sin(z)), axis=1)
+        u = np.tanh(h @ op.U[0] + op.U[1])
+        v = np.tanh(h @ op.V[0] + op.V[1])
+        h = v + np.tanh(h @ op.H0[0] + op.H0[1]) * (u - v)
+        for w, b in zip(op.Hw, op.Hb):
+            h = v + np.tanh(h @ w + b) * (u - v)
+        o = (h @ op.out[0] + op.out[1]).astype(np.float32)
+        tq = (o[:, :k] @ bq) + (np.outer(x[:, 0], c) + np.outer(x[:, 1], s) + bias[0])
+        tp = (o[:, k:] @ bp) + (np.outer(x[:, 1], c) - np.outer(x[:, 0], s) + bias[1])
+        m = min(n, n_samples - start)
+        q_out[:, start:start + m] = tq[:, :m]
+        p_out[:, start:start + m] = tp[:, :m]
+        x = np.stack([tq[:, n], tp[:, n]], axis=1)
+        if not (np.isfinite(tq.sum()) and np.isfinite(tp.sum())):
+            return start, 1
+        if check and start + n < n_samples and not np.all(d.contains(x[:, 0], x[:, 1])):
+            return start + n, 2
     return -1, 0
 
 
@@ -174,11 +199,14 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
     q = np.empty((len(x), n_samples))
     p = np.empty((len(x), n_samples))
     d = model.domain
-    fail, code = _rollout_kernel(
-        x, n_samples, n, c, s, np.ascontiguousarray(basis[0]), np.ascontiguousarray(basis[1]), bias[0].copy(),
-        bias[1].copy(), op.center, op.halfrange, op.ff, op.U[0], op.U[1], op.V[0], op.V[1], op.H0[0], op.H0[1],
-        op.Hw, op.Hb, op.out[0], op.out[1], op.k, np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]),
-        np.ascontiguousarray(d.mask), bool(check_domain), q, p)
+    if len(x) >= NUMPY_BATCH:
+        fail, code = _rollout_numpy(op, x, n_samples, n, c, s, basis, bias, d, check_domain, q, p)
+    else:
+        fail, code = _rollout_kernel(
+            x, n_samples, n, c, s, basis[0].astype(np.float32), basis[1].astype(np.float32), bias[0].copy(),
+            bias[1].copy(), op.center, op.halfrange, op.ff, op.U[0], op.U[1], op.V[0], op.V[1], op.H0[0], op.H0[1],
+            op.Hw, op.Hb, op.out[0], op.out[1], op.k, np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]),
+            np.ascontiguousarray(d.mask), bool(check_domain), q, p)
     if fail < 0:
         return q, p, None, None
     return q, p, fail, ("the rollout turned non-finite" if code == 1 else "the rollout left the model's trained states")
@@ -246,9 +274,12 @@ def render_operator_batch(scenes: list[Scene], model=None) -> list[Render]:
         if fail is not None:
             raise DomainError(f"{why} at t = {fail / scenes[idx[0]].sample_rate:.4f} s in a batched rollout")
         secs = (time.perf_counter() - t0) / len(idx)
+        t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
         for row, i in enumerate(idx):
             sc = scenes[i]
             ns = sc.n_samples
-            out[i] = Render(sc, np.arange(ns) / sc.sample_rate, q[row, :ns].copy(), p[row, :ns].copy(),
-                            method="operator", seconds=secs, info={"model_id": m.id, "batched": len(idx)})
+            if sc.sample_rate not in t_all:
+                t_all[sc.sample_rate] = np.arange(n) / sc.sample_rate
+            out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns], method="operator",
+                            seconds=secs, info={"model_id": m.id, "batched": len(idx)})
     return out
