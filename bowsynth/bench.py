@@ -154,8 +154,12 @@ def plot_pareto(rows, path) -> None:
     for r in rows:
         if r["scene"] not in scenes:
             scenes.append(r["scene"])
-    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4.5), squeeze=False)
-    for ax, sc in zip(axes[0], scenes):
+    ncol = min(3, len(scenes))
+    nrow = math.ceil(len(scenes) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(5 * ncol, 4.2 * nrow), squeeze=False)
+    for ax in axes.flat[len(scenes):]:
+        ax.set_visible(False)
+    for ax, sc in zip(axes.flat, scenes):
         rs = [r for r in rows if r["scene"] == sc]
         for r in rs:
             op = r["method"].startswith("operator")

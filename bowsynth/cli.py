@@ -90,8 +90,10 @@ def render(
         r = api.render_operator(scene, model=model, fallback=fallback)
     write_wav(output, r, signal=signal)
     model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""
+    setup = r.info.get("setup_seconds")
+    setup_note = f" after {setup * 1e3:.0f} ms of start-up" if setup else ""
     _say(quiet, f"wrote {output}: {scene.duration:g} s at {scene.sample_rate} Hz, method {r.method}{model_note}; "
-                f"rendered in {r.seconds * 1e3:.1f} ms ({r.realtime_factor:.0f}x real time)")
+                f"rendered in {r.seconds * 1e3:.1f} ms ({r.realtime_factor:.0f}x real time){setup_note}")
     for note in r.info.get("notes", []):
         _say(quiet, note)
 
