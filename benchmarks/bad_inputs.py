@@ -35,6 +35,7 @@ CASES = [
     ("unknown optimiser", "train --fb 100 --optimizer sgd --steps 1 --out n.safetensors"),
     ("score file that is not TOML", "score --score bad.toml outdir"),
     ("FDM past its uniqueness bound", "render --method fdm --fb 10000 -d 0.05 ok2.wav"),
+    ("a scene that would need absurd oversampling", "render --method fdm --fb 1e6 --a 1e6 x.wav"),
 ]
 
 

@@ -26,10 +26,12 @@ from numba.extending import overload
 
 from . import physics
 from .render import Render
+from .errors import SceneError
 from .scene import Scene
 
 NEWTON_TOL = 1e-14  # absolute, m/s: eta is O(0.1-1)
 NEWTON_MAXIT = 60
+MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: refuse instead
 
 
 @overload(physics._exp)
@@ -104,6 +106,10 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
     if oversample < 1 or int(oversample) != oversample:
         raise ValueError(f"oversample must be a whole number >= 1, got {oversample}")
     need = physics.min_oversample(scene.fb, scene.a, scene.sample_rate)
+    if need > MAX_OVERSAMPLE:
+        raise SceneError(f"fb={scene.fb:g} with a={scene.a:g} needs the FDM oversampled x{need} at "
+                         f"{scene.sample_rate} Hz (uniqueness bound k < e/(fb sqrt(2a))); the limit is "
+                         f"x{MAX_OVERSAMPLE}: lower fb or a")
     if need > oversample:
         if warn:
             warnings.warn(

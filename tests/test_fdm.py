@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
-from bowsynth import Scene, physics, render_fdm
+from bowsynth import Scene, SceneError, physics, render_fdm
 from bowsynth.fdm import OversampleWarning, fdm_batch, run_fdm_raw
 
 
@@ -67,6 +67,8 @@ def test_uniqueness_bound_raises_oversampling():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert render_fdm(s, oversample=4).info["oversample"] == 4
+    with pytest.raises(SceneError, match="limit is x1024"):
+        render_fdm(Scene(fb=1e6, a=1e6, duration=0.01))
     with pytest.raises(ValueError, match="uniqueness"):
         fdm_batch([0.0], [0.0], 3, 1, 1 / 44100, s.omega, 10_000, 0.2, 100)
 
