@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -12,7 +12,7 @@ from .errors import UsageError
 from .fdm import render_fdm
 from .metrics import compare_signals
 from .scene import Scene
-from .wav import WavInfo, read_wav
+from .wav import read_wav
 
 HIGH_OVERSAMPLE = 100
 
@@ -162,5 +162,5 @@ def plot_comparison(c: Comparison, path, sample_rate: int) -> None:
         axis.set_xlabel("t (s)")
         axis.set_ylabel("Hz")
     fig.tight_layout()
-    atomic_write(__import__("pathlib").Path(path), lambda tmp: fig.savefig(tmp, dpi=80, format="png"))
+    atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=80, format="png"))
     plt.close(fig)

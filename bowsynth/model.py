@@ -130,10 +130,9 @@ class OperatorModel:
         path = Path(path)
         if path.exists() and not force:
             raise ModelFileError(f"{path} exists; pass --force to overwrite it")
-        tensors = {k: v.detach().contiguous() for k, v in self.net.state_dict().items()}
-        tensors = {k: v for k, v in tensors.items()}
         import torch
 
+        tensors = {k: v.detach().contiguous() for k, v in self.net.state_dict().items()}
         tensors["domain.mask"] = torch.from_numpy(self.domain.mask.astype(np.uint8))
         self.meta.id = model_id(self.meta.name, tensors)
         atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: self.meta.to_json()}))

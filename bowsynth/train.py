@@ -57,8 +57,7 @@ class TrainConfig:
     net: NetConfig = field(default_factory=NetConfig)
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        return d
+        return asdict(self)
 
 
 def stiffness(scene: Scene) -> float:
