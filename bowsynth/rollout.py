@@ -1,8 +1,9 @@
 """Rolling render: the operator applied window to window, each window seeded by the previous window's end state.
 
 The audio samples sit at fixed offsets tau_j = j w / sr inside every window, so the trunk features there are
-computed once per render; a window then costs one branch evaluation and a small matmul. The evaluation runs in
-numpy (measured faster than torch for these small matrices; see docs/BENCHMARKS.md).
+computed once per render; a window then costs one branch evaluation and a small matmul. The loop is compiled with
+numba for a few voices and runs as numpy calls for many (vectorised tanh and BLAS win there; see
+docs/BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -49,10 +50,11 @@ def train_hint(scene: Scene) -> str:
             + (f" --q0 {scene.q0:g} --p0 {scene.p0:g}" if scene.q0 or scene.p0 else ""))
 
 
-def find_model(scene: Scene) -> OperatorModel:
-    """The first model (./models, then the shipped ones) that covers the scene, else a DomainError that says
-    which models come nearest and how to train one that covers it."""
-    models = available_models()
+def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
+    """The first model (./models, then the shipped ones, or the given list) that covers the scene, else a
+    DomainError that says which models come nearest and how to train one that covers it."""
+    if models is None:
+        models = available_models()
     for m in models:
         if m.covers(scene):
             return m
@@ -96,7 +98,9 @@ class NumpyOperator:
         s = tau / self.window
         with torch.inference_mode():
             tf = self.net.trunk_features(torch.tensor(s, dtype=torch.float32)).double().numpy()  # (n+1, 2, k)
-        basis = np.ascontiguousarray(np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :])
+        # float32: the rollout multiplies the correction term in float32 (see _rollout_kernel)
+        basis = np.ascontiguousarray(np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :],
+                                     dtype=np.float32)
         bias = np.ascontiguousarray(self.bias[:, None] * self.corr_scale[:, None] * s[None, :])
         if not self.net.cfg.linear_flow:  # ablation models: the output carries x0, not R(tau) x0
             return n, np.ones_like(tau), np.zeros_like(tau), basis, bias
@@ -140,8 +144,6 @@ def _rollout_kernel(x0, n_samples, n, cosv, sinv, bq, bp, biasq, biasp, center, 
         if check and start + n < n_samples:
             for b in range(B):
                 qq, pp = x[b, 0], x[b, 1]
-                if not (np.isfinite(qq) and np.isfinite(pp)):
-                    return start, 1
                 if not (box[0] <= qq <= box[1] and box[2] <= pp <= box[3]):
                     return start + n, 2
                 i = min(max(int((qq - box[0]) / (box[1] - box[0]) * g), 0), g - 1)
@@ -156,7 +158,7 @@ NUMPY_BATCH = 8  # from this many voices on, numpy's vectorised tanh and BLAS be
 
 def _rollout_numpy(op, x, n_samples, n, c, s, basis, bias, d, check, q_out, p_out):
     """The same rollout as `_rollout_kernel`, one numpy call per layer: faster for many voices at once."""
-    bq, bp = basis[0].astype(np.float32), basis[1].astype(np.float32)
+    bq, bp = basis[0], basis[1]
     k = op.k
     for start in range(0, n_samples, n):
         z = ((x - op.center) / op.halfrange) @ op.ff
@@ -203,7 +205,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
         fail, code = _rollout_numpy(op, x, n_samples, n, c, s, basis, bias, d, check_domain, q, p)
     else:
         fail, code = _rollout_kernel(
-            x, n_samples, n, c, s, basis[0].astype(np.float32), basis[1].astype(np.float32), bias[0].copy(),
+            x, n_samples, n, c, s, basis[0], basis[1], bias[0].copy(),
             bias[1].copy(), op.center, op.halfrange, op.ff, op.U[0], op.U[1], op.V[0], op.V[1], op.H0[0], op.H0[1],
             op.Hw, op.Hb, op.out[0], op.out[1], op.k, np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]),
             np.ascontiguousarray(d.mask), bool(check_domain), q, p)
@@ -212,9 +214,9 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
     return q, p, fail, ("the rollout turned non-finite" if code == 1 else "the rollout left the model's trained states")
 
 
-def _resolve(scene: Scene, model) -> OperatorModel:
+def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None) -> OperatorModel:
     if model is None:
-        return find_model(scene)
+        return find_model(scene, models)
     if not isinstance(model, OperatorModel):
         model = load_model(model)
     why = model.domain.mismatch(scene)
@@ -266,9 +268,13 @@ def render_operator(scene, model=None, fallback: str = "none"):
 
 def render_operator_batch(scenes: list[Scene], model=None) -> list[Render]:
     """Many voices in one batched rollout. Voices sharing a model and a sample spacing in tau roll together."""
+    # load each model file once: the voices must share model objects to be grouped into one rollout
+    if model is not None and not isinstance(model, OperatorModel):
+        model = load_model(model)
+    models = available_models() if model is None else None
     groups: dict = {}
     for i, sc in enumerate(scenes):
-        m = _resolve(sc, model)
+        m = _resolve(sc, model, models)
         key = (id(m), sc.omega / sc.sample_rate)
         groups.setdefault(key, (m, []))[1].append(i)
     out: list = [None] * len(scenes)

@@ -58,3 +58,15 @@ def test_score_file_and_mix(tmp_path, tiny_model, monkeypatch, capsys):
     code, out, err = run_main(["score", "--presets", "paper-fb10,paper-fb100", "--method", "fdm", "-d", "0.05",
                                str(tmp_path / "p")], capsys, monkeypatch)
     assert code == 0 and sorted(p.name for p in (tmp_path / "p").iterdir()) == ["paper-fb10.wav", "paper-fb100.wav"]
+
+
+def test_voices_without_a_named_model_share_one_rollout(tiny_model, tmp_path, monkeypatch):
+    import shutil
+
+    models = tmp_path / "models"
+    models.mkdir()
+    shutil.copy(tiny_model, models / "tiny.safetensors")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
+    renders = render_operator([Scene(fb=100, duration=0.02), Scene(fb=100, duration=0.02, q0=0.001)])
+    assert [r.info["batched"] for r in renders] == [2, 2]
