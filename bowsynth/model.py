@@ -44,11 +44,15 @@ class Domain:
         inside = (q >= self.q_lo) & (q <= self.q_hi) & (p >= self.p_lo) & (p <= self.p_hi)
         if self.mask is None:
             return inside
-        g = self.mask.shape[0]
-        with np.errstate(invalid="ignore"):
-            i = np.clip(((q - self.q_lo) / (self.q_hi - self.q_lo) * g).astype(int, casting="unsafe"), 0, g - 1)
-            j = np.clip(((p - self.p_lo) / (self.p_hi - self.p_lo) * g).astype(int, casting="unsafe"), 0, g - 1)
+        i, j = self.cell(q, p, self.mask.shape[0])
         return inside & self.mask[i, j]
+
+    def cell(self, q, p, grid: int):
+        """Indices (i, j) of the cells of a grid x grid partition of the box holding the states (clipped to it)."""
+        with np.errstate(invalid="ignore"):
+            i = ((np.asarray(q, float) - self.q_lo) / (self.q_hi - self.q_lo) * grid).astype(int, casting="unsafe")
+            j = ((np.asarray(p, float) - self.p_lo) / (self.p_hi - self.p_lo) * grid).astype(int, casting="unsafe")
+        return np.clip(i, 0, grid - 1), np.clip(j, 0, grid - 1)
 
     def physics_mismatch(self, scene: Scene) -> list[str]:
         """Reasons the scene's dimensionless physics differs from the model's (empty when it matches)."""

@@ -86,15 +86,14 @@ def make_domain(scene: Scene, band: np.ndarray, window: float, margin: float, bo
     lo, hi = band.min(0), band.max(0)
     rng_ = np.maximum(hi - lo, 1e-3)
     lo, hi = lo - margin * rng_, hi + margin * rng_
-    if box_only:
-        mask = np.ones((GRID, GRID), bool)
-    else:
-        ij = np.clip(((band - lo) / (hi - lo) * GRID).astype(int), 0, GRID - 1)
+    dom = Domain(beta=scene.beta, vb=scene.vb, a=scene.a, window=window,
+                 q_lo=float(lo[0]), q_hi=float(hi[0]), p_lo=float(lo[1]), p_hi=float(hi[1]),
+                 mask=np.ones((GRID, GRID), bool))
+    if not box_only:
         mask = np.zeros((GRID, GRID), bool)
-        mask[ij[:, 0], ij[:, 1]] = True
-        mask = ndimage.binary_dilation(mask, iterations=max(1, math.ceil(margin * GRID)))
-    return Domain(beta=scene.beta, vb=scene.vb, a=scene.a, window=window,
-                  q_lo=float(lo[0]), q_hi=float(hi[0]), p_lo=float(lo[1]), p_hi=float(hi[1]), mask=mask)
+        mask[dom.cell(band[:, 0], band[:, 1], GRID)] = True
+        dom.mask = ndimage.binary_dilation(mask, iterations=max(1, math.ceil(margin * GRID)))
+    return dom
 
 
 class StateSampler:
@@ -105,10 +104,8 @@ class StateSampler:
         self.sd = margin * (band.max(0) - band.min(0)).clip(1e-3) / 2
         # A render passes through its onset once and then circles its limit cycle: uniform sampling in time
         # would leave the onset almost untrained. Weight each band point by 1 / (points in its grid cell).
-        lo = np.array([domain.q_lo, domain.p_lo])
-        hi = np.array([domain.q_hi, domain.p_hi])
-        ij = np.clip(((band - lo) / (hi - lo) * GRID).astype(int), 0, GRID - 1)
-        cell = ij[:, 0] * GRID + ij[:, 1]
+        i, j = domain.cell(band[:, 0], band[:, 1], GRID)
+        cell = i * GRID + j
         counts = np.bincount(cell, minlength=GRID * GRID)
         w = 1.0 / counts[cell]
         self.cdf = np.cumsum(w) / w.sum()
