@@ -11,7 +11,8 @@ from .scene import Scene
 
 @dataclass
 class Render:
-    """A rendered scene: float64 arrays, one value per output sample at the scene's sample rate.
+    """A rendered scene: one value per output sample at the scene's sample rate (float64 from the FDM, float32 from
+    the operator, the network's precision).
 
     q = w u and p = u_t (m/s); u the mass displacement (m); t in s. `seconds` is the wall time the engine took.
     """

@@ -1,9 +1,8 @@
 """Rolling render: the operator applied window to window, each window seeded by the previous window's end state.
 
 The audio samples sit at fixed offsets tau_j = j w / sr inside every window, so the trunk features there are
-computed once per render; a window then costs one branch evaluation and a small matmul. The loop is compiled with
-numba for a few voices and runs as numpy calls for many (vectorised tanh and BLAS win there; see
-docs/BENCHMARKS.md).
+computed once per render; a window then costs one branch evaluation and a small matmul (the compiled loops are in
+`kernels`).
 """
 
 from __future__ import annotations
@@ -12,9 +11,9 @@ import math
 import time
 from pathlib import Path
 
-import numba
 import numpy as np
 
+from . import kernels
 from .errors import DomainError, ModelFileError, UsageError
 from .model import OperatorModel, load_model
 from .render import Render
@@ -68,29 +67,32 @@ def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> Opera
 
 
 class NumpyOperator:
-    """The trained network's weights as float64 numpy arrays, for the compiled rollout."""
+    """The trained network's weights as float32 numpy arrays (the precision it was trained in), for the compiled
+    rollout in `kernels`."""
 
     def __init__(self, model: OperatorModel):
         net = model.net
         self.k = net.cfg.k
         sd = {k: v.detach().double().numpy() for k, v in net.state_dict().items()}
-        g = lambda name: (np.ascontiguousarray(sd[f"branch.{name}.weight"].T), sd[f"branch.{name}.bias"].copy())  # noqa: E731
+        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+        g = lambda name: (f32(sd[f"branch.{name}.weight"].T), f32(sd[f"branch.{name}.bias"]))  # noqa: E731
         n_hidden = sum(1 for k in sd if k.startswith("branch.hidden.") and k.endswith(".weight"))
-        self.ff = np.ascontiguousarray(2 * np.pi * sd["branch.ff.B"])
-        self.U, self.V = g("U"), g("V")
-        self.H0 = g("hidden.0")
         rest = [g(f"hidden.{i}") for i in range(1, n_hidden)]
-        width = self.U[0].shape[1]
-        self.Hw = np.ascontiguousarray(np.array([w for w, _ in rest]).reshape(-1, width, width))
-        self.Hb = np.ascontiguousarray(np.array([b for _, b in rest]).reshape(-1, width))
-        self.out = g("out")
+        width = net.cfg.width
+        self.ff = np.ascontiguousarray(2 * np.pi * sd["branch.ff.B"])
+        gates = [g(name) for name in ("U", "V", "hidden.0")]  # one product for the three (kernels.roll_voices)
+        self.weights = (f32(np.hstack([w for w, _ in gates])), f32(np.concatenate([b for _, b in gates])),
+                        f32(np.array([w for w, _ in rest]).reshape(-1, width, width)),
+                        f32(np.array([b for _, b in rest]).reshape(-1, width)), *g("out"))
         self.center, self.halfrange = sd["center"], sd["halfrange"]
         self.corr_scale, self.window, self.bias = sd["corr_scale"], float(sd["window"]), sd["bias"]
         self.net = net
 
     def window_basis(self, dtau: float):
-        """For samples at tau_j = j dtau, j = 0..n (n = samples per window): cos, sin of the rotation, the trunk
-        features already multiplied by s c as (2, k, n+1), and the bias term s c b as (2, n+1)."""
+        """The output side of a window whose samples sit at tau_j = j dtau, j = 0..n-1 (n samples per window):
+        Bq, Bp (k + 3, n) float32, the trunk features times s c, then cos, sin and the bias term (see
+        kernels.roll_voices); and for the end state at tau_n in float64, the features endb (2, k) and
+        endlin = (cos, sin, bias_q, bias_p)."""
         import torch
 
         n = int(math.floor(self.window / dtau + 1e-9))
@@ -98,95 +100,29 @@ class NumpyOperator:
         s = tau / self.window
         with torch.inference_mode():
             tf = self.net.trunk_features(torch.tensor(s, dtype=torch.float32)).double().numpy()  # (n+1, 2, k)
-        # float32: the rollout multiplies the correction term in float32 (see _rollout_kernel)
-        basis = np.ascontiguousarray(np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :],
-                                     dtype=np.float32)
-        bias = np.ascontiguousarray(self.bias[:, None] * self.corr_scale[:, None] * s[None, :])
-        if not self.net.cfg.linear_flow:  # ablation models: the output carries x0, not R(tau) x0
-            return n, np.ones_like(tau), np.zeros_like(tau), basis, bias
-        return n, np.cos(tau), np.sin(tau), basis, bias
+        basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n+1)
+        bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n+1)
+        if self.net.cfg.linear_flow:
+            c, sn = np.cos(tau), np.sin(tau)
+        else:  # ablation models: the output carries x0, not R(tau) x0
+            c, sn = np.ones_like(tau), np.zeros_like(tau)
+        rows = lambda i: np.ascontiguousarray(np.vstack([basis[i, :, :n], c[:n], sn[:n], bias[i, :n]]),  # noqa: E731
+                                              dtype=np.float32)
+        endlin = np.array([c[n], sn[n], bias[0, n], bias[1, n]])
+        return n, rows(0), rows(1), np.ascontiguousarray(basis[:, :, n]), endlin
 
 
-@numba.njit(cache=True)
-def _rollout_kernel(x0, n_samples, n, cosv, sinv, bq, bp, biasq, biasp, center, halfrange, ff, Uw, Ub, Vw, Vb,
-                    H0w, H0b, Hw, Hb, Ow, Ob, k, box, mask, check, q_out, p_out):
-    """The whole rollout compiled: per window one branch evaluation and one matmul per state variable.
-    Returns (-1, 0) on success, else (first sample of the failing window, 1 non-finite | 2 left the domain)."""
-    B = x0.shape[0]
-    x = x0.copy()
-    g = mask.shape[0]
-    for start in range(0, n_samples, n):
-        z = ((x - center) / halfrange) @ ff
-        h = np.concatenate((np.cos(z), np.sin(z)), axis=1)
-        u = np.tanh(h @ Uw + Ub)
-        v = np.tanh(h @ Vw + Vb)
-        zz = np.tanh(h @ H0w + H0b)
-        h = v + zz * (u - v)
-        for layer in range(Hw.shape[0]):
-            zz = np.tanh(h @ Hw[layer] + Hb[layer])
-            h = v + zz * (u - v)
-        o = (h @ Ow + Ob).astype(np.float32)
-        # the correction term in float32 (its relative error 1e-7 is far below any model's), the rest in float64
-        tq = np.ascontiguousarray(o[:, :k]) @ bq
-        tp = np.ascontiguousarray(o[:, k:]) @ bp
-        m = min(n, n_samples - start)
-        for b in range(B):
-            q0 = x[b, 0]
-            p0 = x[b, 1]
-            for j in range(m):
-                q_out[b, start + j] = tq[b, j] + (q0 * cosv[j] + p0 * sinv[j] + biasq[j])
-                p_out[b, start + j] = tp[b, j] + (p0 * cosv[j] - q0 * sinv[j] + biasp[j])
-            x[b, 0] = tq[b, n] + (q0 * cosv[n] + p0 * sinv[n] + biasq[n])
-            x[b, 1] = tp[b, n] + (p0 * cosv[n] - q0 * sinv[n] + biasp[n])
-        # NaN and inf propagate into sums: one check per window instead of one per sample
-        if not (np.isfinite(tq.sum()) and np.isfinite(tp.sum()) and np.isfinite(x.sum())):
-            return start, 1
-        if check and start + n < n_samples:
-            for b in range(B):
-                qq, pp = x[b, 0], x[b, 1]
-                if not (box[0] <= qq <= box[1] and box[2] <= pp <= box[3]):
-                    return start + n, 2
-                i = min(max(int((qq - box[0]) / (box[1] - box[0]) * g), 0), g - 1)
-                jj = min(max(int((pp - box[2]) / (box[3] - box[2]) * g), 0), g - 1)
-                if not mask[i, jj]:
-                    return start + n, 2
-    return -1, 0
-
-
-NUMPY_BATCH = 8  # from this many voices on, numpy's vectorised tanh and BLAS beat the compiled loop (measured)
-
-
-def _rollout_numpy(op, x, n_samples, n, c, s, basis, bias, d, check, q_out, p_out):
-    """The same rollout as `_rollout_kernel`, one numpy call per layer: faster for many voices at once."""
-    bq, bp = basis[0], basis[1]
-    k = op.k
-    for start in range(0, n_samples, n):
-        z = ((x - op.center) / op.halfrange) @ op.ff
-        h = np.concatenate((np.cos(z), np.sin(z)), axis=1)
-        u = np.tanh(h @ op.U[0] + op.U[1])
-        v = np.tanh(h @ op.V[0] + op.V[1])
-        h = v + np.tanh(h @ op.H0[0] + op.H0[1]) * (u - v)
-        for w, b in zip(op.Hw, op.Hb):
-            h = v + np.tanh(h @ w + b) * (u - v)
-        o = (h @ op.out[0] + op.out[1]).astype(np.float32)
-        tq = (o[:, :k] @ bq) + (np.outer(x[:, 0], c) + np.outer(x[:, 1], s) + bias[0])
-        tp = (o[:, k:] @ bp) + (np.outer(x[:, 1], c) - np.outer(x[:, 0], s) + bias[1])
-        m = min(n, n_samples - start)
-        q_out[:, start:start + m] = tq[:, :m]
-        p_out[:, start:start + m] = tp[:, :m]
-        x = np.stack([tq[:, n], tp[:, n]], axis=1)
-        if not (np.isfinite(tq.sum()) and np.isfinite(tp.sum())):
-            return start, 1
-        if check and start + n < n_samples and not np.all(d.contains(x[:, 0], x[:, 1])):
-            return start + n, 2
-    return -1, 0
+BATCH_FROM = 8  # from this many voices on, the window-at-a-time loop with BLAS products is the faster (measured)
+FAILURES = {kernels.FAIL_NONFINITE: "the rollout turned non-finite",
+            kernels.FAIL_DOMAIN: "the rollout left the model's trained states"}
 
 
 def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: float, check_domain: bool = True):
     """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau.
 
-    Returns q, p (B, n_samples) and, if the rollout left the domain or went non-finite, the index of the first
-    sample of the failing window and a reason; otherwise (q, p, None, None).
+    Returns q, p (B, n_samples) float32 and fail (B, 2) int: per voice the first sample of the window where the
+    rollout left the model's domain or went non-finite, and the reason (a key of FAILURES), or (-1, 0). A failed
+    voice stops there (its later samples are NaN); the other voices go on.
     """
     op = model.__dict__.get("_numpy_op")
     if op is None:  # weights don't change after loading: convert once per model
@@ -194,24 +130,21 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
     cache = model.__dict__.setdefault("_basis_cache", {})
     if dtau not in cache:
         cache[dtau] = op.window_basis(dtau)
-    n, c, s, basis, bias = cache[dtau]
+    n, Bq, Bp, endb, endlin = cache[dtau]
     if n < 1:
         raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
     x = np.array(x0, dtype=float).reshape(-1, 2)
-    q = np.empty((len(x), n_samples))
-    p = np.empty((len(x), n_samples))
+    q = np.empty((len(x), n_samples), np.float32)
+    p = np.empty((len(x), n_samples), np.float32)
+    fail = np.empty((len(x), 2), np.int64)
     d = model.domain
-    if len(x) >= NUMPY_BATCH:
-        fail, code = _rollout_numpy(op, x, n_samples, n, c, s, basis, bias, d, check_domain, q, p)
-    else:
-        fail, code = _rollout_kernel(
-            x, n_samples, n, c, s, basis[0], basis[1], bias[0].copy(),
-            bias[1].copy(), op.center, op.halfrange, op.ff, op.U[0], op.U[1], op.V[0], op.V[1], op.H0[0], op.H0[1],
-            op.Hw, op.Hb, op.out[0], op.out[1], op.k, np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]),
-            np.ascontiguousarray(d.mask), bool(check_domain), q, p)
-    if fail < 0:
-        return q, p, None, None
-    return q, p, fail, ("the rollout turned non-finite" if code == 1 else "the rollout left the model's trained states")
+    loop = kernels.roll_batch if len(x) >= BATCH_FROM else kernels.roll_voices
+    loop(x, n_samples, n, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, *op.weights,
+         np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
+    for b in np.flatnonzero(fail[:, 0] >= 0):
+        q[b, fail[b, 0]:] = np.nan
+        p[b, fail[b, 0]:] = np.nan
+    return q, p, fail
 
 
 def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None) -> OperatorModel:
@@ -226,16 +159,36 @@ def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None) -> 
     return model
 
 
+def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[str]:
+    """A voice whose rollout stopped: finish it with the FDM from its last good sample (fallback 'fdm', in place;
+    returns the note to show) or raise DomainError."""
+    at, code = int(fail[0]), int(fail[1])
+    if at < 0 or at >= scene.n_samples:  # a shorter voice of a batch may fail after its own end
+        return []
+    why = FAILURES[code]
+    if fallback != "fdm":
+        raise DomainError(f"{voice}{why} at t = {at / scene.sample_rate:.4f} s; the render was stopped (use --fallback "
+                          f"fdm to finish with the FDM, or --method fdm)")
+    from .fdm import render_fdm
+
+    start = max(at - 1, 0)
+    q0, p0 = (float(q[start]), float(p[start])) if at else (scene.q0, scene.p0)
+    rest = render_fdm(scene.replace(duration=(scene.n_samples - start) / scene.sample_rate, q0=q0, p0=p0))
+    q[start:], p[start:] = rest.q[:scene.n_samples - start], rest.p[:scene.n_samples - start]
+    return [f"note: {voice}{why} at t = {at / scene.sample_rate:.4f} s; finished with the FDM from there"]
+
+
 def render_operator(scene, model=None, fallback: str = "none"):
     """Render one scene (or a list of scenes, batched in one rollout) with a trained operator.
 
     model: an OperatorModel, a path, or None to pick the model that covers the scene. fallback='fdm' finishes a
     rollout that leaves the model's domain with the FDM (and says so in info['notes']); 'none' raises DomainError.
+    The arrays of an operator render are float32, the network's precision.
     """
     if fallback not in ("none", "fdm"):
         raise UsageError(f"fallback must be none or fdm, got {fallback!r}")
     if isinstance(scene, (list, tuple)):
-        return render_operator_batch(list(scene), model=model)
+        return render_operator_batch(list(scene), model=model, fallback=fallback)
     m = _resolve(scene, model)
     dtau = scene.omega / scene.sample_rate
     x0 = np.array([[scene.q0, scene.p0]])
@@ -244,21 +197,9 @@ def render_operator(scene, model=None, fallback: str = "none"):
     t_setup = time.perf_counter()
     rollout_states(m, x0, 1, dtau)
     t0 = time.perf_counter()
-    q, p, fail, why = rollout_states(m, x0, scene.n_samples, dtau)
+    q, p, fail = rollout_states(m, x0, scene.n_samples, dtau)
     q, p = q[0], p[0]
-    notes = []
-    if fail is not None:
-        t_fail = fail / scene.sample_rate
-        if fallback != "fdm" or not np.isfinite(q[fail - 1] if fail else scene.q0):
-            raise DomainError(f"{why} at t = {t_fail:.4f} s; the render was stopped (use --fallback fdm to finish "
-                              f"with the FDM, or --method fdm)")
-        from .fdm import render_fdm
-
-        start = max(fail - 1, 0)
-        rest = render_fdm(scene.replace(duration=(scene.n_samples - start) / scene.sample_rate,
-                                        q0=float(q[start]), p0=float(p[start])))
-        q[start:], p[start:] = rest.q[:scene.n_samples - start], rest.p[:scene.n_samples - start]
-        notes.append(f"note: {why} at t = {t_fail:.4f} s; finished with the FDM from there")
+    notes = _finish(scene, q, p, fail[0], fallback)
     secs = time.perf_counter() - t0
     t = np.arange(scene.n_samples) / scene.sample_rate
     return Render(scene, t, q, p, method="operator" + ("+fdm" if notes else ""), seconds=secs,
@@ -266,8 +207,9 @@ def render_operator(scene, model=None, fallback: str = "none"):
                         "setup_seconds": t0 - t_setup})
 
 
-def render_operator_batch(scenes: list[Scene], model=None) -> list[Render]:
-    """Many voices in one batched rollout. Voices sharing a model and a sample spacing in tau roll together."""
+def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none") -> list[Render]:
+    """Many voices in one batched rollout. Voices sharing a model and a sample spacing in tau roll together; a voice
+    that leaves its model's domain is finished with the FDM (fallback 'fdm') or stops the render (DomainError)."""
     # load each model file once: the voices must share model objects to be grouped into one rollout
     if model is not None and not isinstance(model, OperatorModel):
         model = load_model(model)
@@ -283,9 +225,9 @@ def render_operator_batch(scenes: list[Scene], model=None) -> list[Render]:
         x0 = np.array([[scenes[i].q0, scenes[i].p0] for i in idx])
         rollout_states(m, x0, 1, dtau)  # warm-up, as in render_operator
         t0 = time.perf_counter()
-        q, p, fail, why = rollout_states(m, x0, n, dtau)
-        if fail is not None:
-            raise DomainError(f"{why} at t = {fail / scenes[idx[0]].sample_rate:.4f} s in a batched rollout")
+        q, p, fail = rollout_states(m, x0, n, dtau)
+        notes = {i: _finish(scenes[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], fail[row],
+                            fallback, voice=f"voice {i + 1}: ") for row, i in enumerate(idx)}
         secs = (time.perf_counter() - t0) / len(idx)
         t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
         for row, i in enumerate(idx):
@@ -293,6 +235,7 @@ def render_operator_batch(scenes: list[Scene], model=None) -> list[Render]:
             ns = sc.n_samples
             if sc.sample_rate not in t_all:
                 t_all[sc.sample_rate] = np.arange(n) / sc.sample_rate
-            out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns], method="operator",
-                            seconds=secs, info={"model_id": m.id, "batched": len(idx)})
+            out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns],
+                            method="operator" + ("+fdm" if notes[i] else ""), seconds=secs,
+                            info={"model_id": m.id, "batched": len(idx), "notes": notes[i]})
     return out

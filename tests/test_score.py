@@ -24,17 +24,17 @@ def test_batched_rollout_equals_single_voices(tiny_model):
         np.testing.assert_allclose(r.p, one.p, rtol=0, atol=tol)
 
 
-def test_numpy_batch_path_equals_compiled_loop(tiny_model):
-    from bowsynth.rollout import NUMPY_BATCH, rollout_states
+def test_batch_loop_equals_voice_loop(tiny_model):
+    from bowsynth.rollout import BATCH_FROM, rollout_states
 
     m = load_model(tiny_model)
     sc = Scene(fb=100)
-    x0 = np.array([[0.001 * i, -0.002 * i] for i in range(NUMPY_BATCH)])
+    x0 = np.array([[0.001 * i, -0.002 * i] for i in range(BATCH_FROM)])
     dt = sc.omega / sc.sample_rate
-    q, p, fail, _ = rollout_states(m, x0, 2000, dt, check_domain=False)
-    assert fail is None
-    for i in (0, NUMPY_BATCH - 1):
-        q1, p1, _, _ = rollout_states(m, x0[i:i + 1], 2000, dt, check_domain=False)
+    q, p, fail = rollout_states(m, x0, 2000, dt, check_domain=False)
+    assert np.all(fail[:, 0] == -1)
+    for i in (0, BATCH_FROM - 1):
+        q1, p1, _ = rollout_states(m, x0[i:i + 1], 2000, dt, check_domain=False)
         tol = 1e-5 * np.abs(q1).max()
         np.testing.assert_allclose(q[i], q1[0], rtol=0, atol=tol)
         np.testing.assert_allclose(p[i], p1[0], rtol=0, atol=tol)

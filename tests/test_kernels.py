@@ -1,0 +1,92 @@
+"""The compiled rollout: its own tanh, cos and sin, both loops against the torch network, per-voice failure."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bowsynth import Scene, kernels
+from bowsynth.model import load_model
+from bowsynth.rollout import BATCH_FROM, FAILURES, render_operator, rollout_states
+
+
+def test_tanh32_matches_tanh_and_keeps_nan():
+    x = np.concatenate([np.linspace(-30, 30, 200_001), [1e30, -1e30, np.inf, -np.inf]]).astype(np.float32)
+    y = np.array([kernels.tanh32(v) for v in x])
+    assert np.abs(y - np.tanh(x.astype(float))).max() < 5e-7
+    assert np.all(np.abs(y) <= 1)
+    assert math.isnan(kernels.tanh32(np.float32("nan")))
+
+
+def test_cos_sin_match_libm():
+    z = np.linspace(-80, 80, 100_003)
+    cs = np.array([kernels.cos_sin(v) for v in z])
+    assert np.abs(cs[:, 0] - np.cos(z)).max() < 1e-10
+    assert np.abs(cs[:, 1] - np.sin(z)).max() < 1e-10
+
+
+def torch_rollout(model, x0, n_windows, dtau):
+    """The reference: the float64 torch network applied window by window, its end state seeding the next."""
+    net = model.net.double()
+    try:
+        n = int(math.floor(float(net.window) / dtau + 1e-9))
+        tau = torch.arange(n + 1, dtype=torch.float64) * dtau
+        x = torch.tensor(x0, dtype=torch.float64)
+        out = []
+        with torch.no_grad():
+            for _ in range(n_windows):
+                traj = net(x, tau)  # (B, n + 1, 2)
+                out.append(traj[:, :n])
+                x = traj[:, n]
+        return torch.cat(out, dim=1).numpy()
+    finally:
+        model.net.float()
+
+
+@pytest.mark.parametrize("voices", [1, BATCH_FROM + 1], ids=["voice-loop", "batch-loop"])
+def test_rollout_follows_the_torch_network(tiny_model, voices):
+    m = load_model(tiny_model)
+    sc = Scene(fb=100)
+    dtau = sc.omega / sc.sample_rate
+    d = m.domain
+    x0 = np.stack([np.linspace(0.4 * d.q_lo, 0.4 * d.q_hi, voices), np.linspace(0.3 * d.p_hi, 0.3 * d.p_lo, voices)], 1)
+    n = int(math.floor(float(m.net.window) / dtau + 1e-9))
+    ref = torch_rollout(m, x0, 5, dtau)
+    q, p, fail = rollout_states(m, x0, 5 * n, dtau, check_domain=False)
+    assert np.all(fail[:, 0] == -1)
+    scale = np.abs(ref).max()
+    # float32 network against float64 torch, over five windows
+    assert np.abs(q - ref[..., 0]).max() < 2e-5 * scale
+    assert np.abs(p - ref[..., 1]).max() < 2e-5 * scale
+
+
+@pytest.mark.parametrize("voices", [3, BATCH_FROM + 2], ids=["voice-loop", "batch-loop"])
+def test_one_voice_failing_stops_only_that_voice(tiny_model, voices):
+    m = load_model(tiny_model)
+    sc = Scene(fb=100)
+    x0 = np.zeros((voices, 2))
+    x0[1] = [np.nan, 0.0]  # non-finite from the first window on
+    q, p, fail = rollout_states(m, x0, 3000, sc.omega / sc.sample_rate, check_domain=False)
+    assert tuple(fail[1]) == (0, kernels.FAIL_NONFINITE) and np.all(np.isnan(q[1]))
+    others = np.delete(np.arange(voices), 1)
+    assert np.all(fail[others, 0] == -1) and np.all(np.isfinite(q[others])) and np.all(np.isfinite(p[others]))
+    assert kernels.FAIL_NONFINITE in FAILURES and kernels.FAIL_DOMAIN in FAILURES
+
+
+def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path):
+    m = load_model(tiny_model)
+    d = m.domain
+    # a thin domain: voices starting on it leave it within a few windows
+    d.mask[:] = False
+    d.mask[d.mask.shape[0] // 2 - 1: d.mask.shape[0] // 2 + 1, :] = True
+    d.q_lo, d.q_hi = -1e-3, 1e-3
+    scenes = [Scene(fb=100, duration=0.1), Scene(fb=100, duration=0.1, q0=-2e-5)]
+    from bowsynth.errors import DomainError
+
+    with pytest.raises(DomainError, match="voice 1: the rollout left"):
+        render_operator(scenes, model=m)
+    renders = render_operator(scenes, model=m, fallback="fdm")
+    for r in renders:
+        assert r.method == "operator+fdm" and "finished with the FDM" in r.info["notes"][0]
+        assert len(r.q) == r.scene.n_samples and np.all(np.isfinite(r.q)) and np.all(np.isfinite(r.p))
