@@ -254,6 +254,8 @@ def score(
     method: str = typer.Option("operator", "--method", "-m", help="operator (one batched rollout) or fdm (one by one)."),
     model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the one covering each voice)."),
     mix: bool = typer.Option(False, "--mix", help="Write one mixed WAV instead of one file per voice."),
+    fallback: str = typer.Option("none", "--fallback", help="A voice that leaves its model's domain: none (stop) or "
+                                                            "fdm (finish that voice with the FDM)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
     """Render many voices at once (a chord, a sweep) from a TOML score or a list of presets."""
@@ -266,6 +268,8 @@ def score(
         raise UsageError("give exactly one of --score FILE.toml or --presets a,b,c")
     if method not in ("operator", "fdm"):
         raise UsageError(f"--method must be operator or fdm, got {method!r}")
+    if fallback not in ("none", "fdm"):
+        raise UsageError(f"--fallback must be none or fdm, got {fallback!r}")
     if score_file is not None:
         voices = load_score(score_file)
         if duration is not None:
@@ -279,8 +283,11 @@ def score(
     elif not output.exists() and not output.parent.is_dir():
         raise UsageError(f"output directory {output.parent} does not exist")
     t0 = time.perf_counter()
-    renders = render_voices(voices, method=method, model=model)
+    renders = render_voices(voices, method=method, model=model, fallback=fallback)
     secs = time.perf_counter() - t0
+    for v, r in zip(voices, renders):
+        for note in r.info.get("notes", []):
+            _say(quiet, f"{v.name}: {note}")
     paths = write_voices(voices, renders, output, mix=mix)
     audio = sum(v.scene.duration for v in voices)
     _say(quiet, f"rendered {len(voices)} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "

@@ -64,14 +64,14 @@ def voices_from_presets(names: list[str], **overrides) -> list[Voice]:
     return [Voice(n, make_scene(n, **overrides)) for n in names]
 
 
-def render_voices(voices: list[Voice], method: str = "operator", model=None) -> list[Render]:
+def render_voices(voices: list[Voice], method: str = "operator", model=None, fallback: str = "none") -> list[Render]:
     from .fdm import render_fdm
     from .rollout import render_operator
 
     scenes = [v.scene for v in voices]
     if method == "fdm":
         return [render_fdm(s) for s in scenes]
-    return render_operator(scenes, model=model)
+    return render_operator(scenes, model=model, fallback=fallback)
 
 
 def safe_name(name: str) -> str:
@@ -85,8 +85,12 @@ def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u") -> li
     if not mix:
         out.mkdir(parents=True, exist_ok=True)
         paths = []
+        seen: dict[str, int] = {}
         for v, r in zip(voices, renders):
-            path = out / f"{safe_name(v.name)}.wav"
+            stem = safe_name(v.name)
+            seen[stem] = seen.get(stem, 0) + 1
+            # voices of the same name (a preset listed twice) each get a file: name, name-2, ...
+            path = out / (f"{stem}.wav" if seen[stem] == 1 else f"{stem}-{seen[stem]}.wav")
             write_wav(path, r, signal=signal)
             paths.append(path)
         return paths

@@ -70,3 +70,21 @@ def test_voices_without_a_named_model_share_one_rollout(tiny_model, tmp_path, mo
     monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
     renders = render_operator([Scene(fb=100, duration=0.02), Scene(fb=100, duration=0.02, q0=0.001)])
     assert [r.info["batched"] for r in renders] == [2, 2]
+
+
+def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch, capsys):
+    m = load_model(tiny_model)
+    d = m.domain  # a thin domain, so the voices leave it within a few windows
+    d.mask[:] = False
+    d.mask[d.mask.shape[0] // 2 - 1: d.mask.shape[0] // 2 + 1, :] = True
+    d.q_lo, d.q_hi = -1e-3, 1e-3
+    small = tmp_path / "small.safetensors"
+    m.save(small)
+    args = ["score", "--presets", "paper-fb100,paper-fb100", "-d", "0.1", "--model", str(small)]
+    code, out, err = run_main([*args, str(tmp_path / "v")], capsys, monkeypatch)
+    assert code == 1 and "voice 1: the rollout left" in err and not (tmp_path / "v").exists()
+    code, out, err = run_main([*args, "--fallback", "fdm", str(tmp_path / "v")], capsys, monkeypatch)
+    assert code == 0, err
+    assert out.count("finished with the FDM") == 2
+    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["paper-fb100-2.wav", "paper-fb100.wav"]
+    assert np.all(np.isfinite(read_wav(tmp_path / "v" / "paper-fb100-2.wav").samples))
