@@ -28,9 +28,9 @@ test: $(STAMP)
 
 # The shipped operators: one command each, at most 15 minutes each on a 2-core CPU.
 models: $(STAMP)
-	$(BOW) train --preset paper-fb10 --minutes 8 --out models/paper-fb10.safetensors --force
-	$(BOW) train --preset paper-fb100 --minutes 10 --out models/paper-fb100.safetensors --force
-	$(BOW) train --preset paper-fb1000 --minutes 12 --out models/paper-fb1000.safetensors --force
+	$(BOW) train --preset paper-fb10 --minutes 8 --out bowsynth/models/paper-fb10.safetensors --force
+	$(BOW) train --preset paper-fb100 --minutes 10 --out bowsynth/models/paper-fb100.safetensors --force
+	$(BOW) train --preset paper-fb1000 --minutes 12 --out bowsynth/models/paper-fb1000.safetensors --force
 
 bench: $(STAMP)
 	$(BOW) bench --out docs/bench

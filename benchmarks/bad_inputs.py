@@ -34,6 +34,8 @@ CASES = [
     ("zero training budget", "train --fb 100 --minutes 0"),
     ("unknown optimiser", "train --fb 100 --optimizer sgd --steps 1 --out n.safetensors"),
     ("score file that is not TOML", "score --score bad.toml outdir"),
+    ("unknown fallback for a score", "score --presets paper-fb100 --fallback maybe outdir"),
+    ("anchors directory missing", "bench --anchors no_such_dir"),
     ("FDM past its uniqueness bound", "render --method fdm --fb 10000 -d 0.05 ok2.wav"),
     ("a scene that would need absurd oversampling", "render --method fdm --fb 1e6 --a 1e6 x.wav"),
 ]

@@ -54,6 +54,8 @@ def fdm_table(rows: list[dict]) -> str:
 # --- speed against error -----------------------------------------------------------------------------------------
 
 REF_OVERSAMPLE = 100
+# the paper's rollouts, where this project's checkout keeps them (../shared/anchors beside the repository)
+DEFAULT_ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors"
 PAPER = {  # the paper's operators over 0.5 s (shared/anchors/README.md): NMSE(p), training
     10: ("2.5e-4", "36.6 h GPU"), 100: ("9.5e-7", "21.4 h GPU"), 1000: ("2.81 (hybrid 1.72)", "14.2 h GPU"),
 }

@@ -217,12 +217,13 @@ def bench(
     quick: bool = typer.Option(False, "--quick", help="A small, fast run."),
     json_out: bool = typer.Option(False, "--json", help="Print JSON instead of Markdown."),
     out_prefix: Optional[Path] = typer.Option(None, "--out", help="Also write PREFIX.md, PREFIX.json and PREFIX.png."),
+    anchors: Optional[Path] = typer.Option(None, "--anchors", help="Directory of the paper's rollouts (.npz) to "
+                                                                   "score too (default ../shared/anchors if present)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
 
     from . import bench as B
-    from .scene import PRESET_DIR
 
     if what not in ("fdm", "all"):
         raise UsageError(f"bench target must be fdm or all, got {what!r}")
@@ -234,8 +235,9 @@ def bench(
         rows = B.bench_fdm(quick=quick)
         out.print(json.dumps(rows, indent=2) if json_out else B.fdm_table(rows), soft_wrap=True)
         return
-    anchors = PRESET_DIR.parent.parent / "shared" / "anchors"
-    res = B.run_all(quick=quick, out_prefix=out_prefix, anchor_dir=anchors)
+    if anchors is not None and not anchors.is_dir():
+        raise UsageError(f"--anchors {anchors} is not a directory")
+    res = B.run_all(quick=quick, out_prefix=out_prefix, anchor_dir=anchors or B.DEFAULT_ANCHORS)
     md, js = B.to_markdown(res), json.dumps(B.to_json(res), indent=2)
     if out_prefix is not None:
         from .wav import atomic_write

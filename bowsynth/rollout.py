@@ -19,7 +19,7 @@ from .model import OperatorModel, load_model
 from .render import Render
 from .scene import Scene
 
-SHIPPED_DIR = Path(__file__).resolve().parent.parent / "models"
+SHIPPED_DIR = Path(__file__).resolve().parent / "models"  # inside the package: a wheel carries them
 
 
 def model_dirs() -> list[Path]:

@@ -11,7 +11,7 @@ from pathlib import Path
 from . import physics
 from .errors import SceneError, UsageError
 
-PRESET_DIR = Path(__file__).resolve().parent.parent / "presets"
+PRESET_DIR = Path(__file__).resolve().parent / "presets"
 
 MIN_RATE, MAX_RATE = 8_000, 384_000
 
