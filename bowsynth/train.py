@@ -48,7 +48,6 @@ class TrainConfig:
     margin: float = 0.05  # of the band's range, around the band
     n_data: int = 4096
     start_share: float = 0.125  # share of the data windows that start where a render's windows start (see below)
-    start_drifts: int = 8  # window alignments of other pitches / rates whose onset windows are trained on too
     data_times: int = 64
     data_oversample: int = 40  # FDM data rate, as a multiple of the scene's audio rate
     batch_states: int = 1024
@@ -81,21 +80,6 @@ def scene_band(scene: Scene, seconds: float) -> np.ndarray:
     """States (N, 2) an audio-rate FDM visits from the scene's initial state: where a render will go."""
     r = render_fdm(scene.replace(duration=max(seconds, 2.0 / scene.sample_rate)), oversample=1)
     return np.stack([r.q, r.p], axis=1)
-
-
-def window_starts(band: np.ndarray, dtau: float, window: float, drifts: int, onset_windows: int = 30) -> np.ndarray:
-    """The band states where a render's windows start: every window of this scene's render, and the first
-    `onset_windows` windows at `drifts` - 1 other alignments. At another pitch (or rate) with the same F_B / w a window
-    holds floor(T / dtau') samples, so it is shorter than T by less than a sample spacing dtau' and the window starts
-    drift through the onset: drifts up to 4 dtau cover pitches up to two octaves above the scene's."""
-    n_win = max(1, int(window / dtau + 1e-9))
-    idx = [np.arange(0, len(band), n_win)]
-    for j in range(1, max(drifts, 1)):
-        step = n_win * dtau - 4 * dtau * j / drifts  # window length in tau at this alignment
-        k = np.arange(onset_windows)
-        idx.append(np.rint(k * step / dtau).astype(int))
-    idx = np.unique(np.concatenate(idx))
-    return band[idx[idx < len(band)]]
 
 
 def make_domain(scene: Scene, band: np.ndarray, window: float, margin: float, box_only: bool) -> Domain:
@@ -256,9 +240,10 @@ class Trainer:
         x0 = self.sampler(cfg.n_data if cfg.hybrid else min(cfg.n_data, 512))
         if cfg.hybrid and cfg.start_share > 0:
             # A render from the scene's initial state starts its windows at exactly these band states; its onset
-            # windows are visited once and were its largest error. Train on them (and on the onset windows of other
-            # pitches' alignments), with a little noise so that other alignments stay covered.
-            starts = window_starts(band, scene.omega / scene.sample_rate, self.window, cfg.start_drifts)
+            # windows are visited once and were its largest error. Train on them, with a little noise so that
+            # other sample rates and pitches (other window alignments) stay covered.
+            n_win = max(1, int(self.window / (scene.omega / scene.sample_rate) + 1e-9))
+            starts = band[::n_win]
             m = min(len(x0), int(cfg.start_share * len(x0)))
             pick = starts[np.arange(m) % len(starts)]
             jitter = self.rng.normal(0, 1, pick.shape) * self.sampler.sd * 0.2

@@ -168,16 +168,3 @@ def test_soap_steps_lower_the_loss():
     before = loss()
     tr.run()
     assert loss() < before
-
-
-def test_window_starts_cover_other_pitches_alignments():
-    from bowsynth.train import window_starts
-
-    sc = Scene(fb=100)  # 441 samples per window of 2 pi at 100 Hz
-    dtau = sc.omega / sc.sample_rate
-    band = np.stack([np.arange(44100.0), np.zeros(44100)], 1)  # state i = sample i, to read indices back
-    got = set(window_starts(band, dtau, 2 * math.pi, drifts=8)[:, 0].astype(int))
-    assert set(range(0, 44100, 441)) <= got  # this scene's own windows, all of them
-    # f0 200 with the same F_B / w: 220 samples of twice the spacing per window, i.e. windows of 440 band samples
-    assert {440 * k for k in range(30)} <= got
-    assert window_starts(band, dtau, 2 * math.pi, drifts=1).shape[0] == 100
