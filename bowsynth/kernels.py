@@ -93,6 +93,13 @@ def _in_domain(q, p, box, mask):
 
 
 @numba.njit(**_JIT)
+def window_end(w, spw):
+    """First sample after window w: window w starts at the sample nearest w T (spw = T / sample spacing), so a window
+    holds floor(spw) or ceil(spw) samples and the starts never drift from the multiples of T the model trained on."""
+    return int(math.floor((w + 1) * spw + 0.5))
+
+
+@numba.njit(**_JIT)
 def _end_state(q0, p0, oq, op, endb, endlin):
     """The window's end state in float64: the linear flow plus the correction at the last offset."""
     nq = q0 * endlin[0] + p0 * endlin[1] + endlin[2]
@@ -117,16 +124,18 @@ def _check(b, start, n, n_samples, nq, np_, check, box, mask, fail):
 
 
 @numba.njit(**_JIT)
-def roll_voices(x0, n_samples, n, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
+def roll_voices(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
                 Ow, Ob, box, mask, check, q_out, p_out, fail):
     """One voice after another, matrix-vector products.
 
     Gw, Gb: the weights of the modified MLP's gates U, V and first layer side by side; Hw, Hb: the other hidden
     layers; Ow, Ob: the output layer; all float32.
-    Bq, Bp: (k + 3, n) float32, the trunk features times s c at the window's sample offsets, then the rows cos, sin
-    and bias, so that a window's samples are [o_q, q0, p0, 1] @ Bq and [o_p, p0, -q0, 1] @ Bp.
+    Bq, Bp: (k + 3, n_hi) float32, the trunk features times s c at the window's sample offsets, then the rows cos,
+    sin and bias, so that a window's samples are [o_q, q0, p0, 1] @ Bq and [o_p, p0, -q0, 1] @ Bp. A window holds
+    n_lo = floor(spw) or n_hi = ceil(spw) samples (see window_end); endb (2, 2, k) and endlin (2, 4) give the end
+    state after each of the two lengths.
     """
-    k = endb.shape[1]
+    k = endb.shape[2]
     width = Hw.shape[1]
     h = np.empty(ff.shape[1] * 2, np.float32)
     g = np.empty(3 * width, np.float32)
@@ -140,7 +149,10 @@ def roll_voices(x0, n_samples, n, Bq, Bp, endb, endlin, center, halfrange, ff, G
         p0 = x0[b, 1]
         fail[b, 0] = -1
         fail[b, 1] = 0
-        for start in range(0, n_samples, n):
+        start = 0
+        win = 0
+        while start < n_samples:
+            n = window_end(win, spw) - start
             _features(q0, p0, center, halfrange, ff, h)
             _dense(h, Gw, Gb, g)
             for j in range(width):  # modified MLP: h = v + tanh(z) (u - v); u is kept as u - v
@@ -174,17 +186,19 @@ def roll_voices(x0, n_samples, n, Bq, Bp, endb, endlin, center, halfrange, ff, G
                 row = Bp[kk]
                 for j in range(m):
                     prow[j] += w * row[j]
-            q0, p0 = _end_state(q0, p0, o[:k], o[k:], endb, endlin)
+            q0, p0 = _end_state(q0, p0, o[:k], o[k:], endb[n - n_lo], endlin[n - n_lo])
             if not _check(b, start, n, n_samples, q0, p0, check, box, mask, fail):
                 break
+            start += n
+            win += 1
 
 
 @numba.njit(**_JIT)
-def roll_batch(x0, n_samples, n, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
+def roll_batch(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
                Ow, Ob, box, mask, check, q_out, p_out, fail):
     """All voices one window at a time, matrix-matrix products (BLAS). Same arguments as `roll_voices`."""
     B = x0.shape[0]
-    k = endb.shape[1]
+    k = endb.shape[2]
     x = x0.copy()
     H = np.empty((B, ff.shape[1] * 2), np.float32)
     Aq = np.empty((B, k + 3), np.float32)
@@ -197,7 +211,10 @@ def roll_batch(x0, n_samples, n, Bq, Bp, endb, endlin, center, halfrange, ff, Gw
     for b in range(B):
         fail[b, 0] = -1
         fail[b, 1] = 0
-    for start in range(0, n_samples, n):
+    start = 0
+    win = 0
+    while start < n_samples:
+        n = window_end(win, spw) - start
         for b in range(B):
             _features(x[b, 0], x[b, 1], center, halfrange, ff, H[b])
         G = np.dot(H, Gw)
@@ -238,7 +255,7 @@ def roll_batch(x0, n_samples, n, Bq, Bp, endb, endlin, center, halfrange, ff, Gw
                 qrow[j] = tq[j]
             for j in range(m):
                 prow[j] = tp[j]
-            nq, np_ = _end_state(x[b, 0], x[b, 1], Aq[b, :k], Ap[b, :k], endb, endlin)
+            nq, np_ = _end_state(x[b, 0], x[b, 1], Aq[b, :k], Ap[b, :k], endb[n - n_lo], endlin[n - n_lo])
             if _check(b, start, n, n_samples, nq, np_, check, box, mask, fail):
                 x[b, 0] = nq
                 x[b, 1] = np_
@@ -246,3 +263,5 @@ def roll_batch(x0, n_samples, n, Bq, Bp, endb, endlin, center, halfrange, ff, Gw
                 alive[b] = False
                 x[b, 0] = center[0]
                 x[b, 1] = center[1]
+        start += n
+        win += 1

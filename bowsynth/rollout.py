@@ -89,27 +89,38 @@ class NumpyOperator:
         self.net = net
 
     def window_basis(self, dtau: float):
-        """The output side of a window whose samples sit at tau_j = j dtau, j = 0..n-1 (n samples per window):
-        Bq, Bp (k + 3, n) float32, the trunk features times s c, then cos, sin and the bias term (see
-        kernels.roll_voices); and for the end state at tau_n in float64, the features endb (2, k) and
-        endlin = (cos, sin, bias_q, bias_p)."""
+        """The output side of the windows of a render whose samples are dtau apart in tau.
+
+        A window holds n_lo = floor(T / dtau) or n_hi = ceil(T / dtau) samples (kernels.window_end: window w starts
+        at the sample nearest w T; at a pitch where T / dtau is not a whole number, windows of n_lo samples alone
+        would start ever earlier than the states the model trained on, measured 2.6x the error at 200 Hz). A window
+        of n_hi samples runs past T by less than one sample spacing.
+        Returns spw = T / dtau, n_lo; Bq, Bp (k + 3, n_hi) float32: the trunk features times s c at the sample
+        offsets, then cos, sin and the bias term (see kernels.roll_voices); for the end state after n_lo and after
+        n_hi samples, in float64, the features endb (2, 2, k) and endlin (2, 4) = (cos, sin, bias_q, bias_p).
+        """
         import torch
 
-        n = int(math.floor(self.window / dtau + 1e-9))
-        tau = np.arange(n + 1) * dtau
+        spw = self.window / dtau
+        if abs(spw - round(spw)) < 1e-9 * spw:  # a whole number of samples, up to rounding: every window alike
+            spw = float(round(spw))
+        n_lo, n_hi = math.floor(spw), math.ceil(spw)
+        tau = np.arange(n_hi + 1) * dtau
         s = tau / self.window
         with torch.inference_mode():
-            tf = self.net.trunk_features(torch.tensor(s, dtype=torch.float32)).double().numpy()  # (n+1, 2, k)
-        basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n+1)
-        bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n+1)
+            tf = self.net.trunk_features(torch.tensor(s, dtype=torch.float32)).double().numpy()  # (n_hi+1, 2, k)
+        basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n_hi+1)
+        bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n_hi+1)
         if self.net.cfg.linear_flow:
             c, sn = np.cos(tau), np.sin(tau)
         else:  # ablation models: the output carries x0, not R(tau) x0
             c, sn = np.ones_like(tau), np.zeros_like(tau)
-        rows = lambda i: np.ascontiguousarray(np.vstack([basis[i, :, :n], c[:n], sn[:n], bias[i, :n]]),  # noqa: E731
-                                              dtype=np.float32)
-        endlin = np.array([c[n], sn[n], bias[0, n], bias[1, n]])
-        return n, rows(0), rows(1), np.ascontiguousarray(basis[:, :, n]), endlin
+        rows = lambda i: np.ascontiguousarray(  # noqa: E731
+            np.vstack([basis[i, :, :n_hi], c[:n_hi], sn[:n_hi], bias[i, :n_hi]]), dtype=np.float32)
+        ends = (n_lo, n_hi)
+        endb = np.ascontiguousarray(np.stack([basis[:, :, e] for e in ends]))
+        endlin = np.array([[c[e], sn[e], bias[0, e], bias[1, e]] for e in ends])
+        return spw, n_lo, rows(0), rows(1), endb, endlin
 
 
 BATCH_FROM = 8  # from this many voices on, the window-at-a-time loop with BLAS products is the faster (measured)
@@ -130,8 +141,8 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
     cache = model.__dict__.setdefault("_basis_cache", {})
     if dtau not in cache:
         cache[dtau] = op.window_basis(dtau)
-    n, Bq, Bp, endb, endlin = cache[dtau]
-    if n < 1:
+    spw, n_lo, Bq, Bp, endb, endlin = cache[dtau]
+    if n_lo < 1:
         raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
     x = np.array(x0, dtype=float).reshape(-1, 2)
     q = np.empty((len(x), n_samples), np.float32)
@@ -139,7 +150,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
     fail = np.empty((len(x), 2), np.int64)
     d = model.domain
     loop = kernels.roll_batch if len(x) >= BATCH_FROM else kernels.roll_voices
-    loop(x, n_samples, n, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, *op.weights,
+    loop(x, n_samples, spw, n_lo, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, *op.weights,
          np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
     for b in np.flatnonzero(fail[:, 0] >= 0):
         q[b, fail[b, 0]:] = np.nan

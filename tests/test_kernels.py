@@ -26,34 +26,45 @@ def test_cos_sin_match_libm():
     assert np.abs(cs[:, 1] - np.sin(z)).max() < 1e-10
 
 
-def torch_rollout(model, x0, n_windows, dtau):
-    """The reference: the float64 torch network applied window by window, its end state seeding the next."""
+def torch_rollout(model, x0, n_samples, dtau):
+    """The reference: the float64 torch network applied window by window (window w starting at the sample nearest
+    w T), its end state seeding the next."""
     net = model.net.double()
     try:
-        n = int(math.floor(float(net.window) / dtau + 1e-9))
-        tau = torch.arange(n + 1, dtype=torch.float64) * dtau
+        spw = float(net.window) / dtau
         x = torch.tensor(x0, dtype=torch.float64)
-        out = []
+        out, start, w = [], 0, 0
         with torch.no_grad():
-            for _ in range(n_windows):
-                traj = net(x, tau)  # (B, n + 1, 2)
+            while start < n_samples:
+                n = int(math.floor((w + 1) * spw + 0.5)) - start
+                traj = net(x, torch.arange(n + 1, dtype=torch.float64) * dtau)  # (B, n + 1, 2)
                 out.append(traj[:, :n])
                 x = traj[:, n]
-        return torch.cat(out, dim=1).numpy()
+                start, w = start + n, w + 1
+        return torch.cat(out, dim=1).numpy()[:, :n_samples]
     finally:
         model.net.float()
 
 
+def test_window_starts_stay_on_multiples_of_the_window():
+    spw = 220.5  # f0 200 at 44.1 kHz, window 2 pi
+    ends = np.array([kernels.window_end(w, spw) for w in range(1000)])
+    assert set(np.diff(ends)) == {220, 221}
+    assert np.abs(ends - np.arange(1, 1001) * spw).max() <= 0.5
+    assert set(np.diff([kernels.window_end(w, 441.0) for w in range(100)])) == {441}
+
+
+@pytest.mark.parametrize("f0", [100.0, 200.0], ids=["441-sample-windows", "220-and-221"])
 @pytest.mark.parametrize("voices", [1, BATCH_FROM + 1], ids=["voice-loop", "batch-loop"])
-def test_rollout_follows_the_torch_network(tiny_model, voices):
+def test_rollout_follows_the_torch_network(tiny_model, voices, f0):
     m = load_model(tiny_model)
-    sc = Scene(fb=100)
+    sc = Scene(fb=f0, f0=f0)
     dtau = sc.omega / sc.sample_rate
     d = m.domain
     x0 = np.stack([np.linspace(0.4 * d.q_lo, 0.4 * d.q_hi, voices), np.linspace(0.3 * d.p_hi, 0.3 * d.p_lo, voices)], 1)
-    n = int(math.floor(float(m.net.window) / dtau + 1e-9))
-    ref = torch_rollout(m, x0, 5, dtau)
-    q, p, fail = rollout_states(m, x0, 5 * n, dtau, check_domain=False)
+    n = 5 * 441 * 100 // int(f0)  # five windows
+    ref = torch_rollout(m, x0, n, dtau)
+    q, p, fail = rollout_states(m, x0, n, dtau, check_domain=False)
     assert np.all(fail[:, 0] == -1)
     scale = np.abs(ref).max()
     # float32 network against float64 torch, over five windows
