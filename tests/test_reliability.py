@@ -182,3 +182,20 @@ def test_written_files_get_normal_permissions(tmp_path, monkeypatch, capsys):
     mask = os.umask(0o022)
     os.umask(mask)
     assert wav.stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_wheel_carries_presets_and_shipped_models(tmp_path):
+    """A non-editable install must find the presets and shipped models: they are package data."""
+    import subprocess
+    import sys
+    import zipfile
+    from pathlib import Path
+
+    pytest.importorskip("setuptools")
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w",
+                        str(tmp_path), str(root)], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    names = zipfile.ZipFile(next(tmp_path.glob("bowsynth-*.whl"))).namelist()
+    for p in [*(root / "bowsynth" / "presets").glob("*.toml"), *(root / "bowsynth" / "models").glob("*.safetensors")]:
+        assert f"bowsynth/{p.parent.name}/{p.name}" in names
