@@ -22,7 +22,7 @@ def tiny_config(steps=150, **kw):
     from bowsynth.train import TrainConfig
 
     return TrainConfig(minutes=None, steps=steps, optimizer=kw.pop("optimizer", "adam"), lr=kw.pop("lr", 5e-3), n_data=256, data_times=32, data_oversample=4, batch_states=64,
-                       batch_times=32, band_seconds=0.3, checkpoint_seconds=1e9,
+                       batch_times=32, band_seconds=0.3, checkpoint_seconds=1e9, select_every=kw.pop("select_every", 0.0),
                        net=NetConfig(width=16, depth=2, k=8, ff_branch=8, ff_trunk=8), **kw)
 
 

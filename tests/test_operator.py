@@ -168,3 +168,36 @@ def test_soap_steps_lower_the_loss():
     before = loss()
     tr.run()
     assert loss() < before
+
+
+def test_selection_keeps_the_best_scored_weights(monkeypatch, tmp_path):
+    sc = Scene(fb=100)
+    tr = Trainer(sc, tiny_config(steps=12, select_every=1e-9, select_from=0.0), "t")
+    scores = iter([5.0, 4.0, 0.5, 3.0, 2.0] + [9.0] * 20)  # the third scoring wins
+    snaps = []
+
+    def fake_score():
+        snaps.append((tr.step, {k: v.clone() for k, v in tr.net.state_dict().items()}))
+        return next(scores)
+
+    monkeypatch.setattr(tr, "selection_score", fake_score)
+    tr.run()
+    step, best = snaps[2]
+    assert tr.step == 12 and step < 12 and len(snaps) == 13  # every step, and the final weights
+    for k, v in tr.net.state_dict().items():
+        assert torch.equal(v, best[k]), k
+    assert tr.model().meta.training["selected"] == {"step": step, "scored": 13, "score_nmse_p_at_1.5_f0": 0.5}
+    ck = tmp_path / "t.ckpt.safetensors"  # a checkpoint carries the best weights, for --resume
+    tr.save_checkpoint(ck)
+    tr2 = Trainer(sc, tiny_config(steps=12, select_every=1e-9, select_from=0.0), "t")
+    tr2.load_checkpoint(ck)
+    assert tr2.best["step"] == step and tr2.best["score"] == 0.5 and tr2.best["scored"] == 13
+    assert all(torch.equal(tr2.best["state"][k], v) for k, v in best.items())
+
+
+def test_selection_score_is_a_rollout_error(tiny_model):
+    tr = Trainer(Scene(fb=100), tiny_config(steps=1, sampling="box"), "t")  # the tiny model's own settings
+    tr.net.load_state_dict(load_model(tiny_model).net.state_dict())
+    score = tr.selection_score()
+    assert math.isfinite(score) and score > 0  # NMSE(p) of the (poor) tiny model's rollout at 1.5 f0
+    assert tr._select_ref[0].f0 == 150.0 and tr._select_ref[0].fb == 150.0
