@@ -3,7 +3,8 @@
 Two loops, one per shape of work (measured in docs/BENCHMARKS.md): `roll_voices` runs one voice at a time with
 matrix-vector products and is the faster for a few voices; `roll_batch` advances every voice one window at a time with
 BLAS matrix products, the faster from about eight voices on. Both report, per voice, the first sample of the window
-where it failed (-1 if none) and why (FAIL_NONFINITE, FAIL_DOMAIN); a failed voice stops there, the others go on.
+where it failed and why (FAIL_NONFINITE, FAIL_DOMAIN) into `fail`, which the caller fills with (-1, 0) beforehand; a
+failed voice stops there, the others go on.
 
 Why not numpy's or libm's tanh, cos and sin: numba calls libm one value at a time, which took most of a window's time.
 The versions here are plain arithmetic, so LLVM vectorises them; `error_model="numpy"` drops numba's zero-division
@@ -147,8 +148,6 @@ def roll_voices(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrang
     for b in range(x0.shape[0]):
         q0 = x0[b, 0]
         p0 = x0[b, 1]
-        fail[b, 0] = -1
-        fail[b, 1] = 0
         start = 0
         win = 0
         while start < n_samples:
@@ -208,9 +207,6 @@ def roll_batch(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrange
     V = np.empty((B, width), np.float32)
     h = np.empty((B, width), np.float32)
     alive = np.ones(B, np.bool_)
-    for b in range(B):
-        fail[b, 0] = -1
-        fail[b, 1] = 0
     start = 0
     win = 0
     while start < n_samples:

@@ -147,7 +147,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: f
     x = np.array(x0, dtype=float).reshape(-1, 2)
     q = np.empty((len(x), n_samples), np.float32)
     p = np.empty((len(x), n_samples), np.float32)
-    fail = np.empty((len(x), 2), np.int64)
+    fail = np.tile(np.array([-1, 0], np.int64), (len(x), 1))  # the loops write only the voices that fail
     d = model.domain
     loop = kernels.roll_batch if len(x) >= BATCH_FROM else kernels.roll_voices
     loop(x, n_samples, spw, n_lo, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, *op.weights,
