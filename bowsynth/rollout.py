@@ -72,7 +72,6 @@ class NumpyOperator:
 
     def __init__(self, model: OperatorModel):
         net = model.net
-        self.k = net.cfg.k
         sd = {k: v.detach().double().numpy() for k, v in net.state_dict().items()}
         f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
         g = lambda name: (f32(sd[f"branch.{name}.weight"].T), f32(sd[f"branch.{name}.bias"]))  # noqa: E731

@@ -63,6 +63,11 @@ class TrainConfig:
         return asdict(self)
 
 
+def _json_number(x: float):
+    """x for JSON metadata: inf and NaN (no score) become null."""
+    return x if math.isfinite(x) else None
+
+
 def stiffness(scene: Scene) -> float:
     """Friction slope at rest in dimensionless time: beta sqrt(2a) e^{1/2}."""
     return scene.beta * math.sqrt(2 * scene.a) * physics.E_HALF
@@ -351,7 +356,7 @@ class Trainer:
         meta = {"step": self.step, "elapsed": self.elapsed, "opt": opt_state, "rng": self.rng.bit_generator.state,
                 "torch_rng": None, "scene": self.scene.to_dict(), "config": self.cfg.to_dict(),
                 "history": self.history[-200:],
-                "best": {"score": self.best["score"] if math.isfinite(self.best["score"]) else None,
+                "best": {"score": _json_number(self.best["score"]),
                          "step": self.best["step"], "scored": self.best["scored"]}}
         tensors["torch_rng"] = torch.get_rng_state()
         atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={"bowsynth_checkpoint": json.dumps(meta)}))
@@ -453,8 +458,7 @@ class Trainer:
                                    "seconds": round(self.elapsed, 1),
                                    "final_loss": self.history[-1]["loss"] if self.history else None,
                                    "selected": {"step": self.best["step"], "scored": self.best["scored"],
-                                                "score_nmse_p_at_1.5_f0": self.best["score"]
-                                                if math.isfinite(self.best["score"]) else None}},
+                                                "score_nmse_p_at_1.5_f0": _json_number(self.best["score"])}},
                          validation={}, scene=self.scene.to_dict())
         return OperatorModel(self.net, meta)
 
@@ -476,7 +480,7 @@ def validate(model: OperatorModel, scene: Scene, seconds: float = 1.0, ref_overs
     m["nmse_q"] = float(np.mean((r.q - ref.q) ** 2) / np.var(ref.q))
     m["seconds"] = seconds
     m["ref_oversample"] = ref_oversample
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in m.items()}
+    return {k: (_json_number(v) if isinstance(v, float) else v) for k, v in m.items()}
 
 
 def default_model_name(scene: Scene) -> str:
