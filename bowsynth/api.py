@@ -15,11 +15,16 @@ class Interrupted(BowsynthError):
     exit_code = 130
 
 
+def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1):
+    """Render a Scene (or a list of Scenes) with engine 'operator' or 'fdm'; see `bowsynth.engines.render`."""
+    from .engines import render as _r
+
+    return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample)
+
+
 def render_operator(scene, model=None, fallback: str = "none"):
     """Render a Scene (or a list of Scenes, batched) with the operator; see `bowsynth.rollout.render_operator`."""
-    from .rollout import render_operator as _r
-
-    return _r(scene, model=model, fallback=fallback)
+    return render(scene, engine="operator", model=model, fallback=fallback)
 
 
 def load_model(path):

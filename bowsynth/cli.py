@@ -22,8 +22,10 @@ _state = {"debug": False}
 # Scene flags shared by render / train / compare. None means "take the preset's value, else the default".
 PresetOpt = typer.Option(None, "--preset", help="Preset scene name (see `bowsynth presets`); flags override it.")
 F0Opt = typer.Option(None, "--f0", help="Pitch of the mass-spring, Hz (default 100).")
-FbOpt = typer.Option(None, "--fb", help="Bow force per unit mass F_B, m/s^2 (default 100).")
-VbOpt = typer.Option(None, "--vb", help="Bow velocity v_B, m/s (default 0.2).")
+FbOpt = typer.Option(None, "--fb", help="Bow force per unit mass F_B, m/s^2 (default 100); or a gesture as "
+                                         "VALUE@SECONDS pairs, e.g. 50@0,200@1 (linear between, held outside).")
+VbOpt = typer.Option(None, "--vb", help="Bow velocity v_B, m/s (default 0.2); or a gesture, e.g. 0.2@0,0.05@0.1 "
+                                         "(a bow stop).")
 AOpt = typer.Option(None, "--a", help="Friction shape a, s^2/m^2 (default 100).")
 DurOpt = typer.Option(None, "--duration", "-d", help="Duration, s (default 1.0).")
 RateOpt = typer.Option(None, "--sample-rate", "--sr", help="Sample rate, Hz (default 44100).")
@@ -32,8 +34,11 @@ P0Opt = typer.Option(None, "--p0", help="Initial velocity u_t(0), m/s (default 0
 
 
 def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0):
+    from .controls import parse_control
     from .scene import make_scene
 
+    fb = None if fb is None else parse_control(fb, "fb")
+    vb = None if vb is None else parse_control(vb, "vb")
     return make_scene(preset, f0=f0, fb=fb, vb=vb, a=a, duration=duration, sample_rate=sample_rate, q0=q0, p0=p0)
 
 
@@ -61,8 +66,8 @@ def presets():
 def render(
     output: Path = typer.Argument(..., help="WAV file to write (32-bit float)."),
     method: str = typer.Option("operator", "--method", "-m", help="Engine: operator (trained PI-DeepONet) or fdm."),
-    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[float] = FbOpt,
-    vb: Optional[float] = VbOpt, a: Optional[float] = AOpt, duration: Optional[float] = DurOpt,
+    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
+    vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, duration: Optional[float] = DurOpt,
     sample_rate: Optional[int] = RateOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
     oversample: int = typer.Option(1, "--oversample", help="FDM only: render at this multiple of the sample rate."),
     model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the model covering the scene)."),
@@ -71,23 +76,16 @@ def render(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
     """Render a scene to a WAV file."""
-    from . import api
+    from . import engines
     from .wav import check_output_path, write_wav
 
-    if method not in ("operator", "fdm"):
-        raise UsageError(f"--method must be operator or fdm, got {method!r}")
     if signal not in ("u", "p"):
         raise UsageError(f"--signal must be u or p, got {signal!r}")
-    if fallback not in ("none", "fdm"):
-        raise UsageError(f"--fallback must be none or fdm, got {fallback!r}")
     if oversample < 1:
         raise UsageError(f"--oversample must be >= 1, got {oversample}")
     scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0)
     check_output_path(output)
-    if method == "fdm":
-        r = api.render_fdm(scene, oversample=oversample)
-    else:
-        r = api.render_operator(scene, model=model, fallback=fallback)
+    r = engines.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample)
     write_wav(output, r, signal=signal)
     model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""
     setup = r.info.get("setup_seconds")
@@ -100,8 +98,8 @@ def render(
 
 @app.command()
 def train(
-    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[float] = FbOpt,
-    vb: Optional[float] = VbOpt, a: Optional[float] = AOpt,
+    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
+    vb: Optional[str] = VbOpt, a: Optional[float] = AOpt,
     q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
     minutes: Optional[float] = typer.Option(None, "--minutes", help="Wall-clock budget in minutes (default 5 when --steps is not given)."),
     steps: Optional[int] = typer.Option(None, "--steps", help="Optimiser steps (with --minutes, whichever ends first)."),
@@ -179,8 +177,8 @@ def compare(
     reference: str = typer.Option("audio", "--reference", help="audio: the FDM at the file's rate; high: also a x100 FDM as ground truth."),
     json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Write waveform, error and spectrogram plots to this PNG."),
-    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[float] = FbOpt,
-    vb: Optional[float] = VbOpt, a: Optional[float] = AOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
+    preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
+    vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
 ):
     """Compare a render against the FDM: NMSE, NCC, pitch (cents), harmonics, spectrum, and speed."""
     import json
@@ -268,10 +266,9 @@ def score(
 
     if (score_file is None) == (presets_list is None):
         raise UsageError("give exactly one of --score FILE.toml or --presets a,b,c")
-    if method not in ("operator", "fdm"):
-        raise UsageError(f"--method must be operator or fdm, got {method!r}")
-    if fallback not in ("none", "fdm"):
-        raise UsageError(f"--fallback must be none or fdm, got {fallback!r}")
+    from .engines import Engine, Fallback, _choice
+
+    method, fallback = _choice(Engine, method, "--method").value, _choice(Fallback, fallback, "--fallback").value
     if score_file is not None:
         voices = load_score(score_file)
         if duration is not None:

@@ -69,12 +69,30 @@ def _solve_eta(guess, b, c, fb, a):
     return x
 
 
+@numba.njit(cache=True, inline="always")
+def _control(ts, vs, t, i):
+    """Piecewise-linear control at time t, held outside its breakpoints; i is the segment of the previous call
+    (times only grow, so the search is amortised O(1))."""
+    n = ts.shape[0]
+    while i + 1 < n and ts[i + 1] <= t:
+        i += 1
+    if t <= ts[0] or i + 1 >= n:
+        return vs[0] if t <= ts[0] else vs[n - 1], i
+    return vs[i] + (vs[i + 1] - vs[i]) * (t - ts[i]) / (ts[i + 1] - ts[i]), i
+
+
 @numba.njit(cache=True)
-def _kernel(u_prev, u_cur, eta, n_out, stride, k, w2, fb, vb, a, u_out, eta_out):
+def _kernel(u_prev, u_cur, eta, n_out, stride, k, w2, fb_t, fb_v, vb_t, vb_v, a, u_out, eta_out):
+    """Bow force and speed follow their breakpoints (fb_t, fb_v), (vb_t, vb_v) step by step, at t = n k."""
     c = 2.0 / k
     ck = 2.0 / (k * k)
+    ifb = 0
+    ivb = 0
     for j in range(n_out):
         for s in range(stride):
+            t = (j * stride + s) * k
+            fb, ifb = _control(fb_t, fb_v, t, ifb)
+            vb, ivb = _control(vb_t, vb_v, t, ivb)
             b = c * vb + ck * (u_prev - u_cur) + w2 * u_cur
             eta = _solve_eta(eta, b, c, fb, a)
             if s == 0:
@@ -92,12 +110,18 @@ def taylor_start(u0, p0, k, w, fb, vb, a):
 
 
 def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None):
-    """The bare scheme from two given displacements (u^{-1}, u^0): returns (u, eta) at every `stride`-th step."""
+    """The bare scheme from two given displacements (u^{-1}, u^0): returns (u, eta) at every `stride`-th step.
+
+    fb and vb are numbers or Curves (followed per step, from t = 0 at u^0)."""
+    from .controls import breakpoints
+
     u_out = np.empty(n_out)
     eta_out = np.empty(n_out)
-    eta = -vb if eta0 is None else eta0
+    fb_t, fb_v = breakpoints(fb)
+    vb_t, vb_v = breakpoints(vb)
+    eta = -vb_v[0] if eta0 is None else eta0
     _kernel(float(u_prev), float(u_cur), float(eta), int(n_out), int(stride), float(k), float(w * w),
-            float(fb), float(vb), float(a), u_out, eta_out)
+            fb_t, fb_v, vb_t, vb_v, float(a), u_out, eta_out)
     return u_out, eta_out
 
 
@@ -105,15 +129,15 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
     """The oversampling factor to use: the one asked for, raised to respect the uniqueness bound if needed."""
     if oversample < 1 or int(oversample) != oversample:
         raise ValueError(f"oversample must be a whole number >= 1, got {oversample}")
-    need = physics.min_oversample(scene.fb, scene.a, scene.sample_rate)
+    need = physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate)
     if need > MAX_OVERSAMPLE:
-        raise SceneError(f"fb={scene.fb:g} with a={scene.a:g} needs the FDM oversampled x{need} at "
+        raise SceneError(f"fb={scene.fb_max:g} with a={scene.a:g} needs the FDM oversampled x{need} at "
                          f"{scene.sample_rate} Hz (uniqueness bound k < e/(fb sqrt(2a))); the limit is "
                          f"x{MAX_OVERSAMPLE}: lower fb or a")
     if need > oversample:
         if warn:
             warnings.warn(
-                f"fb={scene.fb:g} at {scene.sample_rate} Hz breaks the FDM uniqueness bound "
+                f"fb={scene.fb_max:g} at {scene.sample_rate} Hz breaks the FDM uniqueness bound "
                 f"k < e/(fb sqrt(2a)); oversampling raised from {oversample} to {need}",
                 OversampleWarning, stacklevel=3)
         return need
@@ -121,22 +145,25 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
 
 
 def render_fdm(scene: Scene, oversample: int = 1) -> Render:
-    """Render a scene with the FDM at `oversample` times its sample rate, returned at its sample rate."""
+    """Render a scene with the FDM at `oversample` times its sample rate, returned at its sample rate. Bow curves
+    are followed at every step of the scheme."""
     os_ = check_oversample(scene, oversample)
     w = scene.omega
     k = 1.0 / (scene.sample_rate * os_)
     u0 = scene.q0 / w
-    run_fdm_raw(0.0, 0.0, 1, 1, k, w, scene.fb, scene.vb, scene.a)  # compile / load the kernel outside the timing
+    run_fdm_raw(0.0, 0.0, 1, 1, k, w, 0.0, 0.0, scene.a)  # compile / load the kernel outside the timing
+    fb0, vb0 = float(scene.fb_at(0.0)), float(scene.vb_at(0.0))
     t0 = time.perf_counter()
-    u_prev = taylor_start(u0, scene.p0, k, w, scene.fb, scene.vb, scene.a)
+    u_prev = taylor_start(u0, scene.p0, k, w, fb0, vb0, scene.a)
     u, eta = run_fdm_raw(u_prev, u0, scene.n_samples, os_, k, w, scene.fb, scene.vb, scene.a,
-                         eta0=scene.p0 - scene.vb)
+                         eta0=scene.p0 - vb0)
     secs = time.perf_counter() - t0
     t = np.arange(scene.n_samples) / scene.sample_rate
     q = w * u
     q[0] = scene.q0  # exact by construction; avoid the w * (q0 / w) rounding
-    return Render(scene, t, q, eta + scene.vb, method="fdm" if os_ == 1 else f"fdm x{os_}",
-                  seconds=secs, info={"oversample": os_})
+    vb = scene.vb_at(t)
+    return Render(scene, t, q, eta + vb, method="fdm" if os_ == 1 else f"fdm x{os_}",
+                  seconds=secs, info={"oversample": os_}, controls={"fb": scene.fb_at(t), "vb": vb})
 
 
 def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a):

@@ -33,6 +33,11 @@ def beta(fb: float, f0: float) -> float:
     return fb / omega(f0)
 
 
+def dtau(f0: float, sample_rate: float) -> float:
+    """Spacing of audio samples in dimensionless time tau = w t."""
+    return omega(f0) / sample_rate
+
+
 def phi(eta, a: float):
     """Soft friction law; |phi| <= 1, reached at |eta| = 1/sqrt(2a)."""
     return math.sqrt(2.0 * a) * eta * _exp(-a * eta * eta + 0.5)

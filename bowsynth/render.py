@@ -15,6 +15,8 @@ class Render:
     the operator, the network's precision).
 
     q = w u and p = u_t (m/s); u the mass displacement (m); t in s. `seconds` is the wall time the engine took.
+    `controls` holds the bow force fb (m/s^2) and speed vb (m/s) the engine applied, one value per output sample
+    (the operator holds them per window, so they may differ from the scene's curves between windows).
     """
 
     scene: Scene
@@ -24,6 +26,11 @@ class Render:
     method: str
     seconds: float = 0.0
     info: dict = field(default_factory=dict)
+    controls: dict = None
+
+    def __post_init__(self):
+        if self.controls is None:  # an engine that applies the scene's controls as given
+            self.controls = {"fb": self.scene.fb_at(self.t), "vb": self.scene.vb_at(self.t)}
 
     @property
     def u(self) -> np.ndarray:

@@ -8,12 +8,14 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import physics
+from . import controls, physics
+from .controls import Curve
 from .errors import SceneError, UsageError
 
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
 
 MIN_RATE, MAX_RATE = 8_000, 384_000
+CONTROLS = ("fb", "vb")  # the scene fields that may follow a curve
 
 
 @dataclass(frozen=True)
@@ -22,11 +24,13 @@ class Scene:
 
     Units: f0 Hz; fb bow force per unit mass (m/s^2); vb m/s; a friction shape (s^2/m^2); duration s;
     sample_rate Hz; q0 = w u(0) and p0 = u_t(0) in m/s.
+    fb and vb are numbers or curves (a `Curve`, or a list of [t, value] pairs in s: linear between, held outside):
+    bow gestures within the note.
     """
 
     f0: float = 100.0
-    fb: float = 100.0
-    vb: float = 0.2
+    fb: float | Curve = 100.0
+    vb: float | Curve = 0.2
     a: float = 100.0
     duration: float = 1.0
     sample_rate: int = 44_100
@@ -34,10 +38,19 @@ class Scene:
     p0: float = 0.0
 
     def __post_init__(self):
+        for name in CONTROLS:
+            if not isinstance(getattr(self, name), bool):
+                try:
+                    object.__setattr__(self, name, controls.as_control(getattr(self, name)))
+                except SceneError as e:
+                    raise SceneError(f"{name}: {e}") from None
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
+            if isinstance(v, Curve):
+                continue  # its breakpoints were checked finite by Curve; ranges below
             if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise SceneError(f"{f.name} must be a number, got {v!r}")
+                kind = "a number or a curve ([[t, value], ...])" if f.name in CONTROLS else "a number"
+                raise SceneError(f"{f.name} must be {kind}, got {v!r}")
             if not math.isfinite(v):
                 raise SceneError(f"{f.name} must be finite, got {v}")
         if self.sample_rate != int(self.sample_rate):
@@ -49,7 +62,7 @@ class Scene:
             raise SceneError(f"f0 must be > 0 Hz, got {self.f0}")
         if self.f0 >= self.sample_rate / 2:
             raise SceneError(f"f0 must be below Nyquist ({self.sample_rate / 2:g} Hz), got {self.f0}")
-        if self.fb < 0:
+        if controls.bounds(self.fb)[0] < 0:
             raise SceneError(f"fb must be >= 0 m/s^2, got {self.fb}")
         if self.a <= 0:
             raise SceneError(f"a must be > 0 s^2/m^2, got {self.a}")
@@ -65,8 +78,42 @@ class Scene:
         return physics.omega(self.f0)
 
     @property
+    def varying(self) -> bool:
+        """Does a bow control change during the render?"""
+        return any(isinstance(getattr(self, n), Curve) for n in CONTROLS)
+
+    @property
     def beta(self) -> float:
+        """F_B / w of a scene with a constant bow force (a varying one has a range: `beta_range`)."""
+        if isinstance(self.fb, Curve):
+            raise SceneError("fb varies in this scene; it has no single F_B / w (see beta_range)")
         return physics.beta(self.fb, self.f0)
+
+    @property
+    def beta_range(self) -> tuple[float, float]:
+        lo, hi = controls.bounds(self.fb)
+        return physics.beta(lo, self.f0), physics.beta(hi, self.f0)
+
+    @property
+    def vb_range(self) -> tuple[float, float]:
+        return controls.bounds(self.vb)
+
+    @property
+    def fb_max(self) -> float:
+        return controls.bounds(self.fb)[1]
+
+    def fb_at(self, t) -> "np.ndarray":
+        """Bow force (m/s^2) at times t (s)."""
+        return controls.sample(self.fb, t)
+
+    def vb_at(self, t) -> "np.ndarray":
+        """Bow velocity (m/s) at times t (s)."""
+        return controls.sample(self.vb, t)
+
+    @property
+    def dtau(self) -> float:
+        """Sample spacing in dimensionless time tau = w t."""
+        return physics.dtau(self.f0, self.sample_rate)
 
     @property
     def n_samples(self) -> int:
@@ -76,7 +123,14 @@ class Scene:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Plain data (curves as lists of [t, value]): for JSON, TOML and WAV metadata."""
+        return {f.name: (v.to_list() if isinstance(v, Curve) else v)
+                for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
+
+    def describe(self) -> str:
+        """The scene's bow in one phrase, for messages and table titles."""
+        g = lambda v: str(v) if isinstance(v, Curve) else f"{v:g}"  # noqa: E731
+        return f"fb={g(self.fb)} f0={self.f0:g} vb={g(self.vb)} a={self.a:g}"
 
     @classmethod
     def from_dict(cls, d: dict) -> "Scene":

@@ -65,13 +65,9 @@ def voices_from_presets(names: list[str], **overrides) -> list[Voice]:
 
 
 def render_voices(voices: list[Voice], method: str = "operator", model=None, fallback: str = "none") -> list[Render]:
-    from .fdm import render_fdm
-    from .rollout import render_operator
+    from .engines import render
 
-    scenes = [v.scene for v in voices]
-    if method == "fdm":
-        return [render_fdm(s) for s in scenes]
-    return render_operator(scenes, model=model, fallback=fallback)
+    return render([v.scene for v in voices], engine=method, model=model, fallback=fallback)
 
 
 def safe_name(name: str) -> str:

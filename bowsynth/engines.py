@@ -1,0 +1,66 @@
+"""The one place that picks the engine for a render: the FDM or the trained operator.
+
+    render(scene, engine="operator")          -> Render
+    render([scene, ...], engine="operator")   -> [Render, ...]   (the operator batches voices in one rollout)
+
+The CLI's render and score commands and the Python API all come through here, so an engine's options and its
+refusals are stated once.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+from .errors import DomainError, UsageError
+from .render import Render
+from .scene import Scene
+
+
+class Engine(str, Enum):
+    operator = "operator"
+    fdm = "fdm"
+
+
+class Fallback(str, Enum):
+    none = "none"
+    fdm = "fdm"
+
+
+def _choice(enum, value, flag: str):
+    try:
+        return enum(value)
+    except ValueError:
+        raise UsageError(f"{flag} must be {' or '.join(e.value for e in enum)}, got {value!r}") from None
+
+
+def _refuse_gestures(scenes: list[Scene]) -> None:
+    for i, sc in enumerate(scenes):
+        if sc.varying:
+            who = f"voice {i + 1}: " if len(scenes) > 1 else ""
+            raise DomainError(f"{who}the bow changes during this scene ({sc.describe()}) and no operator model "
+                              f"follows bow gestures yet (the shipped models each hold one F_B / w and v_B); "
+                              f"render it with --method fdm")
+
+
+def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1):
+    """Render a Scene (or a list of Scenes) with the FDM or the operator.
+
+    model: operator model (path, OperatorModel, or None to pick the covering one); fallback: 'fdm' finishes an
+    operator voice that leaves its model's domain with the FDM; oversample: FDM only, a multiple of the sample rate.
+    """
+    engine = _choice(Engine, engine, "--method")
+    fallback = _choice(Fallback, fallback, "--fallback")
+    many = isinstance(scene, (list, tuple))
+    scenes = list(scene) if many else [scene]
+    if engine is Engine.fdm:
+        from .fdm import render_fdm
+
+        out = [render_fdm(s, oversample=oversample) for s in scenes]
+        return out if many else out[0]
+    _refuse_gestures(scenes)
+    from .rollout import render_operator
+
+    return render_operator(scenes if many else scene, model=model, fallback=fallback.value)
+
+
+__all__ = ["Engine", "Fallback", "Render", "render"]
