@@ -13,7 +13,7 @@ import sys
 import time
 
 from bowsynth import Scene
-from bowsynth.train import TrainConfig, Trainer, default_weights, validate
+from bowsynth.training import TrainConfig, Trainer, default_weights, validate
 
 ABLATIONS = {
     100: [

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import math
 from pathlib import Path
 
@@ -34,80 +33,77 @@ def load_model(path):
     return _l(path)
 
 
-def train(scene: Scene, minutes=None, steps=None, seed=0, optimizer="soap", lbfgs=0.0, hybrid=True, window_ms=None,
-          width=64, depth=4, n_data=None, checkpoint_seconds=60.0, out=None, force=False, resume=False,
-          progress=False, console=None, config=None):
+def train(scene: Scene, config=None, out=None, force=False, resume=False, progress=False, console=None, **settings):
     """Train an operator for `scene`, save it to `out` (default ./models/<name>.safetensors) and validate it.
 
-    Checkpoints go beside `out` every minute; `resume=True` continues from one. Returns a TrainResult.
+    config: a `bowsynth.training.TrainConfig`; or settings as keywords (minutes=, steps=, seed=, optimizer=, ...:
+    its fields; `window_ms` gives the window in ms at the scene's pitch; `width`/`depth` the network's). Its
+    defaults are the only ones. Checkpoints go beside `out`; `resume=True` continues from one. Returns a TrainResult.
+    A model whose validation rollout fails is saved but marked failed in its record (it is never picked by default).
     """
-    from .network import NetConfig
-    from .train import TrainConfig, Trainer, checkpoint_path, default_model_name, validate
+    from .progress import Reporter
+    from .training.config import checkpoint_path, default_model_name
 
+    config = config or make_train_config(scene, **settings)
+    config.validate()
     name = default_model_name(scene)
     out = Path(out) if out else Path("models") / f"{name}.safetensors"
     if out.suffix != ".safetensors":
         raise UsageError(f"model files end in .safetensors, got {out}")
     if out.exists() and not force:
         raise UsageError(f"{out} exists; pass --force to overwrite it, or --out to choose another file")
-    out.parent.mkdir(parents=True, exist_ok=True)
     ckpt = checkpoint_path(out)
     if resume and not ckpt.exists():
         raise UsageError(f"no checkpoint to resume at {ckpt}")
-    if config is None:
-        if minutes is None and steps is None:
-            minutes = 5.0
-        config = TrainConfig(minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs_fraction=lbfgs,
-                             hybrid=hybrid, window=None if window_ms is None else scene.omega * window_ms / 1e3,
-                             checkpoint_seconds=checkpoint_seconds, net=NetConfig(width=width, depth=depth))
-        if n_data is not None:
-            config.n_data = n_data
-    with _status(console, progress, "preparing: scene band and high-rate FDM training data"):
-        tr = Trainer(scene, config, name)
-    if resume:
-        tr.load_checkpoint(ckpt)
-    try:
-        with _progress(console, progress, tr) as on_step:
-            tr.run(ckpt=ckpt, on_step=on_step)
-    except KeyboardInterrupt:
-        tr.save_checkpoint(ckpt)
-        raise Interrupted(f"interrupted at step {tr.step}; checkpoint saved to {ckpt}; continue with the same "
-                          f"command and --resume") from None
-    model = tr.model()
-    with _status(console, progress, "validating: 1 s rollout against a high-rate FDM"):
-        model.meta.validation = validate(model, scene)
-    model.save(out, force=True)
-    ckpt.unlink(missing_ok=True)
-    from .train import TrainResult
+    with Reporter(console, enabled=progress, title="train: ") as rep:
+        rep.update("preparing", 0.0, "loading torch")  # before torch loads: a log shows life from the first second
+        from .training import TrainResult, Trainer, validate
 
-    return TrainResult(model, out, tr.history)
-
-
-@contextlib.contextmanager
-def _status(console, enabled, msg):
-    if not enabled or console is None:
-        yield
-        return
-    with console.status(msg):
-        yield
-
-
-@contextlib.contextmanager
-def _progress(console, enabled, tr):
-    if not enabled or console is None:
-        yield None
-        return
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    cols = [TextColumn("training"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn(),
-            TextColumn("eta"), TimeRemainingColumn(), TextColumn("{task.fields[terms]}")]
-    with Progress(*cols, console=console, transient=False) as prog:
-        task = prog.add_task("train", total=1000, terms="")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f))
+        if resume:
+            tr.load_checkpoint(ckpt)
+        rep.update("training", tr.progress(), f"step {tr.step}, {config.optimizer}")
 
         def on_step(rec):
             if tr.step % 25 == 0:
                 terms = " ".join(f"{k} {v:.1e}" for k, v in rec.items() if k != "lr")
-                prog.update(task, completed=1000 * tr.progress(), terms=f"step {tr.step} {terms}")
+                rep.update("training", tr.progress(), f"step {tr.step} {terms}")
 
-        yield on_step
-        prog.update(task, completed=1000)
+        try:
+            tr.run(ckpt=ckpt, on_step=on_step)
+        except KeyboardInterrupt:
+            tr.save_checkpoint(ckpt)
+            raise Interrupted(f"interrupted at step {tr.step}; checkpoint saved to {ckpt}; continue with the same "
+                              f"command and --resume") from None
+        model = tr.model()
+        rep.update("validating: 1 s rollout against a x100 FDM", 0.0)
+        model.meta.validation = validate(model, scene)
+        rep.update("validating: 1 s rollout against a x100 FDM", 1.0)
+    model.save(out, force=True)
+    ckpt.unlink(missing_ok=True)
+    return TrainResult(model, out, tr.history)
+
+
+def make_train_config(scene: Scene, window_ms=None, width=None, depth=None, **fields):
+    """A TrainConfig from keyword settings (None means the config's default)."""
+    import dataclasses
+
+    from .network import NetConfig
+    from .training import TrainConfig
+
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = set(fields) - known
+    if unknown:
+        raise UsageError(f"unknown training setting(s): {', '.join(sorted(unknown))}")
+    fields = {k: v for k, v in fields.items() if v is not None}
+    if "minutes" not in fields and "steps" in fields:
+        fields["minutes"] = None  # a step budget alone
+    if window_ms is not None:
+        if not (math.isfinite(window_ms) and window_ms > 0):
+            raise UsageError(f"--window-ms must be > 0, got {window_ms:g}")
+        fields["window"] = scene.omega * window_ms / 1e3
+    net = {k: v for k, v in (("width", width), ("depth", depth)) if v is not None}
+    if net:
+        fields["net"] = NetConfig(**net)
+    return TrainConfig(**fields)

@@ -101,44 +101,32 @@ def train(
     preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
     vb: Optional[str] = VbOpt, a: Optional[float] = AOpt,
     q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
-    minutes: Optional[float] = typer.Option(None, "--minutes", help="Wall-clock budget in minutes (default 5 when --steps is not given)."),
+    minutes: Optional[float] = typer.Option(None, "--minutes", help="Wall-clock budget in minutes (default 5 when --steps is not given; at most a day)."),
     steps: Optional[int] = typer.Option(None, "--steps", help="Optimiser steps (with --minutes, whichever ends first)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed: same seed and machine, same model (with --steps)."),
-    optimizer: str = typer.Option("soap", "--optimizer", help="soap (pytorch-optimizer's SOAP) or adam."),
-    lbfgs: float = typer.Option(0.0, "--lbfgs", help="Share of the --minutes budget for an L-BFGS finish (0 to 0.9)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (default 0): same seed and machine, same model (with --steps)."),
+    optimizer: Optional[str] = typer.Option(None, "--optimizer", help="soap (pytorch-optimizer's SOAP, default) or adam."),
+    lbfgs: Optional[float] = typer.Option(None, "--lbfgs", help="Share of the --minutes budget for an L-BFGS finish (0 to 0.9, default 0)."),
     hybrid: bool = typer.Option(True, "--hybrid/--no-hybrid", help="Add the FDM data loss (default) or train purely physics-informed."),
     window_ms: Optional[float] = typer.Option(None, "--window-ms", help="Window length in ms at the scene's f0 (default: one period of the free oscillator)."),
-    width: int = typer.Option(64, "--width", help="Hidden width of branch and trunk."),
-    depth: int = typer.Option(4, "--depth", help="Hidden layers of branch and trunk."),
-    n_data: int = typer.Option(4096, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band."),
-    checkpoint_every: float = typer.Option(60.0, "--checkpoint-every", help="Seconds between checkpoints."),
+    width: Optional[int] = typer.Option(None, "--width", help="Hidden width of branch and trunk (default 64)."),
+    depth: Optional[int] = typer.Option(None, "--depth", help="Hidden layers of branch and trunk (default 4)."),
+    n_data: Optional[int] = typer.Option(None, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band (default 4096)."),
+    checkpoint_every: Optional[float] = typer.Option(None, "--checkpoint-every", help="Seconds between checkpoints (default 60)."),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Model file (default ./models/<name>.safetensors)."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing model file."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint beside --out."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress (a bar in a terminal, a line every 10 s elsewhere)."),
 ):
     """Train a PI-DeepONet for a scene (its F_B / w, v_B, a and the states a render from its initial state visits)."""
     from . import api
 
     scene = _scene(preset, f0, fb, vb, a, None, None, q0, p0)
-    if minutes is not None and not minutes > 0:
-        raise UsageError(f"--minutes must be > 0, got {minutes}")
-    if steps is not None and steps < 1:
-        raise UsageError(f"--steps must be >= 1, got {steps}")
-    if not 0 <= lbfgs <= 0.9:
-        raise UsageError(f"--lbfgs must be in [0, 0.9], got {lbfgs}")
-    if window_ms is not None and not window_ms > 0:
-        raise UsageError(f"--window-ms must be > 0, got {window_ms}")
-    if width < 1 or depth < 1:
-        raise UsageError("--width and --depth must be >= 1")
-    if n_data < 16:
-        raise UsageError(f"--n-data must be >= 16, got {n_data}")
-    if not checkpoint_every > 0:
-        raise UsageError(f"--checkpoint-every must be > 0 s, got {checkpoint_every}")
-    res = api.train(scene, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs, hybrid=hybrid,
-                    window_ms=window_ms, width=width, depth=depth, n_data=n_data,
-                    checkpoint_seconds=checkpoint_every, out=out_path, force=force, resume=resume,
-                    progress=not quiet, console=err)
+    if scene.varying:
+        raise UsageError("train takes one value each for --fb and --vb (a model of one scene), not a curve")
+    cfg = api.make_train_config(scene, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer,
+                                lbfgs_fraction=lbfgs, hybrid=hybrid, window_ms=window_ms, width=width, depth=depth,
+                                n_data=n_data, checkpoint_seconds=checkpoint_every)
+    res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err)
     v = res.model.meta.validation
     _say(False, f"model written to {res.path} ({res.model.id})")
     if v.get("error"):

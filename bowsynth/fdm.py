@@ -166,11 +166,11 @@ def render_fdm(scene: Scene, oversample: int = 1) -> Render:
                   seconds=secs, info={"oversample": os_}, controls={"fb": scene.fb_at(t), "vb": vb})
 
 
-def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a):
+def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None):
     """Vectorised FDM over many initial states at once (numpy), same start and iteration as `render_fdm`.
 
     q0, p0: arrays (B,). Steps of size k; returns q, p of shape (B, n_out) at every `stride`-th step
-    (column 0 is the initial state).
+    (column 0 is the initial state). on_progress(fraction) is called after each output step.
     """
     q0 = np.asarray(q0, dtype=float)
     p0 = np.asarray(p0, dtype=float)
@@ -190,6 +190,8 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a):
                 q[:, j] = w * u_cur
                 p[:, j] = eta + vb
             u_prev, u_cur = u_cur, u_prev + 2.0 * k * (eta + vb)
+        if on_progress is not None:
+            on_progress((j + 1) / n_out)
     q[:, 0] = q0
     return q, p
 

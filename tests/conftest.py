@@ -19,7 +19,7 @@ def anchors():
 
 def tiny_config(steps=150, **kw):
     from bowsynth.network import NetConfig
-    from bowsynth.train import TrainConfig
+    from bowsynth.training import TrainConfig
 
     return TrainConfig(minutes=None, steps=steps, optimizer=kw.pop("optimizer", "adam"), lr=kw.pop("lr", 5e-3), n_data=256, data_times=32, data_oversample=4, batch_states=64,
                        batch_times=32, band_seconds=0.3, checkpoint_seconds=1e9, select_every=kw.pop("select_every", 0.0),
@@ -30,7 +30,7 @@ def tiny_config(steps=150, **kw):
 def tiny_model(tmp_path_factory):
     """A tiny operator for fb 100, trained for a few seconds (shared by the tests that need a model)."""
     from bowsynth import Scene
-    from bowsynth.train import Trainer
+    from bowsynth.training import Trainer
 
     # box sampling: a model this small strays off the thin band at once, and these tests need a rollout to run
     tr = Trainer(Scene(fb=100), tiny_config(steps=300, sampling="box"), "tiny")

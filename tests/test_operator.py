@@ -8,7 +8,7 @@ from bowsynth import DomainError, ModelFileError, Scene, render_fdm
 from bowsynth.model import load_model
 from bowsynth.network import DeepONet, NetConfig
 from bowsynth.rollout import render_operator
-from bowsynth.train import Trainer, default_weights, loss_terms
+from bowsynth.training import Trainer, default_weights, loss_terms
 from conftest import tiny_config
 
 
@@ -176,17 +176,18 @@ def test_selection_keeps_the_best_scored_weights(monkeypatch, tmp_path):
     scores = iter([5.0, 4.0, 0.5, 3.0, 2.0] + [9.0] * 20)  # the third scoring wins
     snaps = []
 
-    def fake_score():
+    def fake_score(model):
         snaps.append((tr.step, {k: v.clone() for k, v in tr.net.state_dict().items()}))
         return next(scores)
 
-    monkeypatch.setattr(tr, "selection_score", fake_score)
+    monkeypatch.setattr(tr.selector, "score", fake_score)
     tr.run()
     step, best = snaps[2]
     assert tr.step == 12 and step < 12 and len(snaps) == 13  # every step, and the final weights
     for k, v in tr.net.state_dict().items():
         assert torch.equal(v, best[k]), k
-    assert tr.model().meta.training["selected"] == {"step": step, "scored": 13, "score_nmse_p_at_1.5_f0": 0.5}
+    sel = tr.model().meta.training["selected"]
+    assert (sel["step"], sel["scored"], sel["score_nmse_p"]) == (step, 13, 0.5)
     ck = tmp_path / "t.ckpt.safetensors"  # a checkpoint carries the best weights, for --resume
     tr.save_checkpoint(ck)
     tr2 = Trainer(sc, tiny_config(steps=12, select_every=1e-9, select_from=0.0), "t")
@@ -195,9 +196,52 @@ def test_selection_keeps_the_best_scored_weights(monkeypatch, tmp_path):
     assert all(torch.equal(tr2.best["state"][k], v) for k, v in best.items())
 
 
-def test_selection_score_is_a_rollout_error(tiny_model):
+def test_selection_scores_a_rollout_from_a_state_the_validation_and_the_window_starts_never_use(tiny_model):
+    from bowsynth import render_fdm, render_operator
+    from bowsynth.metrics import nmse
+    from bowsynth.training.data import window_starts
+
     tr = Trainer(Scene(fb=100), tiny_config(steps=1, sampling="box"), "t")  # the tiny model's own settings
     tr.net.load_state_dict(load_model(tiny_model).net.state_dict())
-    score = tr.selection_score()
-    assert math.isfinite(score) and score > 0  # NMSE(p) of the (poor) tiny model's rollout at 1.5 f0
-    assert tr._select_ref[0].f0 == 150.0 and tr._select_ref[0].fb == 150.0
+    model = tr.model()
+    score = tr.selector.score(model)
+    sel = tr.selector.scene
+    assert (sel.q0, sel.p0) != (0.0, 0.0) and sel.f0 == 100.0 and sel.duration == 1.0
+    starts = window_starts(tr.scene, tr.data.band, tr.window)
+    assert np.min(np.hypot(starts[:, 0] - sel.q0, starts[:, 1] - sel.p0)) > 1e-3
+    assert score == pytest.approx(nmse(render_operator(sel, model=model).p, render_fdm(sel, oversample=100).p))
+
+
+def test_training_progress_in_a_pipe_is_plain_whole_lines_for_every_phase(tmp_path):
+    import io
+
+    from rich.console import Console
+
+    from bowsynth import api
+
+    buf = io.StringIO()
+    console = Console(file=buf, width=80)  # not a terminal: plain lines
+    api.train(Scene(fb=100), config=tiny_config(steps=60), out=tmp_path / "m.safetensors", progress=True,
+              console=console)
+    lines = buf.getvalue().splitlines()
+    assert lines[0].startswith("train: preparing")
+    text = "\n".join(lines)
+    for phase in ("preparing: FDM data", "training: ", "validating"):
+        assert phase in text, text
+    assert any(len(line) > 80 for line in lines)  # the loss terms are not cut at the console's width
+    assert all(line.startswith("train: ") for line in lines)
+
+
+def test_reporter_heartbeat_prints_during_a_silent_phase():
+    import io
+    import time
+
+    from rich.console import Console
+
+    from bowsynth.progress import Reporter
+
+    buf = io.StringIO()
+    with Reporter(Console(file=buf), every=0.2) as rep:
+        rep.update("a phase without callbacks", 0.5)
+        time.sleep(1.5)  # the heartbeat wakes every second
+    assert buf.getvalue().count("a phase without callbacks") >= 2

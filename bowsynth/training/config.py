@@ -1,0 +1,94 @@
+"""Training settings: the only place their defaults live (the CLI and `api.train` read them from here)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from ..errors import UsageError
+
+@dataclass
+class NetConfig:
+    width: int = 64
+    depth: int = 4
+    k: int = 64  # features per state variable; branch and trunk emit 2k each
+    ff_branch: int = 32  # random Fourier features (pairs) on the branch input
+    ff_trunk: int = 32
+    sigma_branch: float = 1.0
+    sigma_trunk: float = 2.0
+    linear_flow: bool = True  # carry the exact frictionless flow R(tau) x0 in the output (False: x0, for ablation)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+
+MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
+MAX_STEPS = 10_000_000
+
+
+@dataclass
+class TrainConfig:
+    minutes: float | None = 5.0
+    steps: int | None = None
+    seed: int = 0
+    optimizer: str = "soap"  # soap | adam (measured: SOAP 5-10x lower rollout error at equal time, BENCHMARKS.md)
+    lr: float = 3e-3
+    lr_final: float = 2e-5
+    lbfgs_fraction: float = 0.0  # share of the budget for an L-BFGS finish on a fixed batch
+    hybrid: bool = True
+    window: float | None = None  # in tau; None picks one period of the free oscillator, 2 pi
+    sampling: str = "scene"  # scene (the band a render visits) | box (the whole bounding box)
+    band_seconds: float = 1.0
+    margin: float = 0.05  # of the band's range, around the band
+    n_data: int = 4096
+    start_share: float = 0.125  # share of the data windows that start where a render's windows start (data.py)
+    data_times: int = 64
+    data_oversample: int = 40  # FDM data rate, as a multiple of the scene's audio rate
+    batch_states: int = 1024
+    batch_times: int = 64
+    weights: dict | None = None  # None: chosen from the scene's stiffness (losses.default_weights)
+    checkpoint_seconds: float = 60.0
+    # keep the weights that roll out best: from this share of the budget on, every select_every seconds (0: off)
+    select_every: float = 15.0
+    select_from: float = 0.5
+    net: NetConfig = field(default_factory=NetConfig)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def validate(self) -> "TrainConfig":
+        """Refuse settings that cannot train (one line each); returns self."""
+        if self.optimizer not in ("adam", "soap"):
+            raise UsageError(f"--optimizer must be adam or soap, got {self.optimizer!r}")
+        if self.sampling not in ("scene", "box"):
+            raise UsageError(f"sampling must be scene or box, got {self.sampling!r}")
+        if self.minutes is not None and not (0 < self.minutes <= MAX_MINUTES):
+            raise UsageError(f"--minutes must be > 0 and at most {MAX_MINUTES} (a day), got {self.minutes:g}")
+        if self.steps is not None and not (1 <= self.steps <= MAX_STEPS):
+            raise UsageError(f"--steps must be >= 1 and at most {MAX_STEPS}, got {self.steps}")
+        if not (self.minutes or self.steps):
+            raise UsageError("give a budget: --minutes or --steps")
+        if not 0 <= self.lbfgs_fraction <= 0.9:
+            raise UsageError(f"--lbfgs must be in [0, 0.9], got {self.lbfgs_fraction:g}")
+        if self.window is not None and not (math.isfinite(self.window) and 0 < self.window <= 100 * math.pi):
+            raise UsageError(f"the window must be > 0 and at most 50 periods, got {self.window:g} in tau")
+        if not (1 <= self.net.width <= 1024 and 1 <= self.net.depth <= 32):
+            raise UsageError(f"--width must be in [1, 1024] and --depth in [1, 32], got {self.net.width}, "
+                             f"{self.net.depth}")
+        if not 16 <= self.n_data <= 1_000_000:
+            raise UsageError(f"--n-data must be in [16, 1000000], got {self.n_data}")
+        if not (math.isfinite(self.checkpoint_seconds) and self.checkpoint_seconds > 0):
+            raise UsageError(f"--checkpoint-every must be > 0 s, got {self.checkpoint_seconds:g}")
+        return self
+
+
+def checkpoint_path(out) -> Path:
+    """Where the checkpoint of the model file `out` lives (beside it)."""
+    out = Path(out)
+    return out.with_name(out.name.removesuffix(".safetensors") + ".ckpt.safetensors")
+
+
+def default_model_name(scene) -> str:
+    return f"fb{scene.fb:g}_f0{scene.f0:g}_vb{scene.vb:g}_a{scene.a:g}"

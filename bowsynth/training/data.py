@@ -1,0 +1,128 @@
+"""What the operator trains on: the band of states a render of the scene visits, a domain around it, a sampler of
+states near it, and high-rate FDM trajectories over one window from those states ("a Model trains a Net on Data")."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from .. import physics
+from ..fdm import fdm_batch, render_fdm
+from ..model import Domain
+from ..scene import Scene
+from .config import TrainConfig
+
+GRID = 64  # domain mask resolution
+
+
+def scene_band(scene: Scene, seconds: float) -> np.ndarray:
+    """States (N, 2) an audio-rate FDM visits from the scene's initial state: where a render will go."""
+    r = render_fdm(scene.replace(duration=max(seconds, 2.0 / scene.sample_rate)), oversample=1)
+    return np.stack([r.q, r.p], axis=1)
+
+
+def make_domain(scene: Scene, band: np.ndarray, window: float, margin: float, box_only: bool) -> Domain:
+    lo, hi = band.min(0), band.max(0)
+    rng_ = np.maximum(hi - lo, 1e-3)
+    lo, hi = lo - margin * rng_, hi + margin * rng_
+    dom = Domain(beta=scene.beta, vb=scene.vb, a=scene.a, window=window,
+                 q_lo=float(lo[0]), q_hi=float(hi[0]), p_lo=float(lo[1]), p_hi=float(hi[1]),
+                 mask=np.ones((GRID, GRID), bool))
+    if not box_only:
+        mask = np.zeros((GRID, GRID), bool)
+        mask[dom.cell(band[:, 0], band[:, 1], GRID)] = True
+        dom.mask = ndimage.binary_dilation(mask, iterations=max(1, math.ceil(margin * GRID)))
+    return dom
+
+
+class StateSampler:
+    """Draws training states near the band (scene sampling) or uniformly in the domain's box."""
+
+    def __init__(self, band: np.ndarray, domain: Domain, margin: float, box: bool, rng: np.random.Generator):
+        self.band, self.domain, self.box, self.rng = band, domain, box, rng
+        self.sd = margin * (band.max(0) - band.min(0)).clip(1e-3) / 2
+        # A render passes through its onset once and then circles its limit cycle: uniform sampling in time
+        # would leave the onset almost untrained. Weight each band point by 1 / (points in its grid cell).
+        i, j = domain.cell(band[:, 0], band[:, 1], GRID)
+        cell = i * GRID + j
+        counts = np.bincount(cell, minlength=GRID * GRID)
+        w = 1.0 / counts[cell]
+        self.cdf = np.cumsum(w) / w.sum()
+
+    def __call__(self, n: int) -> np.ndarray:
+        out = np.empty((0, 2))
+        while len(out) < n:
+            if self.box:
+                d = self.domain
+                x = self.rng.uniform([d.q_lo, d.p_lo], [d.q_hi, d.p_hi], size=(2 * n, 2))
+            else:
+                idx = np.minimum(np.searchsorted(self.cdf, self.rng.random(2 * n)), len(self.band) - 1)
+                x = self.band[idx] + self.rng.normal(0, 1, (2 * n, 2)) * self.sd
+            x = x[self.domain.contains(x[:, 0], x[:, 1])]
+            out = np.concatenate([out, x])
+        return out[:n]
+
+
+def fdm_windows(scene: Scene, x0: np.ndarray, window: float, n_times: int, oversample: int, on_progress=None):
+    """High-rate FDM trajectories over one window from each state: (tau (M+1,), x (B, M+1, 2))."""
+    w = scene.omega
+    stride = max(1, math.ceil(window / n_times / (scene.dtau / oversample)))
+    k = window / (n_times * stride) / w  # seconds
+    if k >= physics.max_stable_step(scene.fb, scene.a):
+        stride = math.ceil(window / n_times / (0.9 * physics.max_stable_step(scene.fb, scene.a) * w))
+        k = window / (n_times * stride) / w
+    q, p = fdm_batch(x0[:, 0], x0[:, 1], n_times + 1, stride, k, w, scene.fb, scene.vb, scene.a,
+                     on_progress=on_progress)
+    tau = np.arange(n_times + 1) * window / n_times
+    return tau, np.stack([q, p], axis=-1)
+
+
+def window_starts(scene: Scene, band: np.ndarray, window: float) -> np.ndarray:
+    """The band states where a render from the scene's initial state starts its windows."""
+    n_win = max(1, int(window / scene.dtau + 1e-9))
+    return band[::n_win]
+
+
+@dataclass
+class TrainingData:
+    band: np.ndarray
+    domain: Domain
+    sampler: StateSampler
+    x0: np.ndarray  # (B, 2) window start states of the FDM data
+    tau: np.ndarray  # (M + 1,) times in the window
+    x: np.ndarray  # (B, M + 1, 2) FDM trajectories
+    corr_scale: np.ndarray  # (2,) RMS size of the friction correction per variable
+
+
+def build(scene: Scene, cfg: TrainConfig, window: float, rng: np.random.Generator, on_progress=None) -> TrainingData:
+    """Band, domain, sampler and FDM data for a scene. on_progress(phase, fraction) reports the slow parts."""
+    report = on_progress or (lambda phase, frac: None)
+    report("scene band (audio-rate FDM)", 0.0)
+    box = cfg.sampling == "box"
+    band = scene_band(scene, cfg.band_seconds)
+    domain = make_domain(scene, band, window, cfg.margin, box_only=box)
+    sampler = StateSampler(band, domain, cfg.margin, box, rng)
+    # FDM trajectories from band states: the data loss, and the correction scale c even without it
+    x0 = sampler(cfg.n_data if cfg.hybrid else min(cfg.n_data, 512))
+    if cfg.hybrid and cfg.start_share > 0:
+        # A render from the scene's initial state starts its windows at exactly these band states; its onset
+        # windows are visited once and were its largest error. Train on them, with a little noise so that
+        # other sample rates and pitches (other window alignments) stay covered.
+        starts = window_starts(scene, band, window)
+        m = min(len(x0), int(cfg.start_share * len(x0)))
+        pick = starts[np.arange(m) % len(starts)]
+        jitter = rng.normal(0, 1, pick.shape) * sampler.sd * 0.2
+        jitter[: len(starts)] = 0.0
+        x0[:m] = pick + jitter
+    tau, x = fdm_windows(scene, x0, window, cfg.data_times, cfg.data_oversample,
+                         on_progress=lambda f: report(f"FDM data: {len(x0)} windows at x{cfg.data_oversample}", f))
+    if cfg.net.linear_flow:
+        lq, lp = physics.linear_flow(x0[:, 0:1], x0[:, 1:2], tau[None, :])
+    else:
+        lq, lp = np.broadcast_arrays(x0[:, 0:1], x0[:, 1:2], tau[None, :])[:2]
+    corr = (x - np.stack([lq, lp], -1))[:, 1:] / (tau[1:] / window)[None, :, None]
+    c = np.sqrt(np.mean(corr ** 2, axis=(0, 1))).clip(1e-6)
+    return TrainingData(band, domain, sampler, x0, tau, x, c)

@@ -1,0 +1,79 @@
+"""The loss terms, by name (each normalised to O(1) by the correction scale c), and the one weighted sum:
+
+  data  - trajectories against a high-rate batch FDM from band states (hybrid only)
+  end   - the window's end state against the FDM (it seeds the next window, so its error compounds)
+  kin   - kinematic residual q' - p
+  fric  - friction residual p' + q + beta phi(p - v_B); stiff at high force, where it fights the data
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .. import physics
+from ..network import DeepONet
+from ..scene import Scene
+
+STIFF = 10.0  # beta sqrt(2a) e^1/2 above this: the friction residual is dropped from the hybrid loss by default
+FRIC_WEIGHT = 0.03  # hybrid, non-stiff: fb 100, 3 min SOAP: 0.3 -> 2.3e-3, 0.1 -> 3.8e-4, 0.03 -> 3.5e-5 NMSE(p) 1 s
+
+
+def stiffness(scene: Scene) -> float:
+    """Friction slope at rest in dimensionless time: beta sqrt(2a) e^{1/2}."""
+    return scene.beta * math.sqrt(2 * scene.a) * physics.E_HALF
+
+
+def default_weights(scene: Scene, hybrid: bool) -> dict:
+    if not hybrid:
+        return {"kin": 1.0, "fric": 1.0}
+    w = {"data": 1.0, "end": 1.0, "kin": 1.0}
+    if stiffness(scene) < STIFF:
+        w["fric"] = FRIC_WEIGHT
+    return w
+
+
+def weighted(terms: dict, weights: dict):
+    """The training loss: the weighted sum of the named terms."""
+    return sum(weights[k] * v for k, v in terms.items())
+
+
+def residuals(net: DeepONet, x, dx, b: float, vb: float, a: float):
+    """Dimensionless ODE residuals (kinematic, friction) of trajectories x with derivatives dx, scaled by c / T."""
+    q, p = x[..., 0], x[..., 1]
+    dq_ref, dp_ref = physics.rhs_tau(q, p, b, vb, a)
+    scale = net.corr_scale / net.window
+    return (dx[..., 0] - dq_ref) / scale[0], (dx[..., 1] - dp_ref) / scale[1]
+
+
+def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
+    """The named loss terms. Branch and trunk run once each on the data and physics points together: on a CPU
+    these small networks cost mostly per-call overhead."""
+    use_data = "data" in weights or "end" in weights
+    use_phys = "kin" in weights or "fric" in weights
+    x0s = [batch["data_x0"]] * use_data + [batch["phys_x0"]] * use_phys
+    taus = [batch["data_tau"]] * use_data + [batch["phys_tau"]] * use_phys
+    bf = net.branch_features(torch.cat(x0s))
+    tau_all = torch.cat(taus)
+    if use_phys:
+        tf, dtf = net.trunk_features_jvp(tau_all / net.window)
+    else:
+        tf, dtf = net.trunk_features(tau_all / net.window), None
+    terms = {}
+    nb, nm = (len(batch["data_x0"]), len(batch["data_tau"])) if use_data else (0, 0)
+    if use_data:
+        pred = net.assemble(batch["data_x0"], batch["data_tau"], bf[:nb], tf[:nm])
+        err = (pred - batch["data_x"]) / net.corr_scale
+        if "data" in weights:
+            terms["data"] = err.square().mean()
+        if "end" in weights:
+            terms["end"] = err[:, -1].square().mean()
+    if use_phys:
+        x, dx = net.assemble(batch["phys_x0"], batch["phys_tau"], bf[nb:], tf[nm:], dtf[nm:])
+        rk, rf = residuals(net, x, dx, scene.beta, scene.vb, scene.a)
+        if "kin" in weights:
+            terms["kin"] = rk.square().mean()
+        if "fric" in weights:
+            terms["fric"] = rf.square().mean()
+    return terms

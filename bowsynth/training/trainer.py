@@ -1,0 +1,191 @@
+"""The training loop: SOAP/Adam steps on batches of the data, budgets, checkpoints, weight selection, packaging."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..model import ModelMeta, OperatorModel
+from ..network import DeepONet
+from ..scene import Scene
+from . import checkpoint
+from .config import TrainConfig, default_model_name  # noqa: F401
+from .data import build
+from .losses import default_weights, loss_terms, weighted
+from .selection import Selector, json_number, selection_scene
+
+
+@dataclass
+class TrainResult:
+    model: OperatorModel
+    path: Path | None
+    history: list = field(default_factory=list)
+
+
+class Trainer:
+    def __init__(self, scene: Scene, cfg: TrainConfig, name: str, on_progress=None):
+        cfg.validate()
+        self.scene, self.cfg, self.name = scene, cfg, name
+        self.weights = cfg.weights or default_weights(scene, cfg.hybrid)
+        self.window = cfg.window or 2 * math.pi
+        self.rng = np.random.default_rng(cfg.seed)
+        torch.manual_seed(cfg.seed)
+        self.data = build(scene, cfg, self.window, self.rng, on_progress=on_progress)
+        self.domain, self.sampler = self.data.domain, self.data.sampler
+        d = self.domain
+        self.net = DeepONet(cfg.net, seed=cfg.seed)
+        self.net.set_scales([(d.q_lo + d.q_hi) / 2, (d.p_lo + d.p_hi) / 2],
+                            [(d.q_hi - d.q_lo) / 2, (d.p_hi - d.p_lo) / 2], self.data.corr_scale, self.window)
+        self.data_x0 = torch.tensor(self.data.x0, dtype=torch.float32)
+        self.data_x = torch.tensor(self.data.x, dtype=torch.float32)
+        self.data_tau = torch.tensor(self.data.tau, dtype=torch.float32)
+        self.opt = self._make_optimizer()
+        self.step = 0
+        self.elapsed = 0.0
+        self.history: list[dict] = []
+        self.selector = Selector(selection_scene(scene, self.data.band, self.window, d.contains))
+
+    @property
+    def best(self) -> dict:
+        return self.selector.best
+
+    def _make_optimizer(self):
+        params = self.net.parameters()
+        if self.cfg.optimizer == "soap":
+            from pytorch_optimizer import SOAP
+
+            return SOAP(params, lr=self.cfg.lr, betas=(0.95, 0.95), precondition_frequency=10)
+        return torch.optim.Adam(params, lr=self.cfg.lr, fused=True)
+
+    def batch(self, n_states: int | None = None) -> dict:
+        cfg = self.cfg
+        n = n_states or cfg.batch_states
+        idx = torch.from_numpy(self.rng.integers(0, len(self.data_x0), n))
+        return {
+            "data_x0": self.data_x0[idx], "data_x": self.data_x[idx], "data_tau": self.data_tau,
+            "phys_x0": torch.tensor(self.sampler(n), dtype=torch.float32),
+            "phys_tau": torch.tensor(self.rng.uniform(0, self.window, cfg.batch_times), dtype=torch.float32),
+        }
+
+    def progress(self) -> float:
+        cfg = self.cfg
+        fr = []
+        if cfg.steps:
+            fr.append(self.step / cfg.steps)
+        if cfg.minutes:
+            fr.append(self.elapsed / (60 * cfg.minutes))
+        return min(1.0, max(fr))
+
+    def train_step(self) -> dict:
+        frac = self.progress() / max(1e-9, 1 - self.cfg.lbfgs_fraction)
+        lr = self.cfg.lr * (self.cfg.lr_final / self.cfg.lr) ** min(frac, 1.0)
+        for g in self.opt.param_groups:
+            g["lr"] = lr
+        terms = loss_terms(self.net, self.batch(), self.scene, self.weights)
+        loss = weighted(terms, self.weights)
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        self.step += 1
+        return {"loss": float(loss.detach()), "lr": lr, **{k: float(v.detach()) for k, v in terms.items()}}
+
+    def lbfgs_finish(self, seconds: float, on_step=None):
+        """L-BFGS on one fixed large batch (strong Wolfe), until the time is spent."""
+        opt = torch.optim.LBFGS(self.net.parameters(), lr=1.0, max_iter=20, history_size=50,
+                                line_search_fn="strong_wolfe")
+        batch = self.batch(min(4 * self.cfg.batch_states, len(self.data_x0)))
+
+        def closure():
+            opt.zero_grad(set_to_none=True)
+            loss = weighted(loss_terms(self.net, batch, self.scene, self.weights), self.weights)
+            loss.backward()
+            return loss
+
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            loss = opt.step(closure)
+            self.step += 1
+            if not math.isfinite(float(loss)):
+                break
+            if on_step:
+                on_step({"loss": float(loss), "lbfgs": 1.0})
+
+    def save_checkpoint(self, path: Path):
+        tensors = {f"net.{k}": v.detach().contiguous().clone() for k, v in self.net.state_dict().items()}
+        if self.best["state"] is not None:
+            tensors.update({f"best.{k}": v.contiguous() for k, v in self.best["state"].items()})
+        meta = {"step": self.step, "elapsed": self.elapsed, "rng": self.rng.bit_generator.state,
+                "scene": self.scene.to_dict(), "config": self.cfg.to_dict(), "history": self.history[-200:],
+                "best": {"score": json_number(self.best["score"]), "step": self.best["step"],
+                         "scored": self.best["scored"]}}
+        checkpoint.save(path, {"tensors": tensors, "optimizer": self.opt.state_dict(), "meta": meta})
+
+    def load_checkpoint(self, path: Path):
+        from ..errors import UsageError
+
+        tensors, opt_state, meta = checkpoint.load(path)
+        if meta["scene"] != self.scene.to_dict():
+            raise UsageError(f"checkpoint {path} is for another scene; delete it or pick another --out")
+        self.net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
+        best = meta.get("best") or {}
+        state = {k[5:]: v for k, v in tensors.items() if k.startswith("best.")}
+        self.best.update(score=math.inf if best.get("score") is None else best["score"], step=best.get("step"),
+                         state=state or None, scored=best.get("scored", 0))
+        self.opt.load_state_dict(opt_state)
+        self.rng.bit_generator.state = meta["rng"]
+        self.step, self.elapsed, self.history = meta["step"], meta["elapsed"], meta["history"]
+
+    def done(self) -> bool:
+        return self.progress() >= 1.0 - self.cfg.lbfgs_fraction if self.cfg.lbfgs_fraction else self.progress() >= 1.0
+
+    def _consider(self):
+        self.selector.consider(self.model(), self.step, self.net.state_dict())
+
+    def run(self, ckpt: Path | None = None, on_step=None):
+        """SOAP/Adam until the budget (less the L-BFGS share) is spent, checkpointing as it goes; then the weights
+        that rolled out best (see selection.py) among those scored in the budget's last part."""
+        last_ckpt = last_select = time.perf_counter()
+        t_prev = time.perf_counter()
+        select = self.cfg.select_every > 0
+        while not self.done():
+            rec = self.train_step()
+            now = time.perf_counter()
+            self.elapsed += now - t_prev
+            t_prev = now
+            if not math.isfinite(rec["loss"]):
+                raise FloatingPointError(f"training diverged at step {self.step} (loss {rec['loss']})")
+            if self.step % 50 == 0:
+                self.history.append({"step": self.step, "t": round(self.elapsed, 2), **rec})
+            if on_step:
+                on_step(rec)
+            if select and self.progress() >= self.cfg.select_from and now - last_select >= self.cfg.select_every:
+                self._consider()  # its few ms count against the budget
+                last_select = time.perf_counter()
+            if ckpt is not None and now - last_ckpt > self.cfg.checkpoint_seconds:
+                self.save_checkpoint(ckpt)
+                last_ckpt = time.perf_counter()
+                t_prev = last_ckpt
+        if self.cfg.lbfgs_fraction and self.cfg.minutes:
+            budget = 60 * self.cfg.minutes - self.elapsed
+            t0 = time.perf_counter()
+            self.lbfgs_finish(budget, on_step)
+            self.elapsed += time.perf_counter() - t0
+        if select:
+            self._consider()  # the final weights compete too
+            if self.best["state"] is not None and self.best["step"] != self.step:
+                self.net.load_state_dict(self.best["state"])
+
+    def model(self) -> OperatorModel:
+        meta = ModelMeta(name=self.name, domain=self.domain, net=self.cfg.net.to_dict(),
+                         training={**{k: v for k, v in self.cfg.to_dict().items() if k != "net"},
+                                   "weights": self.weights, "steps_done": self.step,
+                                   "seconds": round(self.elapsed, 1),
+                                   "final_loss": self.history[-1]["loss"] if self.history else None,
+                                   "selected": self.selector.record()},
+                         validation={}, scene=self.scene.to_dict())
+        return OperatorModel(self.net, meta)
