@@ -63,14 +63,13 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
         tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f))
         if resume:
             tr.load_checkpoint(ckpt)
-        rep.update("training", tr.progress(), f"step {tr.step}, {config.optimizer}")
-
         def on_step(rec):
             if tr.step % 25 == 0:
                 terms = " ".join(f"{k} {v:.1e}" for k, v in rec.items() if k != "lr")
                 rep.update("training", tr.progress(), f"step {tr.step} {terms}")
 
         try:
+            rep.update("training", tr.progress(), f"step {tr.step}, {config.optimizer}")
             tr.run(ckpt=ckpt, on_step=on_step)
         except KeyboardInterrupt:
             tr.save_checkpoint(ckpt)
