@@ -169,13 +169,16 @@ def render_fdm(scene: Scene, oversample: int = 1) -> Render:
 def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None):
     """Vectorised FDM over many initial states at once (numpy), same start and iteration as `render_fdm`.
 
-    q0, p0: arrays (B,). Steps of size k; returns q, p of shape (B, n_out) at every `stride`-th step
-    (column 0 is the initial state). on_progress(fraction) is called after each output step.
+    q0, p0: arrays (B,); fb, vb: numbers or arrays (B,), one bow per state (range models train on many).
+    Steps of size k; returns q, p of shape (B, n_out) at every `stride`-th step (column 0 is the initial state).
+    on_progress(fraction) is called after each output step.
     """
     q0 = np.asarray(q0, dtype=float)
     p0 = np.asarray(p0, dtype=float)
-    if k >= physics.max_stable_step(fb, a):
-        raise ValueError(f"step k={k:g} s breaks the uniqueness bound for fb={fb:g}, a={a:g}")
+    fb = np.broadcast_to(np.asarray(fb, dtype=float), q0.shape)
+    vb = np.broadcast_to(np.asarray(vb, dtype=float), q0.shape)
+    if q0.size and k >= physics.max_stable_step(float(fb.max()), a):
+        raise ValueError(f"step k={k:g} s breaks the uniqueness bound for fb={float(fb.max()):g}, a={a:g}")
     u_cur = q0 / w
     u_prev = taylor_start(u_cur, p0, k, w, fb, vb, a)
     eta = p0 - vb
@@ -202,12 +205,12 @@ def _solve_eta_vec(guess, b, c, fb, a):
     x = np.clip(guess, lo, hi)
     active = np.ones(x.shape, dtype=bool)
     for _ in range(NEWTON_MAXIT):
-        xa, la, ha, ba = x[active], lo[active], hi[active], b[active]
-        fx = c * xa + fb * physics.phi(xa, a) + ba
+        xa, la, ha, ba, fa = x[active], lo[active], hi[active], b[active], fb[active]
+        fx = c * xa + fa * physics.phi(xa, a) + ba
         pos = fx > 0.0
         ha = np.where(pos, xa, ha)
         la = np.where(pos, la, xa)
-        d = c + fb * physics.dphi(xa, a)
+        d = c + fa * physics.dphi(xa, a)
         with np.errstate(divide="ignore", invalid="ignore"):
             xn = np.where(d > 0.0, xa - fx / d, 0.5 * (la + ha))
         bad = ~((la <= xn) & (xn <= ha))

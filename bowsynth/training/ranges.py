@@ -1,0 +1,108 @@
+"""Playing ranges: a box of bow parameters (beta = F_B / w and v_B, at one friction shape a) that one range model
+covers, and the parameter points its training data comes from.
+
+A render visits a thin band of states for each bow; a piece visits a region of bows. The data for a range comes from
+renders from rest at parameter points spread over the box (Latin hypercube, beta on a log scale: the dynamics change
+by factors of beta, not by steps), so the band of each point is covered.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import physics
+from ..errors import UsageError
+
+
+def parse_range(text: str, name: str) -> tuple[float, float]:
+    """A CLI value `lo:hi` (a range) or `x` (a point, lo = hi)."""
+    parts = str(text).split(":")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise UsageError(f"--{name} must be a number or a range lo:hi, got {text!r}") from None
+    if len(vals) not in (1, 2) or not all(math.isfinite(v) for v in vals):
+        raise UsageError(f"--{name} must be a finite number or a range lo:hi, got {text!r}")
+    lo, hi = vals[0], vals[-1]
+    if hi < lo:
+        raise UsageError(f"--{name} range {text!r} is inverted: write it low:high")
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class ParamBox:
+    """beta in [beta_lo, beta_hi], v_B in [vb_lo, vb_hi], at friction shape a. A point model is a box of zero width."""
+
+    beta_lo: float
+    beta_hi: float
+    vb_lo: float
+    vb_hi: float
+    a: float
+
+    def __post_init__(self):
+        for lo, hi, name in ((self.beta_lo, self.beta_hi, "F_B / w"), (self.vb_lo, self.vb_hi, "v_B")):
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise UsageError(f"{name} range [{lo:g}, {hi:g}] is empty or not finite")
+        if not self.beta_lo >= 0:
+            raise UsageError(f"F_B / w must be >= 0, got {self.beta_lo:g}")
+
+    @classmethod
+    def from_forces(cls, fb: tuple[float, float], vb: tuple[float, float], f0: float, a: float) -> "ParamBox":
+        return cls(physics.beta(fb[0], f0), physics.beta(fb[1], f0), vb[0], vb[1], a)
+
+    @property
+    def is_point(self) -> bool:
+        return self.beta_lo == self.beta_hi and self.vb_lo == self.vb_hi
+
+    def contains(self, beta, vb, rel_tol: float = 1e-6) -> np.ndarray:
+        beta, vb = np.asarray(beta, float), np.asarray(vb, float)
+        tb = rel_tol * max(abs(self.beta_hi), 1e-12)
+        tv = rel_tol * max(abs(self.vb_hi), 1e-12)
+        return ((beta >= self.beta_lo - tb) & (beta <= self.beta_hi + tb)
+                & (vb >= self.vb_lo - tv) & (vb <= self.vb_hi + tv))
+
+    def normalise(self, beta, vb) -> np.ndarray:
+        """(beta, v_B) -> [-1, 1]^2 over the box (log beta); a zero-width side maps to 0. (N, 2)."""
+        lb = np.log(np.maximum(np.asarray(beta, float), 1e-12))
+        lo, hi = math.log(max(self.beta_lo, 1e-12)), math.log(max(self.beta_hi, 1e-12))
+        nb = np.zeros_like(lb) if hi == lo else 2 * (lb - lo) / (hi - lo) - 1
+        vb = np.asarray(vb, float)
+        nv = np.zeros_like(vb) if self.vb_hi == self.vb_lo else 2 * (vb - self.vb_lo) / (self.vb_hi - self.vb_lo) - 1
+        return np.stack(np.broadcast_arrays(nb, nv), axis=-1)
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """n parameter points (beta, v_B), a Latin hypercube over (log beta, v_B)."""
+        u = (np.stack([rng.permutation(n), rng.permutation(n)], axis=1) + rng.random((n, 2))) / n
+        lo, hi = math.log(max(self.beta_lo, 1e-12)), math.log(max(self.beta_hi, 1e-12))
+        beta = np.exp(lo + u[:, 0] * (hi - lo)) if self.beta_hi > 0 else np.zeros(n)
+        return np.stack([beta, self.vb_lo + u[:, 1] * (self.vb_hi - self.vb_lo)], axis=1)
+
+    def grid(self, n: int) -> np.ndarray:
+        """An n x n grid of points inside the box (cell centres, log beta): held-out points for evaluation."""
+        f = (np.arange(n) + 0.5) / n
+        lo, hi = math.log(max(self.beta_lo, 1e-12)), math.log(max(self.beta_hi, 1e-12))
+        bb, vv = np.meshgrid(np.exp(lo + f * (hi - lo)), self.vb_lo + f * (self.vb_hi - self.vb_lo), indexing="ij")
+        return np.stack([bb.ravel(), vv.ravel()], axis=1)
+
+    def to_json(self) -> dict:
+        return {"beta": [self.beta_lo, self.beta_hi], "vb": [self.vb_lo, self.vb_hi], "a": self.a}
+
+    def describe(self) -> str:
+        return (f"F_B / w {self.beta_lo:.4g}..{self.beta_hi:.4g}, v_B {self.vb_lo:g}..{self.vb_hi:g}, "
+                f"a {self.a:g}")
+
+
+def speaks(beta, vb, a: float, f0: float = 100.0, seconds: float = 1.0) -> np.ndarray:
+    """Does a note from rest speak within `seconds`? Small oscillations about the rest state grow as exp(rate tau)
+    from the rest state's offset beta phi(v_B); once they reach a tenth of v_B the friction's nonlinearity takes them
+    to the limit cycle within a few periods (checked against the FDM at f0 100: beta 0.4 / v_B 0.3 speaks,
+    beta 0.3 / v_B 0.3 is still growing at 1 s, v_B 0.35 stays silent at beta 0.75; tests/test_ranges.py)."""
+    beta, vb = np.asarray(beta, float), np.asarray(vb, float)
+    rate = physics.onset_rate(beta, vb, a)
+    start = np.maximum(np.abs(beta * physics.phi(vb, a)), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        need = np.log(np.maximum(0.1 * vb, 1e-12) / start) / rate  # in tau
+    return (rate > 0) & (need <= physics.omega(f0) * seconds)
