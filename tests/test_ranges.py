@@ -58,3 +58,20 @@ def test_batch_fdm_takes_one_bow_per_state():
         qi, pi = fdm_batch(q0[i:i + 1], p0[i:i + 1], 40, 4, k, w, fb[i], vb[i], 100.0)
         np.testing.assert_array_equal(q[i], qi[0])
         np.testing.assert_array_equal(p[i], pi[0])
+
+
+def test_range_band_pairs_each_state_with_the_bow_it_was_visited_under():
+    from bowsynth.training.ranges import range_band
+
+    box = ParamBox(0.1, 0.3, 0.15, 0.25, 100.0)
+    pts = box.sample(4, np.random.default_rng(1))
+    rb = range_band(box, pts, 100.0, 44100, 0.2, 2 * np.pi, gestures=2, rng=np.random.default_rng(2))
+    n = int(0.2 * 44100)
+    assert rb.states.shape == rb.params.shape == (6 * n, 2)
+    for i, (b, v) in enumerate(pts):  # the points' renders hold their bow; the gestures' stay inside the box
+        np.testing.assert_allclose(rb.params[i * n:(i + 1) * n], np.tile([b, v], (n, 1)), rtol=1e-12)
+    assert box.contains(rb.params[:, 0], rb.params[:, 1]).all()
+    assert not np.allclose(rb.params[4 * n], rb.params[5 * n - 1])  # a gesture moves
+    np.testing.assert_allclose(rb.weights.sum(), 1.0)
+    # window starts: every 441st state of each render (one window of 2 pi at f0 100, 44.1 kHz)
+    np.testing.assert_array_equal(rb.starts[:3, :2], rb.states[[0, 441, 882]])

@@ -106,3 +106,54 @@ def speaks(beta, vb, a: float, f0: float = 100.0, seconds: float = 1.0) -> np.nd
     with np.errstate(divide="ignore", invalid="ignore"):
         need = np.log(np.maximum(0.1 * vb, 1e-12) / start) / rate  # in tau
     return (rate > 0) & (need <= physics.omega(f0) * seconds)
+
+
+@dataclass
+class RangeBand:
+    """States renders visit inside a box, each with the bow (beta, v_B) it was visited under."""
+
+    states: np.ndarray  # (N, 2) q, p
+    params: np.ndarray  # (N, 2) beta, v_B
+    weights: np.ndarray  # (N,) sampling weight: each point's own onset as likely as its limit cycle
+    starts: np.ndarray  # (S, 4) q, p, beta, v_B where renders from rest start their windows
+
+
+def _balanced(states: np.ndarray, grid: int = 64) -> np.ndarray:
+    """Weights 1 / (states in the same cell of a grid over their own box): a render passes its onset once and
+    then circles its limit cycle, and uniform sampling in time would leave the onset untrained (round 1)."""
+    lo, hi = states.min(0), states.max(0)
+    cell = np.floor((states - lo) / np.maximum(hi - lo, 1e-9) * (grid - 1e-9)).astype(int)
+    key = cell[:, 0] * grid + cell[:, 1]
+    counts = np.bincount(key, minlength=grid * grid)
+    w = 1.0 / counts[key]
+    return w / w.sum()
+
+
+def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, seconds: float, window: float,
+               gestures: int = 0, rng: np.random.Generator | None = None) -> RangeBand:
+    """Audio-rate FDM renders from rest at each parameter point, plus `gestures` renders whose bow moves in a
+    straight line between two random points of the box over `seconds` (the states a crescendo or a bow change
+    visits). Every point gets the same total sampling weight."""
+    from ..fdm import render_fdm
+    from ..scene import Scene
+
+    w = physics.omega(f0)
+    states, params, weights, starts = [], [], [], []
+    per_window = max(1, int(window / physics.dtau(f0, sample_rate) + 1e-9))
+    runs = [((b, b), (v, v)) for b, v in points]
+    if gestures:
+        rng = rng or np.random.default_rng(0)
+        ends = box.sample(2 * gestures, rng)
+        runs += [((ends[i, 0], ends[gestures + i, 0]), (ends[i, 1], ends[gestures + i, 1])) for i in range(gestures)]
+    for (b0, b1), (v0, v1) in runs:
+        fb = b0 * w if b0 == b1 else [(0.0, b0 * w), (seconds, b1 * w)]
+        vb = v0 if v0 == v1 else [(0.0, v0), (seconds, v1)]
+        r = render_fdm(Scene(f0=f0, fb=fb, vb=vb, a=box.a, duration=seconds, sample_rate=sample_rate))
+        x = np.stack([r.q, r.p], axis=1)
+        par = np.stack([r.controls["fb"] / w, r.controls["vb"]], axis=1)
+        states.append(x)
+        params.append(par)
+        weights.append(_balanced(x))
+        starts.append(np.hstack([x, par])[::per_window])
+    wts = np.concatenate(weights)
+    return RangeBand(np.concatenate(states), np.concatenate(params), wts / wts.sum(), np.concatenate(starts))
