@@ -9,25 +9,11 @@ adds; the factor s makes x(0) = x0 exact (hard initial condition). c scales the 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
 
-
-@dataclass
-class NetConfig:
-    width: int = 64
-    depth: int = 4
-    k: int = 64  # features per state variable; branch and trunk emit 2k each
-    ff_branch: int = 32  # random Fourier features (pairs) on the branch input
-    ff_trunk: int = 32
-    sigma_branch: float = 1.0
-    sigma_trunk: float = 2.0
-    linear_flow: bool = True  # carry the exact frictionless flow R(tau) x0 in the output (False: x0, for ablation)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+from .npnet import NetConfig  # noqa: F401  (torch-free: model files are read without torch)
 
 
 class FourierFeatures(nn.Module):
