@@ -13,6 +13,8 @@ $(STAMP): pyproject.toml
 	# the CPU build of torch lies on this machine; a bare `torch` would pull a multi-GB CUDA build
 	$(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[test]'
+	# compile numba's cached loops now (the FDM, the rollout loops): no user command pays the ~10 s compile
+	$(PY) -c 'from bowsynth.kernels import warm; warm()'
 	touch $(STAMP)
 
 setup: $(STAMP)

@@ -6,7 +6,6 @@ import math
 from pathlib import Path
 
 from .errors import BowsynthError, UsageError
-from .fdm import render_fdm  # noqa: F401
 from .scene import Scene
 
 
@@ -19,6 +18,13 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     from .engines import render as _r
 
     return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample)
+
+
+def render_fdm(scene: Scene, oversample: int = 1):
+    """Render a Scene with the FDM; see `bowsynth.fdm.render_fdm` (imported here on first use: it loads numba)."""
+    from .fdm import render_fdm as _r
+
+    return _r(scene, oversample=oversample)
 
 
 def render_operator(scene, model=None, fallback: str = "none"):

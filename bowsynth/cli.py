@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -88,6 +89,8 @@ def render(
     r = engines.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample)
     write_wav(output, r, signal=signal)
     model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""
+    if r.info.get("model_path"):
+        model_note += f" ({r.info['model_path']})"
     setup = r.info.get("setup_seconds")
     setup_note = f" after {setup * 1e3:.0f} ms of start-up" if setup else ""
     _say(quiet, f"wrote {output}: {scene.duration:g} s at {scene.sample_rate} Hz, method {r.method}{model_note}; "
@@ -129,9 +132,10 @@ def train(
     res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err)
     v = res.model.meta.validation
     _say(False, f"model written to {res.path} ({res.model.id})")
+    if res.model.failure:
+        err.print(f"warning: {res.model.failure}: this model is not picked by default (only with --model); train "
+                  f"longer (--minutes) before rendering with it", soft_wrap=True)
     if v.get("error"):
-        err.print(f"warning: validation rollout failed: {v['error']}; train longer (--minutes) before rendering with it",
-                  soft_wrap=True)
         return
     _say(False, f"validation (1 s from the scene's initial state vs FDM x{v.get('ref_oversample')}): "
                 f"NMSE(p) {_num(v.get('nmse'), '.3g')}, NCC {_num(v.get('ncc_percent'), '.3f')} %, "
@@ -145,17 +149,24 @@ def _num(v, fmt: str) -> str:
 @app.command()
 def models():
     """List the operator models found in ./models and the shipped ones, with their domains and scores."""
-    from .rollout import available_models
+    from rich.markup import escape
 
-    ms = available_models()
-    if not ms:
+    from .rollout import scan_models
+
+    found = scan_models()
+    if not found:
         out.print("no models found (train one with `bowsynth train --fb 100`)")
-    for m in ms:
+    for path, m, why in found:
+        if m is None:
+            out.print(f"[bold]{escape(str(path))}[/bold]  UNREADABLE: {escape(why)}", soft_wrap=True)
+            continue
         d, v = m.domain, m.meta.validation
         sc = m.meta.scene
-        out.print(f"[bold]{m.path}[/bold]  {m.id}\n    trained for fb={sc['fb']:g} f0={sc['f0']:g} vb={d.vb:g} a={d.a:g} "
-                  f"(F_B/w={d.beta:.4g}), window {d.window:.3g} tau; validation NMSE(p) {_num(v.get('nmse'), '.3g')}, "
-                  f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
+        mark = f"  FAILED ({escape(m.failure)}): not picked by default" if m.failure else ""
+        fmt = "" if m.meta.format_version >= 2 else " (format 1: no digest; checked by its physics at render time)"
+        out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    trained for fb={sc['fb']:g} "
+                  f"f0={sc['f0']:g} vb={d.vb:g} a={d.a:g} (F_B/w={d.beta:.4g}), window {d.window:.3g} tau; validation "
+                  f"NMSE(p) {_num(v.get('nmse'), '.3g')}, {m.meta.training.get('seconds')} s of training", soft_wrap=True)
 
 
 @app.command()
@@ -277,13 +288,19 @@ def score(
             _say(quiet, f"{v.name}: {note}")
     paths = write_voices(voices, renders, output, mix=mix)
     audio = sum(v.scene.duration for v in voices)
+    used = sorted({f"{r.info['model_id']} ({r.info['model_path']})" for r in renders if r.info.get("model_path")})
     _say(quiet, f"rendered {len(voices)} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
-                f"({audio / secs:.0f}x real time in all); wrote {', '.join(str(p) for p in paths)}")
+                f"({audio / secs:.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
+                + f"; wrote {', '.join(str(p) for p in paths)}")
 
 
 def main() -> None:
     """Entry point: run the app, turning known failures into one line on stderr and an exit code."""
     debug = "--debug" in sys.argv[1:]
+    # numpy's OpenBLAS runs the rollout's small products on every core; on a busy 2-core machine each product then
+    # waited on the other thread (measured 7-12 ms for a 257x64 by 64x64 product, 0.06-0.1 ms on one thread)
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     warnings.simplefilter("default")
     warnings.filterwarnings("ignore", message=".*torch.jit.script.*")  # raised inside pytorch-optimizer
     warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"

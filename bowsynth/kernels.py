@@ -2,7 +2,9 @@
 
 Two loops, one per shape of work (measured in docs/BENCHMARKS.md): `roll_voices` runs one voice at a time with
 matrix-vector products and is the faster for a few voices; `roll_batch` advances every voice one window at a time with
-BLAS matrix products, the faster from about eight voices on. Both report, per voice, the first sample of the window
+BLAS matrix products for the branch, the faster from about eight voices on. Voices may play at different pitches
+(per-voice bases). `rollout._roll_numpy` is the same loop in numpy, used when importing numba would cost more than
+it saves. Both report, per voice, the first sample of the window
 where it failed and why (FAIL_NONFINITE, FAIL_DOMAIN) into `fail`, which the caller fills with (-1, 0) beforehand; a
 failed voice stops there, the others go on.
 
@@ -19,7 +21,7 @@ import math
 import numba
 import numpy as np
 
-FAIL_NONFINITE, FAIL_DOMAIN = 1, 2
+from .rollout import FAIL_DOMAIN, FAIL_NONFINITE  # noqa: F401  (compile-time constants here)
 
 _F = np.float32
 # tanh(x) ~ x P(x^2) / Q(x^2) on [-9, 9] (beyond, tanh is 1 to float32 precision): a rational least-squares fit made
@@ -125,18 +127,19 @@ def _check(b, start, n, n_samples, nq, np_, check, box, mask, fail):
 
 
 @numba.njit(**_JIT)
-def roll_voices(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
+def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
                 Ow, Ob, box, mask, check, q_out, p_out, fail):
     """One voice after another, matrix-vector products.
 
     Gw, Gb: the weights of the modified MLP's gates U, V and first layer side by side; Hw, Hb: the other hidden
     layers; Ow, Ob: the output layer; all float32.
-    Bq, Bp: (k + 3, n_hi) float32, the trunk features times s c at the window's sample offsets, then the rows cos,
-    sin and bias, so that a window's samples are [o_q, q0, p0, 1] @ Bq and [o_p, p0, -q0, 1] @ Bp. A window holds
-    n_lo = floor(spw) or n_hi = ceil(spw) samples (see window_end); endb (2, 2, k) and endlin (2, 4) give the end
-    state after each of the two lengths.
+    Voice b plays at the sample spacing (pitch) vidx[b] of the stacked bases: spw (P,) samples per window, n_lo (P,);
+    Bq, Bp: (P, k + 3, n_max) float32, the trunk features times s c at the window's sample offsets, then the rows
+    cos, sin and bias (zero-padded past each spacing's n_hi), so that a window's samples are [o_q, q0, p0, 1] @ Bq
+    and [o_p, p0, -q0, 1] @ Bp. A window holds n_lo = floor(spw) or n_hi = ceil(spw) samples (see window_end);
+    endb (P, 2, 2, k) and endlin (P, 2, 4) give the end state after each of the two lengths.
     """
-    k = endb.shape[2]
+    k = endb.shape[3]
     width = Hw.shape[1]
     h = np.empty(ff.shape[1] * 2, np.float32)
     g = np.empty(3 * width, np.float32)
@@ -146,12 +149,13 @@ def roll_voices(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrang
     hh = np.empty(width, np.float32)
     o = np.empty(2 * k, np.float32)
     for b in range(x0.shape[0]):
+        P = vidx[b]
         q0 = x0[b, 0]
         p0 = x0[b, 1]
         start = 0
         win = 0
         while start < n_samples:
-            n = window_end(win, spw) - start
+            n = window_end(win, spw[P]) - start
             _features(q0, p0, center, halfrange, ff, h)
             _dense(h, Gw, Gb, g)
             for j in range(width):  # modified MLP: h = v + tanh(z) (u - v); u is kept as u - v
@@ -165,27 +169,8 @@ def roll_voices(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrang
                     hh[j] = v[j] + tanh32(z[j]) * u[j]
             _dense(hh, Ow, Ob, o)
             m = min(n, n_samples - start)
-            qrow = q_out[b, start:start + m]
-            prow = p_out[b, start:start + m]
-            qf = np.float32(q0)
-            pf = np.float32(p0)
-            c, s = Bq[k], Bq[k + 1]
-            biasq, biasp = Bq[k + 2], Bp[k + 2]
-            for j in range(m):
-                qrow[j] = qf * c[j] + pf * s[j] + biasq[j]
-            for j in range(m):
-                prow[j] = pf * c[j] - qf * s[j] + biasp[j]
-            for kk in range(k):
-                w = o[kk]
-                row = Bq[kk]
-                for j in range(m):
-                    qrow[j] += w * row[j]
-            for kk in range(k):
-                w = o[k + kk]
-                row = Bp[kk]
-                for j in range(m):
-                    prow[j] += w * row[j]
-            q0, p0 = _end_state(q0, p0, o[:k], o[k:], endb[n - n_lo], endlin[n - n_lo])
+            _samples(q0, p0, o, Bq[P], Bp[P], m, q_out[b, start:start + m], p_out[b, start:start + m])
+            q0, p0 = _end_state(q0, p0, o[:k], o[k:], endb[P, n - n_lo[P]], endlin[P, n - n_lo[P]])
             if not _check(b, start, n, n_samples, q0, p0, check, box, mask, fail):
                 break
             start += n
@@ -193,71 +178,123 @@ def roll_voices(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrang
 
 
 @numba.njit(**_JIT)
-def roll_batch(x0, n_samples, spw, n_lo, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
+def _samples(q0, p0, o, Bq, Bp, m, qrow, prow):
+    """A window's m samples: the linear flow, the bias and the correction o (2k) over the basis rows."""
+    k = o.shape[0] // 2
+    qf = np.float32(q0)
+    pf = np.float32(p0)
+    c, s = Bq[k], Bq[k + 1]
+    biasq, biasp = Bq[k + 2], Bp[k + 2]
+    for j in range(m):
+        qrow[j] = qf * c[j] + pf * s[j] + biasq[j]
+    for j in range(m):
+        prow[j] = pf * c[j] - qf * s[j] + biasp[j]
+    for kk in range(k):
+        w = o[kk]
+        row = Bq[kk]
+        for j in range(m):
+            qrow[j] += w * row[j]
+    for kk in range(k):
+        w = o[k + kk]
+        row = Bp[kk]
+        for j in range(m):
+            prow[j] += w * row[j]
+
+
+BLOCK = 64  # windows per pass of roll_batch
+
+
+@numba.njit(**_JIT)
+def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
                Ow, Ob, box, mask, check, q_out, p_out, fail):
-    """All voices one window at a time, matrix-matrix products (BLAS). Same arguments as `roll_voices`."""
+    """All voices one window at a time, the branch as matrix-matrix products (BLAS) over the voices. Same arguments
+    as `roll_voices`; voices may play at different pitches.
+
+    Two passes per block of BLOCK windows: the chain (branch outputs and end states of every voice), then the
+    samples voice by voice, so that a pitch's basis (~240 KB) stays in cache over the block; writing each window's
+    samples inside the chain touched every pitch's basis per window (23 MB for 100 pitches: memory-bound).
+    """
     B = x0.shape[0]
-    k = endb.shape[2]
+    k = endb.shape[3]
     x = x0.copy()
     H = np.empty((B, ff.shape[1] * 2), np.float32)
-    Aq = np.empty((B, k + 3), np.float32)
-    Ap = np.empty((B, k + 3), np.float32)
     width = Hw.shape[1]
     U = np.empty((B, width), np.float32)
     V = np.empty((B, width), np.float32)
     h = np.empty((B, width), np.float32)
+    O_blk = np.empty((B, BLOCK, 2 * k), np.float32)
+    X_blk = np.empty((B, BLOCK, 2), np.float64)
+    S_blk = np.empty((B, BLOCK), np.int64)  # each window's first sample, -1 where the voice computed none
     alive = np.ones(B, np.bool_)
-    start = 0
+    start = np.zeros(B, np.int64)
     win = 0
-    while start < n_samples:
-        n = window_end(win, spw) - start
-        for b in range(B):
-            _features(x[b, 0], x[b, 1], center, halfrange, ff, H[b])
-        G = np.dot(H, Gw)
-        for b in range(B):  # modified MLP: h = v + tanh(z) (u - v); U is kept as u - v
-            for j in range(width):
-                vv = tanh32(G[b, width + j] + Gb[width + j])
-                U[b, j] = tanh32(G[b, j] + Gb[j]) - vv
-                V[b, j] = vv
-                h[b, j] = vv + tanh32(G[b, 2 * width + j] + Gb[2 * width + j]) * U[b, j]
-        for layer in range(Hw.shape[0]):
-            Z = np.dot(h, Hw[layer])
-            bias = Hb[layer]
+    running = B
+    while running > 0:
+        nb = 0
+        S_blk[:] = -1
+        while nb < BLOCK and running > 0:
             for b in range(B):
+                _features(x[b, 0], x[b, 1], center, halfrange, ff, H[b])
+            G = np.dot(H, Gw)
+            for b in range(B):  # modified MLP: h = v + tanh(z) (u - v); U is kept as u - v
                 for j in range(width):
-                    h[b, j] = V[b, j] + tanh32(Z[b, j] + bias[j]) * U[b, j]
-        O = np.dot(h, Ow)
+                    vv = tanh32(G[b, width + j] + Gb[width + j])
+                    U[b, j] = tanh32(G[b, j] + Gb[j]) - vv
+                    V[b, j] = vv
+                    h[b, j] = vv + tanh32(G[b, 2 * width + j] + Gb[2 * width + j]) * U[b, j]
+            for layer in range(Hw.shape[0]):
+                Z = np.dot(h, Hw[layer])
+                bias = Hb[layer]
+                for b in range(B):
+                    for j in range(width):
+                        h[b, j] = V[b, j] + tanh32(Z[b, j] + bias[j]) * U[b, j]
+            O = np.dot(h, Ow)
+            running = 0
+            for b in range(B):
+                if not alive[b] or start[b] >= n_samples:
+                    continue
+                P = vidx[b]
+                n = window_end(win, spw[P]) - start[b]
+                o = O_blk[b, nb]
+                for kk in range(2 * k):
+                    o[kk] = O[b, kk] + Ob[kk]
+                X_blk[b, nb, 0] = x[b, 0]
+                X_blk[b, nb, 1] = x[b, 1]
+                S_blk[b, nb] = start[b]
+                nq, np_ = _end_state(x[b, 0], x[b, 1], o[:k], o[k:], endb[P, n - n_lo[P]], endlin[P, n - n_lo[P]])
+                if _check(b, start[b], n, n_samples, nq, np_, check, box, mask, fail):
+                    x[b, 0] = nq
+                    x[b, 1] = np_
+                    start[b] += n
+                    if start[b] < n_samples:
+                        running += 1
+                else:  # park the stopped voice where the network is defined, so the batch's products stay finite
+                    alive[b] = False
+                    x[b, 0] = center[0]
+                    x[b, 1] = center[1]
+            nb += 1
+            win += 1
         for b in range(B):
-            for kk in range(k):
-                Aq[b, kk] = O[b, kk] + Ob[kk]
-                Ap[b, kk] = O[b, k + kk] + Ob[k + kk]
-            Aq[b, k] = x[b, 0]
-            Aq[b, k + 1] = x[b, 1]
-            Aq[b, k + 2] = 1
-            Ap[b, k] = x[b, 1]
-            Ap[b, k + 1] = -x[b, 0]
-            Ap[b, k + 2] = 1
-        Tq = np.dot(Aq, Bq)
-        Tp = np.dot(Ap, Bp)
-        m = min(n, n_samples - start)
-        for b in range(B):
-            if not alive[b]:
-                continue
-            qrow = q_out[b, start:start + m]
-            prow = p_out[b, start:start + m]
-            tq = Tq[b]
-            tp = Tp[b]
-            for j in range(m):
-                qrow[j] = tq[j]
-            for j in range(m):
-                prow[j] = tp[j]
-            nq, np_ = _end_state(x[b, 0], x[b, 1], Aq[b, :k], Ap[b, :k], endb[n - n_lo], endlin[n - n_lo])
-            if _check(b, start, n, n_samples, nq, np_, check, box, mask, fail):
-                x[b, 0] = nq
-                x[b, 1] = np_
-            else:  # park the stopped voice where the network is defined, so the batch's products stay finite
-                alive[b] = False
-                x[b, 0] = center[0]
-                x[b, 1] = center[1]
-        start += n
-        win += 1
+            P = vidx[b]
+            for i in range(nb):
+                s0 = S_blk[b, i]
+                if s0 < 0:
+                    continue
+                m = min(window_end(win - nb + i, spw[P]) - s0, n_samples - s0)
+                _samples(X_blk[b, i, 0], X_blk[b, i, 1], O_blk[b, i], Bq[P], Bp[P], m, q_out[b, s0:s0 + m],
+                         p_out[b, s0:s0 + m])
+
+
+def warm() -> None:
+    """Compile and cache every compiled path once (`make setup` runs this), so that no user command compiles: the
+    FDM, and both rollout loops on a shipped model, at two pitches."""
+    from .fdm import render_fdm
+    from .model import load_model
+    from .rollout import BATCH_FROM, SHIPPED_DIR, rollout_states
+    from .scene import Scene
+
+    render_fdm(Scene(duration=0.01))
+    m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")
+    dtau = [2 * math.pi * f / 44100 for f in (100.0, 200.0)]
+    for voices in (1, BATCH_FROM):
+        rollout_states(m, np.zeros((voices, 2)), 8, np.resize(dtau, voices), loop="numba")

@@ -1,4 +1,5 @@
-"""Model files: safetensors weights + JSON metadata (no pickle), and the domain a model covers.
+"""Model files: safetensors weights + JSON metadata (no pickle) bound together by a digest, and the domain a model
+covers. Reading a model needs numpy only (no torch).
 
 A model is trained for one dimensionless scene (beta = F_B / w, v_B, a) over a window of T in tau, on the band of
 states a render visits. The domain records that band as a box plus an occupancy mask on a grid over the box.
@@ -16,12 +17,17 @@ import numpy as np
 
 from . import __version__
 from .errors import ModelFileError
+from .npnet import NetConfig, weight_shapes
 from .scene import Scene
 
 FORMAT = "bowsynth-operator"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: a digest binds the metadata to the weights
+READ_VERSIONS = (1, 2)
 META_KEY = "bowsynth"
 REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the network does not take them as input
+# A model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above this is
+# not picked by default: the shipped models score 1e-7 to 3e-4; 0.1 is a note visibly off in phase or pitch.
+MAX_VALIDATION_NMSE = 0.1
 
 
 @dataclass
@@ -92,6 +98,7 @@ class ModelMeta:
     format: str = FORMAT
     format_version: int = FORMAT_VERSION
     id: str = ""
+    digest: str = ""  # format 2: see `digest`
 
     def to_json(self) -> str:
         d = asdict(self)
@@ -103,17 +110,77 @@ def model_id(name: str, tensors: dict) -> str:
     h = hashlib.sha256()
     for k in sorted(tensors):
         h.update(k.encode())
-        h.update(tensors[k].detach().cpu().contiguous().numpy().tobytes())
+        h.update(np.ascontiguousarray(tensors[k]).tobytes())
     return f"{name}@{h.hexdigest()[:10]}"
 
 
-class OperatorModel:
-    """A loaded operator: the network in evaluation mode and its metadata."""
+def digest(meta: dict, tensors: dict) -> str:
+    """What binds a file's metadata to its weights: sha256 over the canonical metadata JSON (sorted keys, without the
+    digest itself) and every tensor's name, dtype, shape and bytes. An edit to either no longer matches."""
+    h = hashlib.sha256()
+    h.update(json.dumps({k: v for k, v in meta.items() if k != "digest"}, sort_keys=True,
+                        separators=(",", ":")).encode())
+    for k in sorted(tensors):
+        a = np.ascontiguousarray(tensors[k])
+        h.update(f"\0{k}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return "sha256:" + h.hexdigest()
 
-    def __init__(self, net, meta: ModelMeta, path: Path | None = None):
-        self.net = net.eval()
+
+def validation_failure(meta: ModelMeta) -> str | None:
+    """Why a model's validation rollout disqualifies it from being picked by default (None when it passed): it
+    failed, has no finite NMSE(p), or its NMSE(p) exceeds MAX_VALIDATION_NMSE."""
+    v = meta.validation or {}
+    if v.get("error"):
+        return f"validation failed: {v['error']}"
+    n = v.get("nmse")
+    if not isinstance(n, (int, float)) or isinstance(n, bool) or not math.isfinite(n):
+        return "no validation score"
+    if n > MAX_VALIDATION_NMSE:
+        return f"validation NMSE(p) {n:.3g} > {MAX_VALIDATION_NMSE:g}"
+    return None
+
+
+class OperatorModel:
+    """A trained operator: its weights and metadata.
+
+    Built from a torch DeepONet (the trainer) or, by `load_model`, from the numpy weights of a file: a render reads
+    only `weights` (float32 numpy arrays), and `net`, the torch network, is built on first use.
+    """
+
+    def __init__(self, net, meta: ModelMeta, path: Path | None = None, weights: dict | None = None):
+        if net is None and weights is None:
+            raise ValueError("an OperatorModel needs a torch network or its weights")
+        self._net = net.eval() if net is not None else None
+        self._weights = weights
+        # read from a file (load_model): its metadata are claims about its weights, checked at render time
+        self.from_file = net is None
         self.meta = meta
         self.path = path
+
+    @property
+    def net(self):
+        """The torch DeepONet (built from the weights on first use: importing torch takes seconds)."""
+        if self._net is None:
+            import torch
+
+            from .network import DeepONet
+
+            net = DeepONet(NetConfig(**self.meta.net))
+            net.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self._weights.items()}, strict=True)
+            self._net = net.eval()
+        return self._net
+
+    @property
+    def weights(self) -> dict:
+        """The network's tensors as float32 numpy arrays (state_dict names); a snapshot when built from a net."""
+        if self._net is not None:  # the trainer's net may still change: read it afresh
+            return {k: v.detach().cpu().float().contiguous().numpy().copy() for k, v in self._net.state_dict().items()}
+        return self._weights
+
+    @property
+    def cfg(self) -> NetConfig:
+        return NetConfig(**self.meta.net)
 
     @property
     def domain(self) -> Domain:
@@ -123,39 +190,44 @@ class OperatorModel:
     def id(self) -> str:
         return self.meta.id
 
+    @property
+    def failure(self) -> str | None:
+        """Why this model is not picked by default (see validation_failure), or None."""
+        return validation_failure(self.meta)
+
     def covers(self, scene: Scene) -> bool:
         return not self.domain.mismatch(scene)
 
     def save(self, path, force: bool = False) -> Path:
-        from safetensors.torch import save_file
+        """Write the model (format version FORMAT_VERSION, with its digest); sets meta.id and meta.digest."""
+        from safetensors.numpy import save_file
 
         from .wav import atomic_write
 
         path = Path(path)
         if path.exists() and not force:
             raise ModelFileError(f"{path} exists; pass --force to overwrite it")
-        import torch
-
-        tensors = {k: v.detach().contiguous() for k, v in self.net.state_dict().items()}
-        tensors["domain.mask"] = torch.from_numpy(self.domain.mask.astype(np.uint8))
+        tensors = dict(self.weights)
+        tensors["domain.mask"] = np.ascontiguousarray(self.domain.mask, dtype=np.uint8)
         self.meta.id = model_id(self.meta.name, tensors)
+        self.meta.format_version = FORMAT_VERSION
+        self.meta.digest = ""
+        self.meta.digest = digest(json.loads(self.meta.to_json()), tensors)
         atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: self.meta.to_json()}))
         self.path = path
         return path
 
 
 def load_model(path) -> OperatorModel:
-    """Load a model file; any problem (missing, corrupt, foreign, other version) raises ModelFileError."""
-    import torch
+    """Load a model file (numpy only: no torch); any problem (missing, corrupt, foreign, other version, metadata that
+    does not match the weights) raises ModelFileError."""
     from safetensors import safe_open
-
-    from .network import DeepONet, NetConfig
 
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f"model file {path} not found")
     try:
-        with safe_open(str(path), framework="pt") as f:
+        with safe_open(str(path), framework="numpy") as f:
             raw = (f.metadata() or {}).get(META_KEY)
             tensors = {k: f.get_tensor(k) for k in f.keys()}
     except Exception as e:  # safetensors raises several types for bad headers and truncation
@@ -164,21 +236,35 @@ def load_model(path) -> OperatorModel:
         raise ModelFileError(f"{path} is a safetensors file but not a bowsynth model (no '{META_KEY}' metadata)")
     try:
         d = json.loads(raw)
+        if not isinstance(d, dict):
+            raise ValueError("the metadata is not a JSON object")
         if d.get("format") != FORMAT:
             raise ModelFileError(f"{path} is not a bowsynth operator (format {d.get('format')!r})")
-        if d.get("format_version") != FORMAT_VERSION:
+        if d.get("format_version") not in READ_VERSIONS:
             raise ModelFileError(f"{path} has model format version {d.get('format_version')}, this bowsynth reads "
-                                 f"version {FORMAT_VERSION}; retrain it with `bowsynth train`")
-        mask = tensors.pop("domain.mask").numpy().astype(bool)
+                                 f"versions {', '.join(map(str, READ_VERSIONS))}; retrain it with `bowsynth train`")
+        # version 1 files carry no digest: the physics check at render time (rollout.check_physics) still catches
+        # metadata that lies about the weights
+        if d["format_version"] >= 2 and d.get("digest") != digest(d, tensors):
+            raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited (digest mismatch)")
+        mask = tensors.pop("domain.mask").astype(bool)
         dom = Domain(**d["domain"], mask=mask)
         meta = ModelMeta(**{**d, "domain": dom})
-        net = DeepONet(NetConfig(**d["net"]))
-        net.load_state_dict(tensors, strict=True)
+        cfg = NetConfig(**d["net"])
+        want = weight_shapes(cfg)
+        if set(tensors) != set(want):
+            missing, extra = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
+            raise ValueError(f"tensors missing {missing[:3]}, unexpected {extra[:3]}")
+        for k, shape in want.items():
+            if tensors[k].shape != shape or tensors[k].dtype != np.float32:
+                raise ValueError(f"{k} is {tensors[k].dtype} {tensors[k].shape}, expected float32 {shape}")
+        if mask.ndim != 2 or mask.shape[0] != mask.shape[1]:
+            raise ValueError(f"domain.mask has shape {mask.shape}")
     except ModelFileError:
         raise
     except Exception as e:
         raise ModelFileError(f"{path} has damaged bowsynth metadata or weights ({type(e).__name__}: {e})") from None
-    for k, v in net.state_dict().items():
-        if not torch.isfinite(v).all():
+    for k, v in tensors.items():
+        if not np.all(np.isfinite(v)):
             raise ModelFileError(f"{path} holds non-finite weights ({k})")
-    return OperatorModel(net, meta, path)
+    return OperatorModel(None, meta, path, weights=tensors)

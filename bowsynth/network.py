@@ -9,10 +9,11 @@ adds; the factor s makes x(0) = x0 exact (hard initial condition). c scales the 
 from __future__ import annotations
 
 import math
+
 import torch
 from torch import nn
 
-from .training.config import NetConfig  # noqa: F401  (the config owns the defaults)
+from .npnet import NetConfig  # noqa: F401  (torch-free: model files are read without torch)
 
 
 class FourierFeatures(nn.Module):

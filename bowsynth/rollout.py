@@ -1,25 +1,29 @@
 """Rolling render: the operator applied window to window, each window seeded by the previous window's end state.
 
 The audio samples sit at fixed offsets tau_j = j w / sr inside every window, so the trunk features there are
-computed once per render; a window then costs one branch evaluation and a small matmul (the compiled loops are in
-`kernels`).
+computed once per render and pitch; a window then costs one branch evaluation and a small matmul. No torch here; the
+loops run in numpy, or compiled (`kernels`, numba) when the work repays importing numba.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from . import kernels
+from . import npnet, physics
 from .errors import DomainError, ModelFileError, UsageError
 from .model import OperatorModel, load_model
 from .render import Render
 from .scene import Scene
 
 SHIPPED_DIR = Path(__file__).resolve().parent / "models"  # inside the package: a wheel carries them
+FAIL_NONFINITE, FAIL_DOMAIN = 1, 2  # why a voice stopped (the compiled loops in `kernels` write the same codes)
+FAILURES = {FAIL_NONFINITE: "the rollout turned non-finite",
+            FAIL_DOMAIN: "the rollout left the model's trained states"}
 
 
 def model_dirs() -> list[Path]:
@@ -31,17 +35,39 @@ def model_dirs() -> list[Path]:
     return out
 
 
-def available_models() -> list[OperatorModel]:
+# Model files read in this process, by resolved path: (size, mtime_ns) when read, and the model or why it failed to
+# load. A file is read again only when its size or modification time changes, so `render_operator(scene)` with no
+# model costs a few stat calls, not a load per call (measured ~110-160 ms per call with torch before).
+_SCANNED: dict = {}
+
+
+def scan_models() -> list[tuple[Path, OperatorModel | None, str | None]]:
+    """Every model file in ./models and the shipped ones: (path, model, None) or (path, None, why it is unreadable).
+    Models are shared by all callers in this process: do not modify them."""
     found = []
     for d in model_dirs():
         for p in sorted(d.glob("*.safetensors")):
             if p.name.endswith(".ckpt.safetensors"):
                 continue
             try:
-                found.append(load_model(p))
-            except ModelFileError:
+                st = p.stat()
+            except OSError:
                 continue
+            key, stamp = p.resolve(), (st.st_size, st.st_mtime_ns)
+            hit = _SCANNED.get(key)
+            if hit is None or hit[0] != stamp:
+                try:
+                    hit = (stamp, load_model(p), None)
+                except ModelFileError as e:
+                    hit = (stamp, None, str(e))
+                _SCANNED[key] = hit
+            found.append((p, hit[1], hit[2]))
     return found
+
+
+def available_models() -> list[OperatorModel]:
+    """The readable models (./models first, then the shipped ones), including those whose validation failed."""
+    return [m for _, m, _ in scan_models() if m is not None]
 
 
 def train_hint(scene: Scene) -> str:
@@ -50,44 +76,84 @@ def train_hint(scene: Scene) -> str:
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
-    """The first model (./models, then the shipped ones, or the given list) that covers the scene, else a
-    DomainError that says which models come nearest and how to train one that covers it."""
+    """The best validated model (lowest validation NMSE(p); ./models before the shipped ones on a tie) among those
+    (found, or the given list) that cover the scene. A model whose validation failed is never picked here (see
+    model.validation_failure): pass it explicitly to use it. Otherwise a DomainError says which models come nearest
+    and how to train one that covers the scene."""
     if models is None:
         models = available_models()
-    for m in models:
-        if m.covers(scene):
-            return m
+    covering = [m for m in models if m.covers(scene)]
+    good = [m for m in covering if m.failure is None]
+    if good:
+        return min(good, key=lambda m: m.meta.validation["nmse"])  # min keeps the first of equals
+    if covering:
+        bad = "; ".join(f"{m.path or m.meta.name} ({m.failure})" for m in covering)
+        raise DomainError(f"the models that cover this scene failed their validation: {bad}. Pass one with --model "
+                          f"to use it anyway, train longer with `{train_hint(scene)} --minutes 10`, or render with "
+                          f"--method fdm")
+
     def dist(m):
         d = m.domain
         return abs(math.log(max(scene.beta, 1e-9) / max(d.beta, 1e-9))) + abs(scene.vb - d.vb) + abs(math.log(scene.a / d.a))
     near = sorted(models, key=dist)[:3]
-    lines = "; ".join(f"{m.path.name} ({', '.join(m.domain.mismatch(scene))})" for m in near) or "none found"
+    lines = "; ".join(f"{m.path.name if m.path else m.meta.name} ({', '.join(m.domain.mismatch(scene))})"
+                      for m in near) or "none found"
     raise DomainError(f"no model covers this scene (F_B / w = {scene.beta:.4g}, v_B = {scene.vb:g}, a = {scene.a:g}); "
                       f"nearest: {lines}. Train one with `{train_hint(scene)}`, or render with --method fdm")
 
 
 class NumpyOperator:
-    """The trained network's weights as float32 numpy arrays (the precision it was trained in), for the compiled
-    rollout in `kernels`."""
+    """The trained network's weights as float32 numpy arrays (the precision it was trained in), laid out for the
+    rollout loops (numpy here, compiled in `kernels`)."""
 
     def __init__(self, model: OperatorModel):
-        net = model.net
-        sd = {k: v.detach().double().numpy() for k, v in net.state_dict().items()}
+        w = model.weights
+        self.cfg = cfg = model.cfg
+        self._w = w
         f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
-        g = lambda name: (f32(sd[f"branch.{name}.weight"].T), f32(sd[f"branch.{name}.bias"]))  # noqa: E731
-        n_hidden = sum(1 for k in sd if k.startswith("branch.hidden.") and k.endswith(".weight"))
-        rest = [g(f"hidden.{i}") for i in range(1, n_hidden)]
-        width = net.cfg.width
-        self.ff = np.ascontiguousarray(2 * np.pi * sd["branch.ff.B"])
+        g = lambda name: (f32(w[f"branch.{name}.weight"].T), f32(w[f"branch.{name}.bias"]))  # noqa: E731
+        rest = [g(f"hidden.{i}") for i in range(1, cfg.depth)]
+        width = cfg.width
+        self.ff = np.ascontiguousarray(2 * np.pi * w["branch.ff.B"].astype(np.float64))
         gates = [g(name) for name in ("U", "V", "hidden.0")]  # one product for the three (kernels.roll_voices)
-        self.weights = (f32(np.hstack([w for w, _ in gates])), f32(np.concatenate([b for _, b in gates])),
-                        f32(np.array([w for w, _ in rest]).reshape(-1, width, width)),
+        self.weights = (f32(np.hstack([m for m, _ in gates])), f32(np.concatenate([b for _, b in gates])),
+                        f32(np.array([m for m, _ in rest]).reshape(-1, width, width)),
                         f32(np.array([b for _, b in rest]).reshape(-1, width)), *g("out"))
-        self.center, self.halfrange = sd["center"], sd["halfrange"]
-        self.corr_scale, self.window, self.bias = sd["corr_scale"], float(sd["window"]), sd["bias"]
-        self.net = net
+        d64 = lambda name: w[name].astype(np.float64)  # noqa: E731
+        self.center, self.halfrange = d64("center"), d64("halfrange")
+        self.corr_scale, self.window, self.bias = d64("corr_scale"), float(w["window"]), d64("bias")
 
-    def window_basis(self, dtau: float):
+    def trunk_features(self, s_list: list) -> list:
+        """The trunk features (M, 2, k) at each array of window fractions in s_list, float64.
+
+        Up to TRUNK_GRID points in all, evaluated directly; beyond, by cubic interpolation from TRUNK_GRID points
+        evaluated once (a score at 100 pitches needs ~33,000 points: evaluating them took ~10x longer). The trunk is
+        smooth in s (Fourier features of scale sigma_trunk): measured interpolation error below 1e-9 of the features'
+        size, far below float32 rounding (tests/test_kernels.py checks it).
+        """
+        if sum(len(a) for a in s_list) <= TRUNK_GRID:
+            f = npnet.trunk_features(self._w, self.cfg, np.concatenate(s_list))
+            return np.split(f, np.cumsum([len(a) for a in s_list])[:-1])
+        h = max(a.max() for a in s_list) / (TRUNK_GRID - 3)
+        grid = npnet.trunk_features(self._w, self.cfg, (np.arange(TRUNK_GRID) - 1) * h).reshape(TRUNK_GRID, -1)
+        out = []
+        for s in s_list:  # cubic Lagrange interpolation on the uniform grid (nodes i - 1 .. i + 2)
+            u = s / h + 1
+            i = np.clip(np.floor(u).astype(np.int64), 1, TRUNK_GRID - 3)
+            t = u - i
+            w = np.stack([-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2,
+                          -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6], axis=1)
+            f = np.einsum("mj,mjc->mc", w, grid[i[:, None] + np.arange(-1, 3)])
+            out.append(f.reshape(len(s), 2, -1))
+        return out
+
+    def samples_per_window(self, dtau: float) -> float:
+        spw = self.window / dtau
+        if abs(spw - round(spw)) < 1e-9 * spw:  # a whole number of samples, up to rounding: every window alike
+            spw = float(round(spw))
+        return spw
+
+    def window_basis(self, dtau: float, tf: np.ndarray | None = None):
         """The output side of the windows of a render whose samples are dtau apart in tau.
 
         A window holds n_lo = floor(T / dtau) or n_hi = ceil(T / dtau) samples (kernels.window_end: window w starts
@@ -97,20 +163,18 @@ class NumpyOperator:
         Returns spw = T / dtau, n_lo; Bq, Bp (k + 3, n_hi) float32: the trunk features times s c at the sample
         offsets, then cos, sin and the bias term (see kernels.roll_voices); for the end state after n_lo and after
         n_hi samples, in float64, the features endb (2, 2, k) and endlin (2, 4) = (cos, sin, bias_q, bias_p).
+        The trunk is evaluated in numpy, float64 (once per render and pitch); tf: its features at the offsets
+        j dtau / T, j <= n_hi, if already computed (trunk_features).
         """
-        import torch
-
-        spw = self.window / dtau
-        if abs(spw - round(spw)) < 1e-9 * spw:  # a whole number of samples, up to rounding: every window alike
-            spw = float(round(spw))
+        spw = self.samples_per_window(dtau)
         n_lo, n_hi = math.floor(spw), math.ceil(spw)
         tau = np.arange(n_hi + 1) * dtau
         s = tau / self.window
-        with torch.inference_mode():
-            tf = self.net.trunk_features(torch.tensor(s, dtype=torch.float32)).double().numpy()  # (n_hi+1, 2, k)
+        if tf is None or len(tf) != n_hi + 1:
+            tf = self.trunk_features([s])[0]  # (n_hi+1, 2, k)
         basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n_hi+1)
         bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n_hi+1)
-        if self.net.cfg.linear_flow:
+        if self.cfg.linear_flow:
             c, sn = np.cos(tau), np.sin(tau)
         else:  # ablation models: the output carries x0, not R(tau) x0
             c, sn = np.ones_like(tau), np.zeros_like(tau)
@@ -122,39 +186,202 @@ class NumpyOperator:
         return spw, n_lo, rows(0), rows(1), endb, endlin
 
 
-BATCH_FROM = 8  # from this many voices on, the window-at-a-time loop with BLAS products is the faster (measured)
-FAILURES = {kernels.FAIL_NONFINITE: "the rollout turned non-finite",
-            kernels.FAIL_DOMAIN: "the rollout left the model's trained states"}
+def _operator(model: OperatorModel) -> NumpyOperator:
+    op = model.__dict__.get("_numpy_op")
+    if op is None:  # weights don't change after loading: convert once per model
+        op = model.__dict__["_numpy_op"] = NumpyOperator(model)
+    return op
 
 
-def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau: float, check_domain: bool = True):
-    """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau.
+def _bases(model: OperatorModel, dtaus: np.ndarray):
+    """The window bases (NumpyOperator.window_basis) of the distinct sample spacings `dtaus`, stacked and padded to
+    the longest window: spw (P,), n_lo (P,), Bq, Bp (P, k + 3, n_max), endb (P, 2, 2, k), endlin (P, 2, 4).
+    Cached per model: the last stack, and each spacing's basis."""
+    key = tuple(float(d) for d in dtaus)
+    last = model.__dict__.get("_stack")
+    if last is not None and last[0] == key:
+        return last[1]
+    op = _operator(model)
+    cache = model.__dict__.setdefault("_basis_cache", {})
+    new = [d for d in key if d not in cache]
+    if new:  # one trunk evaluation for every new pitch
+        offsets = [np.arange(math.ceil(op.samples_per_window(d)) + 1) * d / op.window for d in new]
+        for d, tf in zip(new, op.trunk_features(offsets)):
+            cache[d] = op.window_basis(d, tf)
+    parts = [cache[d] for d in key]
+    if min(p[1] for p in parts) < 1:
+        raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
+    n_max = max(p[2].shape[1] for p in parts)
+    k3 = parts[0][2].shape[0]
+    Bq = np.zeros((len(parts), k3, n_max), np.float32)
+    Bp = np.zeros((len(parts), k3, n_max), np.float32)
+    for i, p in enumerate(parts):
+        Bq[i, :, :p[2].shape[1]] = p[2]
+        Bp[i, :, :p[3].shape[1]] = p[3]
+    stack = (np.array([p[0] for p in parts]), np.array([p[1] for p in parts], np.int64), Bq, Bp,
+             np.ascontiguousarray(np.stack([p[4] for p in parts])), np.ascontiguousarray(np.stack([p[5] for p in parts])))
+    model.__dict__["_stack"] = (key, stack)
+    return stack
 
+
+TRUNK_GRID = 4096
+BATCH_FROM = 8  # compiled loops: from this many voices on, the window-at-a-time loop with BLAS products is faster
+# Importing numba and loading its cached loops costs ~0.5 s on an idle 2-core machine (1.4 s under load), more than
+# the whole numpy rollout of most renders: a 5 s note at 100 Hz took 1/5 of that in numpy (4x the compiled loop, whose
+# import it saves), so numba is used only where the numpy loop's estimated time (idle machine) exceeds NUMBA_PAYS_FROM,
+# or once numba is imported anyway (the FDM ran in this process). Measured in docs/BENCHMARKS.md (issue 12).
+NUMBA_PAYS_FROM = 0.5
+
+
+def _numpy_seconds(rounds: int, voice_windows: int, voice_samples: int) -> float:
+    """Estimated time of `_roll_numpy`: ~45 numpy calls per window of the chain, a product per voice and block, and
+    the samples themselves."""
+    return 80e-6 * rounds + 2e-6 * voice_windows + 4e-9 * voice_samples
+
+
+def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
+    """'numba' when numba is already imported or the numpy loop's estimated time repays importing it, else 'numpy'."""
+    if "numba" in sys.modules:
+        return "numba"
+    spw = _operator(model).window / np.atleast_1d(np.asarray(dtau, dtype=float))
+    slow = _numpy_seconds(int(n_samples / spw.min()) + 1, int(np.sum(n_samples / spw)) + len(spw), n_samples * len(spw))
+    return "numba" if slow > NUMBA_PAYS_FROM else "numpy"
+
+
+def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, check_domain: bool = True,
+                   loop: str = "auto"):
+    """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau (one spacing for all voices,
+    or one per voice: voices at different pitches roll in one batch).
+
+    loop: 'numpy', 'numba' (the compiled loops of `kernels`), or 'auto' (numba when it is already imported or the
+    work is long enough to repay importing it).
     Returns q, p (B, n_samples) float32 and fail (B, 2) int: per voice the first sample of the window where the
     rollout left the model's domain or went non-finite, and the reason (a key of FAILURES), or (-1, 0). A failed
     voice stops there (its later samples are NaN); the other voices go on.
     """
-    op = model.__dict__.get("_numpy_op")
-    if op is None:  # weights don't change after loading: convert once per model
-        op = model.__dict__["_numpy_op"] = NumpyOperator(model)
-    cache = model.__dict__.setdefault("_basis_cache", {})
-    if dtau not in cache:
-        cache[dtau] = op.window_basis(dtau)
-    spw, n_lo, Bq, Bp, endb, endlin = cache[dtau]
-    if n_lo < 1:
-        raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
     x = np.array(x0, dtype=float).reshape(-1, 2)
-    q = np.empty((len(x), n_samples), np.float32)
-    p = np.empty((len(x), n_samples), np.float32)
-    fail = np.tile(np.array([-1, 0], np.int64), (len(x), 1))  # the loops write only the voices that fail
+    B = len(x)
+    dt = np.broadcast_to(np.asarray(dtau, dtype=float), (B,))
+    uniq, vidx = np.unique(dt, return_inverse=True)
+    spw, n_lo, Bq, Bp, endb, endlin = _bases(model, uniq)
+    vidx = np.ascontiguousarray(vidx, dtype=np.int64)
+    op = _operator(model)
+    q = np.empty((B, n_samples), np.float32)
+    p = np.empty((B, n_samples), np.float32)
+    fail = np.tile(np.array([-1, 0], np.int64), (B, 1))  # the loops write only the voices that fail
     d = model.domain
-    loop = kernels.roll_batch if len(x) >= BATCH_FROM else kernels.roll_voices
-    loop(x, n_samples, spw, n_lo, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, *op.weights,
-         np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
+    args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, *op.weights,
+            np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
+    if loop == "auto":
+        loop = choose_loop(model, n_samples, dt)
+    if loop == "numba":
+        from . import kernels
+
+        (kernels.roll_batch if B >= BATCH_FROM else kernels.roll_voices)(*args)
+    elif loop == "numpy":
+        _roll_numpy(*args)
+    else:
+        raise ValueError(f"loop must be auto, numpy or numba, got {loop!r}")
     for b in np.flatnonzero(fail[:, 0] >= 0):
         q[b, fail[b, 0]:] = np.nan
         p[b, fail[b, 0]:] = np.nan
     return q, p, fail
+
+
+BLOCK = 256  # windows per pass of the two-pass loops: bounds the stored branch outputs (B x BLOCK x 2k floats)
+
+
+def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
+                Ow, Ob, box, mask, check, q_out, p_out, fail):
+    """kernels.roll_batch in numpy (same arguments, same float32 arithmetic up to rounding), in two passes per block
+    of BLOCK windows.
+
+    First the chain: every running voice one window at a time, the branch as matrix products over the voices, the
+    end state from the window's last offset only (endb, endlin), keeping each window's start state and branch
+    output. Then the samples, voice by voice: all of a voice's windows of the block in one matrix product with its
+    pitch's basis. Writing samples inside the chain touches every pitch's basis once per window (23 MB for 100
+    pitches: memory-bound), and per window numpy's call overhead outweighs a small product.
+    """
+    B = x0.shape[0]
+    k = endb.shape[-1]
+    width = Hw.shape[-1]
+    n_max = Bq.shape[-1]
+    sp, nl = spw[vidx], n_lo[vidx]
+    W = int(np.ceil((n_samples + 0.5) / sp.min())) + 1  # enough windows to pass n_samples
+    ends = np.floor(np.arange(1, W + 1)[None, :] * sp[:, None] + 0.5).astype(np.int64)  # kernels.window_end
+    starts = np.concatenate([np.zeros((B, 1), np.int64), ends[:, :-1]], axis=1)
+    jlen = ends - starts - nl[:, None]  # 0: a window of n_lo samples, 1: of n_hi
+    n_run = (starts < n_samples).sum(axis=1)  # windows each voice needs
+    # per window as few numpy calls as possible (each costs microseconds): the features' scaling folded into ff,
+    # and the end state as one product of [o_q, o_p, q0, p0, 1] with E[pitch, length] (float64, kernels._end_state)
+    ffs, off = ff / halfrange[:, None], (center / halfrange) @ ff
+    E = np.zeros((len(spw), 2, 2 * k + 3, 2))
+    E[:, :, :k, 0], E[:, :, k:2 * k, 1] = endb[:, :, 0], endb[:, :, 1]
+    E[:, :, 2 * k, 0], E[:, :, 2 * k + 1, 0], E[:, :, 2 * k + 2, 0] = endlin[..., 0], endlin[..., 1], endlin[..., 2]
+    E[:, :, 2 * k, 1], E[:, :, 2 * k + 1, 1], E[:, :, 2 * k + 2, 1] = -endlin[..., 1], endlin[..., 0], endlin[..., 3]
+    lo, span = np.array([box[0], box[2]]), np.array([box[1] - box[0], box[3] - box[2]])
+    g = mask.shape[0]
+    done = np.zeros(B, np.int64)  # windows computed per voice (the last one may be where it failed)
+    x = x0.astype(np.float64).copy()
+    alive = np.ones(B, bool)
+    rows = np.arange(B)
+    pm = np.array([1, -1], np.float32)
+    for w0 in range(0, W, BLOCK):
+        w1 = min(w0 + BLOCK, W)
+        O_blk = np.empty((B, w1 - w0, 2 * k), np.float32)
+        X_blk = np.empty((B, w1 - w0, 2), np.float64)
+        act = rows
+        for win in range(w0, w1):
+            if win >= n_run.min() or not alive.all():
+                act = rows[alive & (win < n_run)]
+                if not act.size:
+                    break
+            xa = x[act]
+            X_blk[act, win - w0] = xa
+            z = xa @ ffs - off
+            h = np.concatenate([np.cos(z), np.sin(z)], axis=1).astype(np.float32)
+            T = np.tanh(h @ Gw + Gb)
+            V = T[:, width:2 * width]
+            U = T[:, :width] - V  # modified MLP: h = v + tanh(z) (u - v); U is kept as u - v
+            hh = V + T[:, 2 * width:] * U
+            for layer in range(Hw.shape[0]):
+                hh = V + np.tanh(hh @ Hw[layer] + Hb[layer]) * U
+            O = hh @ Ow + Ob  # (A, 2k)
+            O_blk[act, win - w0] = O
+            done[act] = win + 1
+            nx = np.einsum("ai,aij->aj", np.concatenate([O, xa, np.ones((len(act), 1))], axis=1),
+                           E[vidx[act], jlen[act, win]])
+            ok = np.isfinite(nx).all(axis=1)
+            if check:
+                cell = (nx - lo) / span
+                inside = ok & (cell >= 0).all(axis=1) & (cell <= 1).all(axis=1)
+                ij = np.minimum((np.where(inside[:, None], cell, 0) * g).astype(np.int64), g - 1)
+                ok_dom = inside & mask[ij[:, 0], ij[:, 1]]
+                last = ends[act, win] >= n_samples  # no window follows: nothing to check
+                stop = ~ok | ~(ok_dom | last)
+            else:
+                stop = ~ok
+            if stop.any():
+                bad, out = ~ok, stop & ok
+                fail[act[bad], 0], fail[act[bad], 1] = starts[act[bad], win], FAIL_NONFINITE
+                fail[act[out], 0], fail[act[out], 1] = ends[act[out], win], FAIL_DOMAIN
+                alive[act[stop]] = False
+            x[act] = nx
+        for b in range(B):
+            wb = min(w1, int(done[b]))
+            if wb <= w0:
+                continue
+            nw = wb - w0
+            xf = X_blk[b, :nw].astype(np.float32)
+            ones = np.ones((nw, 1), np.float32)
+            Tq = np.concatenate([O_blk[b, :nw, :k], xf, ones], axis=1) @ Bq[vidx[b]]  # (nw, n_max): one per window
+            Tp = np.concatenate([O_blk[b, :nw, k:], xf[:, ::-1] * pm, ones], axis=1) @ Bp[vidx[b]]
+            # sample i lies in window w at offset i - starts[w]
+            first, last = int(starts[b, w0]), min(int(ends[b, wb - 1]), n_samples)
+            lens = np.minimum(ends[b, w0:wb], last) - starts[b, w0:wb]
+            flat = np.repeat(np.arange(nw) * n_max - (starts[b, w0:wb] - first), lens) + np.arange(last - first)
+            q_out[b, first:last] = Tq.ravel()[flat]
+            p_out[b, first:last] = Tp.ravel()[flat]
 
 
 def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None) -> OperatorModel:
@@ -188,38 +415,61 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
     return [f"note: {voice}{why} at t = {at / scene.sample_rate:.4f} s; finished with the FDM from there"]
 
 
+def _physics_notes(m: OperatorModel) -> list[str]:
+    """Check a model read from a file against the physics its metadata claims (check_physics). A model that passed
+    its validation must pass: else ModelFileError. One whose validation failed (never picked by default, so it was
+    asked for by name) renders with a note instead. Models built in memory (the trainer's) are not checked here."""
+    if not m.from_file:
+        return []
+    err = check_physics(m)
+    if err <= PHYSICS_MAX_ERROR:  # NaN fails too
+        return []
+    d = m.domain
+    what = (f"its first {CHECK_WINDOWS} windows differ from the physics it claims (F_B / w = {d.beta:.4g}, "
+            f"v_B = {d.vb:g}, a = {d.a:g}) by {err:.3g} (relative mean square; the limit is {PHYSICS_MAX_ERROR:g})")
+    if m.failure is None:
+        raise ModelFileError(f"model {m.path or m.meta.name} does not do what it claims: {what}; its metadata does "
+                             f"not describe its weights. Retrain it, or render with --method fdm")
+    return [f"note: model {m.path or m.meta.name} is not validated ({m.failure}) and {what}: expect a poor render"]
+
+
 def render_operator(scene, model=None, fallback: str = "none"):
     """Render one scene (or a list of scenes, batched in one rollout) with a trained operator.
 
-    model: an OperatorModel, a path, or None to pick the model that covers the scene. fallback='fdm' finishes a
-    rollout that leaves the model's domain with the FDM (and says so in info['notes']); 'none' raises DomainError.
+    model: an OperatorModel, a path, or None to pick the best validated model that covers the scene (see
+    find_model). fallback='fdm' finishes a rollout that leaves the model's domain with the FDM (and says so in
+    info['notes']); 'none' raises DomainError. Every render first checks the model's physics (check_physics) and
+    raises ModelFileError if the model does not do what its metadata claims.
     The arrays of an operator render are float32, the network's precision.
     """
     if fallback not in ("none", "fdm"):
         raise UsageError(f"fallback must be none or fdm, got {fallback!r}")
     if isinstance(scene, (list, tuple)):
         return render_operator_batch(list(scene), model=model, fallback=fallback)
+    t_setup = time.perf_counter()
     m = _resolve(scene, model)
+    checked = _physics_notes(m)
     dtau = scene.omega / scene.sample_rate
     x0 = np.array([[scene.q0, scene.p0]])
-    # one-sample warm-up: converts the weights, computes the trunk features at this render's sample offsets and
-    # loads the compiled loop, so that `seconds` measures the rollout itself (start-up is in info["setup_seconds"])
-    t_setup = time.perf_counter()
-    rollout_states(m, x0, 1, dtau)
+    # warm-up: converts the weights, computes the trunk features at this render's sample offsets and loads the
+    # compiled loop if it is used, so that `seconds` measures the rollout itself (start-up: info["setup_seconds"])
+    loop = choose_loop(m, scene.n_samples, dtau)
+    rollout_states(m, x0, 1, dtau, loop=loop)
     t0 = time.perf_counter()
-    q, p, fail = rollout_states(m, x0, scene.n_samples, dtau)
+    q, p, fail = rollout_states(m, x0, scene.n_samples, dtau, loop=loop)
     q, p = q[0], p[0]
-    notes = _finish(scene, q, p, fail[0], fallback)
+    notes = _finish(scene, q, p, fail[0], fallback) + checked
     secs = time.perf_counter() - t0
     t = np.arange(scene.n_samples) / scene.sample_rate
-    return Render(scene, t, q, p, method="operator" + ("+fdm" if notes else ""), seconds=secs,
+    return Render(scene, t, q, p, method="operator" + ("+fdm" if len(notes) > len(checked) else ""), seconds=secs,
                   info={"model_id": m.id, "model_path": str(m.path) if m.path else None, "notes": notes,
-                        "setup_seconds": t0 - t_setup})
+                        "setup_seconds": t0 - t_setup, "loop": loop})
 
 
 def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none") -> list[Render]:
-    """Many voices in one batched rollout. Voices sharing a model and a sample spacing in tau roll together; a voice
-    that leaves its model's domain is finished with the FDM (fallback 'fdm') or stops the render (DomainError)."""
+    """Many voices in one batched rollout. Voices sharing a model roll together, at any mix of pitches and sample
+    rates; a voice that leaves its model's domain is finished with the FDM (fallback 'fdm') or stops the render
+    (DomainError)."""
     # load each model file once: the voices must share model objects to be grouped into one rollout
     if model is not None and not isinstance(model, OperatorModel):
         model = load_model(model)
@@ -227,17 +477,19 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     groups: dict = {}
     for i, sc in enumerate(scenes):
         m = _resolve(sc, model, models)
-        key = (id(m), sc.omega / sc.sample_rate)
-        groups.setdefault(key, (m, []))[1].append(i)
+        groups.setdefault(id(m), (m, []))[1].append(i)
     out: list = [None] * len(scenes)
-    for (_, dtau), (m, idx) in groups.items():
+    for m, idx in groups.values():
+        checked = _physics_notes(m)
         n = max(scenes[i].n_samples for i in idx)
         x0 = np.array([[scenes[i].q0, scenes[i].p0] for i in idx])
-        rollout_states(m, x0, 1, dtau)  # warm-up, as in render_operator
+        dtau = np.array([scenes[i].omega / scenes[i].sample_rate for i in idx])
+        loop = choose_loop(m, n, dtau)
+        rollout_states(m, x0, 1, dtau, loop=loop)  # warm-up, as in render_operator
         t0 = time.perf_counter()
-        q, p, fail = rollout_states(m, x0, n, dtau)
+        q, p, fail = rollout_states(m, x0, n, dtau, loop=loop)
         notes = {i: _finish(scenes[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], fail[row],
-                            fallback, voice=f"voice {i + 1}: ") for row, i in enumerate(idx)}
+                            fallback, voice=f"voice {i + 1}: ") + checked for row, i in enumerate(idx)}
         secs = (time.perf_counter() - t0) / len(idx)
         t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
         for row, i in enumerate(idx):
@@ -246,6 +498,70 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             if sc.sample_rate not in t_all:
                 t_all[sc.sample_rate] = np.arange(n) / sc.sample_rate
             out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns],
-                            method="operator" + ("+fdm" if notes[i] else ""), seconds=secs,
-                            info={"model_id": m.id, "batched": len(idx), "notes": notes[i]})
+                            method="operator" + ("+fdm" if len(notes[i]) > len(checked) else ""), seconds=secs,
+                            info={"model_id": m.id, "model_path": str(m.path) if m.path else None,
+                                  "batched": len(idx), "notes": notes[i], "loop": loop})
     return out
+
+
+# The physics check. The dynamics in tau depend on (beta, v_B, a) and the initial state only, so a model is checked
+# once per process, whatever the pitch: its first CHECK_WINDOWS windows from the initial state of the scene it was
+# trained (and validated) for, on a grid of CHECK_STEPS samples per window, against a classical RK4 integration of the
+# claimed ODE (physics.rhs_tau) with steps short enough for the friction's stiffness. The error is the mean square
+# difference over both state variables relative to the mean square of what friction adds to the exact linear flow
+# (x_ref - R(tau) x0): a model rendering other physics than its metadata claims is off by the order of that
+# correction. From rest the bow's onset separates forces well; from a state in a stick phase (F_B 1000) two windows
+# of another force can look the same, so the check does not use the render's own initial state.
+# Measured (benchmarks/physics_check.py, docs/BENCHMARKS.md): the shipped models score 3.8e-7, 3.7e-6 and 5.1e-5;
+# their files edited to claim 1.5x or 2x the bow force 0.14 to 1.1, 1.1x 0.008 to 0.23. Cost ~3-8 ms once per model.
+CHECK_WINDOWS = 2
+CHECK_STEPS = 256
+PHYSICS_MAX_ERROR = 5e-3  # ~100x the worst shipped model
+
+
+def reference_tau(q0: float, p0: float, beta: float, vb: float, a: float, dtau: float, n: int):
+    """q, p at tau = j dtau, j < n, by RK4 on the dimensionless ODE (pure Python floats: no compiler to load)."""
+    stiff = 1.0 + beta * math.sqrt(2.0 * a) * physics.E_HALF  # largest |d p' / d p| (phi' peaks at eta = 0)
+    sub = max(1, math.ceil(dtau * stiff / 0.5))  # RK4 step h * stiffness <= 0.5: accurate, far from unstable
+    h = dtau / sub
+    f = physics.rhs_tau
+    q, p = float(q0), float(p0)
+    qs, ps = [q], [p]
+    for _ in range(n - 1):
+        for _ in range(sub):
+            k1q, k1p = f(q, p, beta, vb, a)
+            k2q, k2p = f(q + 0.5 * h * k1q, p + 0.5 * h * k1p, beta, vb, a)
+            k3q, k3p = f(q + 0.5 * h * k2q, p + 0.5 * h * k2p, beta, vb, a)
+            k4q, k4p = f(q + h * k3q, p + h * k3p, beta, vb, a)
+            q += h / 6.0 * (k1q + 2.0 * (k2q + k3q) + k4q)
+            p += h / 6.0 * (k1p + 2.0 * (k2p + k3p) + k4p)
+        qs.append(q)
+        ps.append(p)
+    return np.array(qs), np.array(ps)
+
+
+def physics_error(model: OperatorModel, q0: float, p0: float) -> float:
+    """The model's error over its first CHECK_WINDOWS windows from (q0, p0) against the physics its metadata claims
+    (relative mean square, see above); inf if the rollout turns non-finite."""
+    d = model.domain
+    op = _operator(model)
+    dtau = op.window / CHECK_STEPS
+    n = CHECK_WINDOWS * CHECK_STEPS
+    q, p, fail = rollout_states(model, [[q0, p0]], n, dtau, check_domain=False, loop="numpy")
+    if fail[0, 0] >= 0:
+        return math.inf
+    rq, rp = reference_tau(q0, p0, d.beta, d.vb, d.a, dtau, n)
+    if op.cfg.linear_flow:
+        lq, lp = physics.linear_flow(q0, p0, np.arange(n) * dtau)
+    else:
+        lq, lp = np.full(n, q0), np.full(n, p0)
+    corr = np.mean((rq - lq) ** 2 + (rp - lp) ** 2)
+    return float(np.mean((q[0] - rq) ** 2 + (p[0] - rp) ** 2) / max(corr, 1e-30))
+
+
+def check_physics(model: OperatorModel) -> float:
+    """physics_error from the initial state of the model's training scene, once per model object."""
+    if "_physics_error" not in model.__dict__:
+        sc = model.meta.scene or {}
+        model.__dict__["_physics_error"] = physics_error(model, float(sc.get("q0", 0.0)), float(sc.get("p0", 0.0)))
+    return model.__dict__["_physics_error"]

@@ -101,3 +101,53 @@ def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path
     for r in renders:
         assert r.method == "operator+fdm" and "finished with the FDM" in r.info["notes"][0]
         assert len(r.q) == r.scene.n_samples and np.all(np.isfinite(r.q)) and np.all(np.isfinite(r.p))
+
+
+@pytest.mark.parametrize("loop,voices", [("numpy", 5), ("numba", 3), ("numba", BATCH_FROM + 1)],
+                         ids=["numpy-loop", "numba-voice-loop", "numba-batch-loop"])
+def test_voices_at_different_pitches_roll_in_one_batch(loop, voices):
+    from bowsynth.rollout import SHIPPED_DIR
+
+    m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")
+    f0 = 100 * 2 ** (np.arange(voices) / 7)  # windows of 441 samples down to ~240, mostly not whole numbers
+    dtau = 2 * np.pi * f0 / 44100
+    x0 = np.stack([np.linspace(0, 0.1, voices), np.linspace(0, -0.05, voices)], 1)
+    n = 3000
+    q, p, fail = rollout_states(m, x0, n, dtau, check_domain=False, loop=loop)
+    assert np.all(fail[:, 0] == -1)
+    for b in range(voices):
+        ref = torch_rollout(m, x0[b:b + 1], n, dtau[b])[0]
+        scale = np.abs(ref).max()
+        assert np.abs(q[b] - ref[:, 0]).max() < 2e-5 * scale, b
+        assert np.abs(p[b] - ref[:, 1]).max() < 2e-5 * scale, b
+        q1, p1, _ = rollout_states(m, x0[b:b + 1], n, dtau[b], check_domain=False, loop="numpy")
+        assert np.abs(q[b] - q1[0]).max() < 1e-5 * scale and np.abs(p[b] - p1[0]).max() < 1e-5 * scale
+
+
+def test_numpy_loop_stops_a_failing_voice_like_the_compiled_ones(tiny_model):
+    m = load_model(tiny_model)
+    sc = Scene(fb=100)
+    x0 = np.zeros((4, 2))
+    x0[2] = [np.nan, 0.0]
+    d = m.domain
+    x0[3] = [d.q_hi * 0.99, 0.0]  # near the edge of the box: may leave it
+    runs = [rollout_states(m, x0, 3000, sc.omega / sc.sample_rate, loop=lp) for lp in ("numpy", "numba")]
+    (qa, pa, fa), (qb, pb, fb) = runs
+    assert np.array_equal(fa, fb) and tuple(fa[2]) == (0, kernels.FAIL_NONFINITE)
+    ok = np.isfinite(qb)
+    assert np.array_equal(ok, np.isfinite(qa))
+    assert np.abs(qa[ok] - qb[ok]).max() < 1e-5 and np.abs(pa[ok] - pb[ok]).max() < 1e-5
+
+
+def test_trunk_features_interpolated_for_many_pitches_match_the_network():
+    from bowsynth import npnet
+    from bowsynth.rollout import SHIPPED_DIR, TRUNK_GRID, _operator
+
+    for name in ("paper-fb10", "paper-fb100", "paper-fb1000"):
+        op = _operator(load_model(SHIPPED_DIR / f"{name}.safetensors"))
+        f0 = 100 * 2 ** (np.arange(40) / 40)
+        offsets = [np.arange(442 * 100 // int(f) + 2) * (2 * np.pi * f / 44100) / op.window for f in f0]
+        assert sum(map(len, offsets)) > TRUNK_GRID  # the interpolated path
+        for s, f in zip(offsets, op.trunk_features(offsets)):
+            direct = npnet.trunk_features(op._w, op.cfg, s)
+            assert np.abs(f - direct).max() < 1e-7 * np.abs(direct).max()  # float32 rounding is 6e-8

@@ -76,7 +76,7 @@ def test_save_load_round_trip(tiny_model):
     with torch.no_grad():
         assert torch.equal(m.net(x0, tau), m2.net(x0, tau))
     assert m.meta.domain.beta == pytest.approx(Scene(fb=100).beta)
-    assert m.id.startswith("tiny@") and m.meta.format_version == 1
+    assert m.id.startswith("tiny@") and m.meta.format_version == 2 and m.meta.digest.startswith("sha256:")
 
 
 def test_domain_check(tiny_model):
@@ -119,8 +119,14 @@ def test_wrong_shapes_and_version_rejected(tmp_path, tiny_model):
     with safe_open(str(tiny_model), framework="pt") as f:
         meta = json.loads(f.metadata()["bowsynth"])
         tensors = {k: f.get_tensor(k) for k in f.keys()}
+    from bowsynth.model import digest
+
     bad = dict(tensors, **{"bias": torch.zeros(5)})
     save_file(bad, str(tmp_path / "shape.safetensors"), metadata={"bowsynth": json.dumps(meta)})
+    with pytest.raises(ModelFileError, match="metadata does not match the weights"):
+        load_model(tmp_path / "shape.safetensors")
+    forged = {**meta, "digest": digest(meta, {k: v.numpy() for k, v in bad.items()})}  # past the digest
+    save_file(bad, str(tmp_path / "shape.safetensors"), metadata={"bowsynth": json.dumps(forged)})
     with pytest.raises(ModelFileError, match="damaged"):
         load_model(tmp_path / "shape.safetensors")
     save_file(tensors, str(tmp_path / "v9.safetensors"), metadata={"bowsynth": json.dumps({**meta, "format_version": 9})})

@@ -60,16 +60,11 @@ def test_score_file_and_mix(tmp_path, tiny_model, monkeypatch, capsys):
     assert code == 0 and sorted(p.name for p in (tmp_path / "p").iterdir()) == ["paper-fb10.wav", "paper-fb100.wav"]
 
 
-def test_voices_without_a_named_model_share_one_rollout(tiny_model, tmp_path, monkeypatch):
-    import shutil
-
-    models = tmp_path / "models"
-    models.mkdir()
-    shutil.copy(tiny_model, models / "tiny.safetensors")
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
-    renders = render_operator([Scene(fb=100, duration=0.02), Scene(fb=100, duration=0.02, q0=0.001)])
+def test_voices_without_a_named_model_share_one_rollout(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # no ./models: the shipped paper-fb100 covers both (same F_B / w, other pitches)
+    renders = render_operator([Scene(fb=100, duration=0.02), Scene(fb=150, f0=150, duration=0.02, q0=0.001)])
     assert [r.info["batched"] for r in renders] == [2, 2]
+    assert all(r.info["model_path"].endswith("paper-fb100.safetensors") for r in renders)
 
 
 def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch, capsys):

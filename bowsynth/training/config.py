@@ -7,22 +7,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..errors import UsageError
-
-@dataclass
-class NetConfig:
-    width: int = 64
-    depth: int = 4
-    k: int = 64  # features per state variable; branch and trunk emit 2k each
-    ff_branch: int = 32  # random Fourier features (pairs) on the branch input
-    ff_trunk: int = 32
-    sigma_branch: float = 1.0
-    sigma_trunk: float = 2.0
-    linear_flow: bool = True  # carry the exact frictionless flow R(tau) x0 in the output (False: x0, for ablation)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
+from ..npnet import NetConfig  # torch-free: model files are read without torch
 
 MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
 MAX_STEPS = 10_000_000

@@ -1,0 +1,69 @@
+"""The network without torch: its configuration, the weight names and shapes a model file must hold, and the
+modified MLP's forward pass in numpy (float64, from the float32 weights).
+
+Rendering reads a model file and evaluates it here, so a render never imports torch (2-8 s on this machine);
+`network.DeepONet` is the same network in torch, built only for training (tests/test_operator.py checks that the two
+agree).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+@dataclass
+class NetConfig:
+    width: int = 64
+    depth: int = 4
+    k: int = 64  # features per state variable; branch and trunk emit 2k each
+    ff_branch: int = 32  # random Fourier features (pairs) on the branch input
+    ff_trunk: int = 32
+    sigma_branch: float = 1.0
+    sigma_trunk: float = 2.0
+    linear_flow: bool = True  # carry the exact frictionless flow R(tau) x0 in the output (False: x0, for ablation)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def weight_shapes(cfg: NetConfig) -> dict[str, tuple]:
+    """Name -> shape of every tensor of a DeepONet with this configuration (torch's state_dict layout)."""
+    out: dict[str, tuple] = {"bias": (2,), "center": (2,), "halfrange": (2,), "corr_scale": (2,), "window": ()}
+    for part, in_dim, m in (("branch", 2, cfg.ff_branch), ("trunk", 1, cfg.ff_trunk)):
+        out[f"{part}.ff.B"] = (in_dim, m)
+        for gate in ("U", "V"):
+            out[f"{part}.{gate}.weight"] = (cfg.width, 2 * m)
+            out[f"{part}.{gate}.bias"] = (cfg.width,)
+        for i in range(cfg.depth):
+            out[f"{part}.hidden.{i}.weight"] = (cfg.width, 2 * m if i == 0 else cfg.width)
+            out[f"{part}.hidden.{i}.bias"] = (cfg.width,)
+        out[f"{part}.out.weight"] = (2 * cfg.k, cfg.width)
+        out[f"{part}.out.bias"] = (2 * cfg.k,)
+    return out
+
+
+def modified_mlp(w: dict, part: str, depth: int, x: np.ndarray) -> np.ndarray:
+    """network.ModifiedMLP.forward in float64: Fourier features, gates U and V mixed into every hidden layer."""
+    f = lambda name: np.asarray(w[f"{part}.{name}"], dtype=np.float64)  # noqa: E731
+    z = 2 * math.pi * np.asarray(x, dtype=np.float64) @ f("ff.B")
+    h = np.concatenate([np.cos(z), np.sin(z)], axis=-1)
+    u = np.tanh(h @ f("U.weight").T + f("U.bias"))
+    v = np.tanh(h @ f("V.weight").T + f("V.bias"))
+    for i in range(depth):
+        z = np.tanh(h @ f(f"hidden.{i}.weight").T + f(f"hidden.{i}.bias"))
+        h = z * u + (1 - z) * v
+    return h @ f("out.weight").T + f("out.bias")
+
+
+def trunk_features(w: dict, cfg: NetConfig, s: np.ndarray) -> np.ndarray:
+    """DeepONet.trunk_features: (M,) window fractions -> (M, 2, k)."""
+    return modified_mlp(w, "trunk", cfg.depth, np.asarray(s, float)[:, None]).reshape(-1, 2, cfg.k) / math.sqrt(cfg.k)
+
+
+def branch_features(w: dict, cfg: NetConfig, x0: np.ndarray) -> np.ndarray:
+    """DeepONet.branch_features: (B, 2) states -> (B, 2, k)."""
+    x = (np.asarray(x0, float) - w["center"].astype(float)) / w["halfrange"].astype(float)
+    return modified_mlp(w, "branch", cfg.depth, x).reshape(-1, 2, cfg.k)

@@ -1,0 +1,180 @@
+"""Model files: read without torch, metadata bound to the weights, physics checked at render time, the best
+validated model picked, the lookup cached per process."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bowsynth import ModelFileError, Scene
+from bowsynth import npnet
+from bowsynth.model import OperatorModel, digest, load_model
+from bowsynth.rollout import SHIPPED_DIR, available_models, check_physics, render_operator
+from conftest import run_main
+
+FB100 = SHIPPED_DIR / "paper-fb100.safetensors"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def rewrite(src, dst, edit, fix_digest=True, version=None):
+    """Copy a model file with its metadata changed by edit(meta); fix_digest recomputes the digest as a forger would
+    (so that only the physics check can tell); version=1 writes a format-1 file (no digest)."""
+    from safetensors import safe_open
+    from safetensors.numpy import save_file
+
+    with safe_open(str(src), framework="numpy") as f:
+        meta = json.loads(f.metadata()["bowsynth"])
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    edit(meta)
+    if version == 1:
+        meta["format_version"] = 1
+        meta.pop("digest", None)
+    elif fix_digest:
+        meta["digest"] = digest(meta, tensors)
+    save_file(tensors, str(dst), metadata={"bowsynth": json.dumps(meta)})
+    return dst
+
+
+def claim_double_force(meta):
+    meta["domain"]["beta"] *= 2
+    meta["scene"]["fb"] *= 2
+
+
+def test_numpy_network_matches_torch():
+    m = load_model(FB100)
+    net = m.net  # built from the file's weights on first use
+    s = np.linspace(0, 1.01, 301)
+    x0 = np.random.default_rng(0).uniform(-0.3, 0.3, size=(50, 2))
+    with torch.no_grad():
+        t_trunk = net.trunk_features(torch.tensor(s, dtype=torch.float32)).double().numpy()
+        t_branch = net.branch_features(torch.tensor(x0, dtype=torch.float32)).double().numpy()
+    n_trunk = npnet.trunk_features(m.weights, m.cfg, s)
+    n_branch = npnet.branch_features(m.weights, m.cfg, x0)
+    assert np.abs(n_trunk - t_trunk).max() < 1e-6 * np.abs(t_trunk).max()
+    assert np.abs(n_branch - t_branch).max() < 1e-6 * np.abs(t_branch).max()
+    # in float64 on both sides the two are the same function to rounding
+    net64 = m.net.double()
+    with torch.no_grad():
+        t64 = net64.trunk_features(torch.tensor(s)).numpy()
+    assert np.abs(n_trunk - t64).max() < 1e-12 * np.abs(t64).max()
+
+
+def test_rollout_from_a_file_equals_the_torch_built_model(tmp_path):
+    from safetensors.torch import load_file
+
+    from bowsynth.network import DeepONet, NetConfig
+
+    loaded = load_model(FB100)
+    tensors = load_file(str(FB100))
+    tensors.pop("domain.mask")
+    net = DeepONet(NetConfig(**loaded.meta.net))
+    net.load_state_dict(tensors)
+    built = OperatorModel(net, loaded.meta)  # as the trainer builds it
+    for sc in (Scene(fb=100, duration=0.3), Scene(fb=200, f0=200, duration=0.3)):
+        a, b = render_operator(sc, model=loaded), render_operator(sc, model=built)
+        assert np.array_equal(a.q, b.q) and np.array_equal(a.p, b.p)
+    out = built.save(tmp_path / "again.safetensors")  # saving needs no torch either way, same id
+    again = load_model(out)
+    assert again.id == loaded.id and again.meta.format_version == 2
+    assert all(np.array_equal(again.weights[k], v) for k, v in loaded.weights.items())
+
+
+def test_render_imports_neither_torch_nor_numba(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-X", "importtime", "-m", "bowsynth", "render", "--fb", "100", "-d", "1",
+                        str(tmp_path / "x.wav")], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    modules = {line.split("|")[-1].strip().split(".")[0] for line in r.stderr.splitlines() if "import time:" in line}
+    assert "numpy" in modules and "safetensors" in modules  # the listing is real
+    assert "torch" not in modules and "numba" not in modules and "scipy" not in modules
+    assert f"({FB100})" in r.stdout and "fb100_f0100_vb0.2_a100@" in r.stdout
+
+
+def test_metadata_edited_without_the_digest_is_refused(tmp_path):
+    with pytest.raises(ModelFileError, match="metadata does not match the weights: the file was edited"):
+        load_model(rewrite(FB100, tmp_path / "a.safetensors", claim_double_force, fix_digest=False))
+    with pytest.raises(ModelFileError, match="metadata does not match the weights"):
+        load_model(rewrite(FB100, tmp_path / "b.safetensors", lambda m: m["validation"].update(nmse=1e-12),
+                           fix_digest=False))
+    # one weight changed, the metadata left alone
+    data = bytearray(FB100.read_bytes())
+    data[-100] ^= 0x40
+    (tmp_path / "c.safetensors").write_bytes(bytes(data))
+    with pytest.raises(ModelFileError, match="metadata does not match the weights"):
+        load_model(tmp_path / "c.safetensors")
+
+
+@pytest.mark.parametrize("version", [2, 1], ids=["digest-forged", "format-1-no-digest"])
+def test_a_file_claiming_another_bow_force_is_refused_by_its_physics(tmp_path, monkeypatch, capsys, version):
+    models = tmp_path / "models"
+    models.mkdir()
+    lie = rewrite(FB100, models / "liar.safetensors", claim_double_force, version=version)
+    m = load_model(lie)  # the file itself is consistent
+    assert m.domain.beta == pytest.approx(2 * load_model(FB100).domain.beta) and m.covers(Scene(fb=200))
+    assert check_physics(m) > 0.1
+    monkeypatch.chdir(tmp_path)
+    for extra in ([], ["--model", str(lie)]):
+        code, out, err = run_main(["render", "--fb", "200", "-d", "0.2", *extra, str(tmp_path / "x.wav")],
+                                  capsys, monkeypatch)
+        assert code == 1 and "does not do what it claims" in err and "liar.safetensors" in err
+        assert len(err.strip().splitlines()) == 1 and not (tmp_path / "x.wav").exists()
+    # the honest shipped model still renders its own force from the same directory
+    code, out, _ = run_main(["render", "--fb", "100", "-d", "0.2", str(tmp_path / "y.wav")], capsys, monkeypatch)
+    assert code == 0 and "paper-fb100.safetensors" in out
+
+
+def test_a_failed_model_in_models_does_not_shadow_the_shipped_one(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["train", "--fb", "100", "--steps", "1", "--n-data", "16", "--width", "4", "--depth",
+                               "1", "--quiet"], capsys, monkeypatch)
+    assert code == 0 and "not picked by default" in err
+    trained = next((tmp_path / "models").glob("*.safetensors"))
+    assert load_model(trained).failure is not None and load_model(trained).covers(Scene(fb=100))
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.2", str(tmp_path / "x.wav")], capsys, monkeypatch)
+    assert code == 0 and f"({FB100})" in out, out + err
+    code, out, _ = run_main(["models"], capsys, monkeypatch)
+    line = next(x for x in out.splitlines() if trained.name in x)
+    assert "FAILED" in line and "not picked by default" in line
+    assert "FAILED" not in next(x for x in out.splitlines() if "paper-fb100" in x)
+    # asked for by name it still renders, with a note that says what it is
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.05", "--model", str(trained), "--fallback", "fdm",
+                               str(tmp_path / "z.wav")], capsys, monkeypatch)
+    assert code == 0 and "is not validated" in out
+
+
+def test_the_best_validated_covering_model_wins(tmp_path, monkeypatch):
+    models = tmp_path / "models"
+    models.mkdir()
+    monkeypatch.chdir(tmp_path)
+    rewrite(FB100, models / "worse.safetensors", lambda m: m["validation"].update(nmse=1e-3))
+    sc = Scene(fb=100, duration=0.05)
+    assert render_operator(sc).info["model_path"] == str(FB100)  # shipped 9.9e-7 beats 1e-3
+    rewrite(FB100, models / "better.safetensors", lambda m: m["validation"].update(nmse=1e-9))
+    assert render_operator(sc).info["model_path"] == str(models / "better.safetensors")
+    rewrite(FB100, models / "broken.safetensors", lambda m: m["validation"].update(nmse=None, error="diverged"))
+    rewrite(FB100, models / "poor.safetensors", lambda m: m["validation"].update(nmse=0.5))
+    rewrite(FB100, models / "nan.safetensors", lambda m: m["validation"].update(nmse=float("nan")))
+    assert render_operator(sc).info["model_path"] == str(models / "better.safetensors")
+    failed = {m.path.name: m.failure for m in available_models() if m.failure}
+    assert set(failed) == {"broken.safetensors", "poor.safetensors", "nan.safetensors"}
+
+
+def test_model_lookup_is_cached_until_a_file_changes(tmp_path, monkeypatch):
+    models = tmp_path / "models"
+    models.mkdir()
+    monkeypatch.chdir(tmp_path)
+    path = rewrite(FB100, models / "mine.safetensors", lambda m: m["validation"].update(nmse=1e-9))
+    first = {m.path: m for m in available_models()}
+    second = {m.path: m for m in available_models()}
+    assert all(second[p] is first[p] for p in first) and len(first) >= 4
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # same size, newer: read again
+    third = {m.path: m for m in available_models()}
+    assert third[path] is not first[path] and third[FB100] is first[FB100]
+    path.write_bytes(b"garbage")  # now unreadable: skipped by the lookup, listed as such by `models`
+    assert path not in {m.path for m in available_models()}
