@@ -32,6 +32,23 @@ def onset_shift():
         print(f"| {mt:g} T | {nmse(r.p, ref.p):.2e} | {rms} | {np.abs(env(r.p) / env(ref.p) - 1).max():.1e} |")
 
 
+def onset_windows():
+    """fb 10: one-window NMSE(p) from states of the rest trajectory at t = (m + f) T."""
+    from bowsynth.bench import window_errors
+
+    m = load_model(SHIPPED_DIR / "paper-fb10.safetensors")
+    sc = make_scene("paper-fb10")
+    path = render_fdm(sc.replace(duration=0.25, sample_rate=4 * sc.sample_rate), oversample=REF_OVERSAMPLE // 4)
+    per = path.scene.sample_rate / sc.f0
+    print("\nfb 10, one-window NMSE(p) from the rest trajectory at t = (m + f) T:")
+    print("| m | f = 0 (a window start of the render from rest) | f = 0.25 | f = 0.5 | f = 0.75 |")
+    print("|---|---|---|---|---|")
+    for mm in (0, 1, 2, 3, 5, 10, 20):
+        idx = [int(round((mm + f) * per)) for f in (0.0, 0.25, 0.5, 0.75)]
+        e = window_errors(m, np.stack([path.q[idx], path.p[idx]], 1), sc)
+        print(f"| {mm} | " + " | ".join(f"{v:.1e}" for v in e) + " |")
+
+
 def spectrum_bands():
     """fb 1000: the operator's Welch power against the FDM x100's, mean dB difference per band (1 s from rest)."""
     m = load_model(SHIPPED_DIR / "paper-fb1000.safetensors")
@@ -68,5 +85,6 @@ def margin_states():
 
 if __name__ == "__main__":
     onset_shift()
+    onset_windows()
     spectrum_bands()
     margin_states()
