@@ -105,7 +105,7 @@ def test_save_load_round_trip(tiny_model, tmp_path):
     d, d2 = m.domain, m2.domain
     assert np.array_equal(d.mask, d2.mask) and (d.q_lo, d.q_hi, d.p_lo, d.p_hi) == (d2.q_lo, d2.q_hi, d2.p_lo, d2.p_hi)
     assert m2.meta.scene == m.meta.scene and m2.id == m.id != load_model(tiny_model).id
-    m = m2
+    m = m2  # the checks below read the loaded model
     assert m.meta.domain.beta == pytest.approx(Scene(fb=100).beta)
     assert m.id.startswith("tiny@") and m.meta.format_version == 1
 
