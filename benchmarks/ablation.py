@@ -1,9 +1,11 @@
 """Ablations: what each technique buys, one config per row, each trained for the same wall-clock budget.
 
-    .venv/bin/python benchmarks/ablation.py --minutes 3 > docs/ablation.md
+    .venv/bin/python benchmarks/ablation.py --minutes 2.5
 
-Each row changes one thing from the default and reports the model's validation: NMSE(p) of a 1 s rollout from rest
-against a x100 FDM, and the pitch error in cents. One run per row (seed 0): differences under about 2x are noise.
+prints the Markdown table in docs/BENCHMARKS.md ("Ablations"; each row's record as JSON on stderr); 12 rows of
+2.5 minutes each, about 35 minutes. Each row changes one thing from the default and reports the model's validation:
+NMSE(p) of a 1 s rollout from rest against a x100 FDM, and the pitch error in cents. One run per row (seed 0):
+differences under about 2x are noise.
 """
 
 import argparse
@@ -55,7 +57,7 @@ def run(fb: float, label: str, changes: dict, minutes: float) -> dict:
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--minutes", type=float, default=3.0)
+    ap.add_argument("--minutes", type=float, default=2.5)
     ap.add_argument("--fb", type=float, nargs="*", default=[100, 1000])
     args = ap.parse_args()
     rows = []

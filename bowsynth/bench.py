@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .fdm import fdm_batch, render_fdm
+from .metrics import nmse
 from .scene import Scene
 
 
@@ -54,18 +55,29 @@ def fdm_table(rows: list[dict]) -> str:
 # --- speed against error -----------------------------------------------------------------------------------------
 
 REF_OVERSAMPLE = 100
-# the paper's rollouts, where this project's checkout keeps them (../shared/anchors beside the repository)
-DEFAULT_ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors"
+# the paper's rollouts: the full files where this project's checkout keeps them (../shared/anchors beside the
+# repository), else the reduced copies a clone carries for its tests (tests/data, see its README)
+_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_ANCHORS = next((d for d in (_ROOT.parent / "shared" / "anchors", _ROOT / "tests" / "data") if d.is_dir()),
+                       _ROOT.parent / "shared" / "anchors")
 PAPER = {  # the paper's operators over 0.5 s (shared/anchors/README.md): NMSE(p), training
     10: ("2.5e-4", "36.6 h GPU"), 100: ("9.5e-7", "21.4 h GPU"), 1000: ("2.81 (hybrid 1.72)", "14.2 h GPU"),
 }
 
 
 def _score(r, ref) -> dict:
-    from .metrics import cents, f0_estimate, nmse
+    """NMSE(p) over the whole render and over its first 0.1 s and 0.5 s (the paper's spans), with the
+    phase-insensitive measures beside it: pitch (cents, on q), harmonic amplitudes and log-spectral distance (on p)."""
+    from .metrics import compare_signals, nmse
 
-    return {"nmse_p": nmse(r.p, ref.p), "cents": cents(f0_estimate(r.q, r.scene.sample_rate),
-                                                          f0_estimate(ref.q, ref.scene.sample_rate))}
+    sr = r.scene.sample_rate
+    m = compare_signals(r.p, ref.p, sr, r.q, ref.q)
+    out = {"nmse_p": m["nmse"], "cents": m["cents"], "harmonic_db": m["harmonic_error_db"], "lsd_db": m["lsd_db"]}
+    for span in (0.1, 0.5):
+        n = int(round(span * sr))
+        if n < len(ref.p):
+            out[f"nmse_p_0-{span:g}s"] = nmse(r.p[:n], ref.p[:n])
+    return out
 
 
 def bench_scene(scene: Scene, models, repeats: int, oversamples=(1, 2, 4, 8)) -> list[dict]:
@@ -144,6 +156,144 @@ def bench_paper_anchors(anchor_dir) -> list[dict]:
     return rows
 
 
+# --- out of sample -----------------------------------------------------------------------------------------------
+#
+# Training sees the band of states a render from the scene's initial state visits (with noise), and takes the exact
+# window-start states of that render; the validation and the weight selection roll out that same trajectory. These
+# cases start from states training never took exactly, or sample the windows at other offsets.
+
+def band_states(model, n: int, rng: np.random.Generator, away: float = 0.25) -> np.ndarray:
+    """n states drawn uniformly over the cells of the model's domain mask (the band, with its margin), each at least
+    `away` times the band's half-size from rest (0, 0): a note that starts from a moving mass."""
+    d = model.domain
+    g = d.mask.shape[0]
+    cells = np.argwhere(d.mask)
+    half = 0.5 * min(d.q_hi - d.q_lo, d.p_hi - d.p_lo)
+    out = np.empty((0, 2))
+    while len(out) < n:
+        c = cells[rng.integers(len(cells), size=4 * n)] + rng.random((4 * n, 2))
+        x = np.stack([d.q_lo + c[:, 0] / g * (d.q_hi - d.q_lo), d.p_lo + c[:, 1] / g * (d.p_hi - d.p_lo)], 1)
+        x = x[d.contains(x[:, 0], x[:, 1]) & (np.hypot(x[:, 0], x[:, 1]) > away * half)]
+        out = np.concatenate([out, x])
+    return out[:n]
+
+
+def fractional_starts(scene: Scene, window: float, periods=(2, 20), fractions=(0.25, 0.5, 0.75)) -> np.ndarray:
+    """States of the render from rest (FDM x100) at t = (m + f) T: on the trained trajectory, but where no window of
+    that render starts (its windows start at whole multiples of T), in the onset (m = 2) and on the limit cycle."""
+    t_win = window / scene.omega
+    t_max = (max(periods) + 1) * t_win
+    ref = render_fdm(scene.replace(duration=t_max, sample_rate=scene.sample_rate * 4, q0=0.0, p0=0.0),
+                     oversample=REF_OVERSAMPLE // 4)
+    idx = [int(round((m + f) * t_win * ref.scene.sample_rate)) for m in periods for f in fractions]
+    return np.stack([ref.q[idx], ref.p[idx]], 1)
+
+
+def _one_case(model, scene: Scene) -> dict:
+    from .errors import DomainError
+    from .rollout import render_operator
+
+    ref = render_fdm(scene, oversample=REF_OVERSAMPLE)
+    try:
+        r = render_operator(scene, model=model)
+    except DomainError as e:
+        return {"failed": str(e)}
+    return _score(r, ref)
+
+
+def _summary(label: str, scores: list[dict], detail: str) -> dict:
+    ok = [s for s in scores if "failed" not in s]
+    med = lambda k: float(np.median([s[k] for s in ok])) if ok else math.nan  # noqa: E731
+    return {"case": label, "detail": detail, "n": len(scores), "failed": len(scores) - len(ok),
+            "nmse_p_median": med("nmse_p"), "nmse_p_worst": max((s["nmse_p"] for s in ok), default=math.nan),
+            "cents_worst": max((abs(s["cents"]) for s in ok), default=math.nan), "harmonic_db_median": med("harmonic_db"),
+            "lsd_db_median": med("lsd_db")}
+
+
+def bench_out_of_sample(model, duration: float = 1.0, n_states: int = 8, seed: int = 0) -> list[dict]:
+    """Renders of `model` from initial states and at sample offsets training never used, each against an FDM x100 of
+    the same scene; the first row is the in-sample render from rest at the model's own scene, for scale."""
+    sc = Scene(**{**model.meta.scene, "duration": duration})
+    rng = np.random.default_rng(seed)
+    rows = [_summary("in sample: from rest, own scene", [_one_case(model, sc)], f"f0 {sc.f0:g}, {sc.sample_rate} Hz")]
+    x = band_states(model, n_states, rng)
+    rows.append(_summary("random band states, away from rest", [_one_case(model, sc.replace(q0=q, p0=p)) for q, p in x],
+                         f"{n_states} states, seed {seed}"))
+    x = fractional_starts(sc, model.domain.window)
+    rows.append(_summary("rest trajectory at (m + f) T", [_one_case(model, sc.replace(q0=q, p0=p)) for q, p in x],
+                         "m 2, 20; f 0.25, 0.5, 0.75"))
+    for rate in (48_000, 96_000):
+        s = sc.replace(sample_rate=rate)
+        x0 = band_states(model, 2, rng)
+        rows.append(_summary(f"{rate // 1000} kHz", [_one_case(model, s)] +
+                             [_one_case(model, s.replace(q0=q, p0=p)) for q, p in x0], "from rest + 2 band states"))
+    cases = []
+    for f0 in (130.0, 200.0):  # T / dtau = 339.2 and 220.5 samples at 44.1 kHz: windows of two lengths
+        s = sc.replace(f0=f0, fb=model.domain.beta * 2 * math.pi * f0)
+        cases += [_one_case(model, s)] + [_one_case(model, s.replace(q0=q, p0=p)) for q, p in band_states(model, 1, rng)]
+    rows.append(_summary("other pitches, T / dtau not whole", cases, "f0 130, 200 (same F_B / w): rest + 1 band state"))
+    return rows
+
+
+def window_errors(model, x0: np.ndarray, scene: Scene) -> np.ndarray:
+    """NMSE(p) of the operator's one-window prediction from each state against an FDM x100 over the same window."""
+    from .rollout import rollout_states
+
+    dtau = scene.omega / scene.sample_rate
+    n = int(math.floor(model.domain.window / dtau)) + 1  # the window's samples and the next window's first
+    _, p, _ = rollout_states(model, x0, n, dtau, check_domain=False)
+    out = []
+    for i, (q0, p0) in enumerate(x0):
+        ref = render_fdm(scene.replace(q0=float(q0), p0=float(p0), duration=n / scene.sample_rate),
+                         oversample=REF_OVERSAMPLE)
+        out.append(nmse(p[i], ref.p))
+    return np.array(out)
+
+
+def band_distance(model, x: np.ndarray, scene: Scene) -> np.ndarray:
+    """Distance of each state from the band (the audio-rate FDM's states over 1 s from the scene's initial state),
+    as a fraction of the domain's box (each axis scaled by the box's side)."""
+    d = model.domain
+    r = render_fdm(scene.replace(duration=1.0))
+    band = np.stack([r.q, r.p], 1)
+    side = np.array([d.q_hi - d.q_lo, d.p_hi - d.p_lo])
+    return np.array([np.hypot(*((band - xi) / side).T).min() for xi in np.asarray(x, float)])
+
+
+NEAR = 0.025  # of the box: the training sampler's noise is 2.5 % of the band's range (sd); the mask reaches ~6 %
+
+
+def bench_windows(model, n_states: int = 64, seed: int = 1) -> list[dict]:
+    """One-window errors at the window starts of the render from rest (the states training took exactly) and at
+    held-out band states (drawn over the domain's mask, not on that trajectory), split by their distance from the
+    band: training draws its states near the band, while the domain's mask, which a render is allowed to visit,
+    reaches farther."""
+    sc = Scene(**model.meta.scene)
+    n_win = int(math.floor(model.domain.window / (sc.omega / sc.sample_rate)))
+    path = render_fdm(sc.replace(duration=1.0), oversample=REF_OVERSAMPLE)
+    starts = np.stack([path.q[::n_win], path.p[::n_win]], 1)[:n_states]
+    held = band_states(model, n_states, np.random.default_rng(seed), away=0.0)
+    dist = band_distance(model, held, sc)
+    rows = []
+    for label, x0 in (("window starts of the render from rest (trained)", starts),
+                      (f"held-out band states within {NEAR:.1%} of the box from the band", held[dist < NEAR]),
+                      (f"held-out band states farther (the mask's margin)", held[dist >= NEAR])):
+        if len(x0) == 0:
+            continue
+        e = window_errors(model, x0, sc)
+        rows.append({"states": label, "n": len(e), "nmse_p_median": float(np.median(e)), "nmse_p_worst": float(e.max())})
+    return rows
+
+
+def bench_parameter_points(model) -> list[dict] | None:
+    """Held-out parameter points for a range model (one model over a range of F_B / w, v_B or a): None for a point
+    model, which covers one (F_B / w, v_B, a) and has no parameter to hold out. No range model exists yet; when one
+    does, this scores renders at parameter points between its training points against the FDM x100."""
+    if not getattr(model.domain, "ranges", None):
+        return None
+    raise NotImplementedError("range models: score held-out parameter points")
+
+
 def plot_pareto(rows, path) -> None:
     import matplotlib
 
@@ -183,15 +333,59 @@ def plot_pareto(rows, path) -> None:
     plt.close(fig)
 
 
+def _g(v, fmt="{:.2e}") -> str:
+    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)
+
+
 def speed_table(rows) -> str:
-    lines = ["| scene | method | wall s per audio s | real-time factor | NMSE(p) 1 s | pitch error (cents) | Pareto |",
-             "|---|---|---|---|---|---|---|"]
+    dur = rows[0]["scene"].duration if rows else 1.0
+    lines = [f"| scene | method | wall s per audio s | real-time factor | NMSE(p) {dur:g} s | pitch error (cents) | "
+             "harmonic amplitudes (dB) | log-spectral distance (dB) | Pareto |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         sc = r["scene"]
         lines.append(f"| fb {sc.fb:g}, f0 {sc.f0:g} | {r['method']} | {r['sec_per_audio_s']:.2e} | "
-                     f"{1 / r['sec_per_audio_s']:.0f}x | {r['nmse_p']:.2e} | {r['cents']:+.3f} | "
+                     f"{1 / r['sec_per_audio_s']:.0f}x | {r['nmse_p']:.2e} | {_g(r['cents'], '{:+.3f}')} | "
+                     f"{_g(r.get('harmonic_db'), '{:.3f}')} | {_g(r.get('lsd_db'), '{:.2f}')} | "
                      f"{'yes' if r['pareto'] else ''} |")
     return "\n".join(lines)
+
+
+def spans_table(rows) -> str:
+    """NMSE(p) over the paper's spans (0-0.1 s, 0-0.5 s) and the whole render, for the operators and the audio-rate
+    FDM at the presets' own pitch (f0 100)."""
+    lines = ["| scene | method | NMSE(p) 0-0.1 s | NMSE(p) 0-0.5 s | NMSE(p) whole render |", "|---|---|---|---|---|"]
+    for r in rows:
+        sc = r["scene"]
+        if sc.f0 != 100 or not (r["method"].startswith("operator") or r["method"] == "FDM x1"):
+            continue
+        lines.append(f"| fb {sc.fb:g}, {sc.duration:g} s | {r['method']} | {_g(r.get('nmse_p_0-0.1s'))} | "
+                     f"{_g(r.get('nmse_p_0-0.5s'))} | {r['nmse_p']:.2e} |")
+    return "\n".join(lines)
+
+
+def out_of_sample_tables(oos: list[dict]) -> str:
+    parts = ["| model | case | detail | renders (left the domain) | NMSE(p) median | NMSE(p) worst | worst / in sample | "
+             "worst pitch error (cents) | harmonic amplitudes (dB), median | log-spectral distance (dB), median |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for o in oos:
+        base = o["renders"][0]["nmse_p_worst"]
+        for r in o["renders"]:
+            ratio = r["nmse_p_worst"] / base if base and math.isfinite(r["nmse_p_worst"]) else math.nan
+            parts.append(f"| {o['model'].removesuffix('.safetensors')} | {r['case']} | {r['detail']} | "
+                         f"{r['n']} ({r['failed']}) | {_g(r['nmse_p_median'])} | {_g(r['nmse_p_worst'])} | "
+                         f"{_g(ratio, '{:.1f}x')} | {_g(r['cents_worst'], '{:.3f}')} | "
+                         f"{_g(r['harmonic_db_median'], '{:.3f}')} | {_g(r['lsd_db_median'], '{:.2f}')} |")
+    parts += ["", "One window (the operator's prediction over one window from a state, against an FDM x100 from the "
+              "same state; NMSE(p) per window):", "",
+              "| model | states | n | NMSE(p) median | NMSE(p) worst |", "|---|---|---|---|---|"]
+    for o in oos:
+        for w in o["windows"]:
+            parts.append(f"| {o['model'].removesuffix('.safetensors')} | {w['states']} | {w['n']} | "
+                         f"{w['nmse_p_median']:.2e} | {w['nmse_p_worst']:.2e} |")
+    points = [o for o in oos if o["parameter_points"] is not None]
+    parts += ["", "Held-out parameter points: " + ("see JSON" if points else
+              "none (every model is a point model: one F_B / w, v_B and a; range models would be scored here).")]
+    return "\n".join(parts)
 
 
 def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:
@@ -218,6 +412,16 @@ def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:
                            for n in ((16,) if quick else (8, 64, 256))]
     if anchor_dir and Path(anchor_dir).is_dir() and not quick:
         result["paper_anchors"] = bench_paper_anchors(anchor_dir)
+        result["paper_anchors_dir"] = str(anchor_dir)
+    result["out_of_sample"] = []
+    for m in models:
+        if not m.covers(Scene(**m.meta.scene)):
+            continue
+        result["out_of_sample"].append({
+            "model": m.path.name if m.path else m.meta.name,
+            "renders": bench_out_of_sample(m, duration=dur, n_states=3 if quick else 8),
+            "windows": bench_windows(m, n_states=16 if quick else 64),
+            "parameter_points": bench_parameter_points(m)})
     if out_prefix:
         plot_pareto(rows, f"{out_prefix}.png")
     return result
@@ -250,8 +454,14 @@ def to_markdown(result: dict) -> str:
             parts.append(f"| {b['voices']} x {b['audio_s_per_voice']:g} s | {b['operator_batched_s']:.4f} | "
                          f"{b['fdm_sequential_s']:.4f} | {b['operator_rtf_aggregate']:.0f}x | "
                          f"{b['fdm_rtf_aggregate']:.0f}x | {b['speedup']:.1f}x |")
+    parts += ["", "### NMSE(p) over the paper's spans", spans_table(result["speed_error"])]
+    if result.get("out_of_sample"):
+        parts += ["", "### Out of sample", "Renders from initial states and at sample offsets training never used, "
+                  f"each against an FDM x{REF_OVERSAMPLE} of the same scene; the first row of each model is the render "
+                  "from rest at its own scene (in sample).", "", out_of_sample_tables(result["out_of_sample"])]
     if result.get("paper_anchors"):
-        parts += ["", f"### The paper's operators (shared/anchors) against our FDM x{REF_OVERSAMPLE}",
+        where = "/".join(Path(result.get("paper_anchors_dir", "anchors")).parts[-2:])
+        parts += ["", f"### The paper's operators ({where}) against our FDM x{REF_OVERSAMPLE}",
                   "| case | NMSE(p) 0-0.1 s | NMSE(p) 0-0.5 s | NCC(p) 0-0.5 s (%) |", "|---|---|---|---|"]
         for r in result["paper_anchors"]:
             parts.append(f"| {r['case']} | {r['nmse_p_0.1s']:.2e} | {r['nmse_p_0.5s']:.2e} | {r['ncc_p_0.5s']:.2f} |")

@@ -54,7 +54,7 @@ def test_score_file_and_mix(tmp_path, tiny_model, monkeypatch, capsys):
                                str(tmp_path / "mix.wav")], capsys, monkeypatch)
     assert code == 0, err
     mix = read_wav(tmp_path / "mix.wav")
-    assert mix.meta is None and np.max(np.abs(mix.samples)) > 0.5 and np.all(np.isfinite(mix.samples))
+    assert mix.meta is None and np.max(np.abs(mix.samples)) > 0.5  # (write_wav refuses non-finite samples)
     code, out, err = run_main(["score", "--presets", "paper-fb10,paper-fb100", "--method", "fdm", "-d", "0.05",
                                str(tmp_path / "p")], capsys, monkeypatch)
     assert code == 0 and sorted(p.name for p in (tmp_path / "p").iterdir()) == ["paper-fb10.wav", "paper-fb100.wav"]
@@ -82,4 +82,4 @@ def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch,
     assert code == 0, err
     assert out.count("finished with the FDM") == 2
     assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["paper-fb100-2.wav", "paper-fb100.wav"]
-    assert np.all(np.isfinite(read_wav(tmp_path / "v" / "paper-fb100-2.wav").samples))
+    assert read_wav(tmp_path / "v" / "paper-fb100-2.wav").meta["method"] == "operator+fdm"  # continuation: test_fallback

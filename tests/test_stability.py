@@ -1,12 +1,13 @@
 """Hard cases: long renders of the shipped models, high force, extreme bow speed and friction shape."""
 
+import math
 import warnings
 
 import numpy as np
 import pytest
 
 from bowsynth import Scene, render_fdm
-from bowsynth.metrics import cents, f0_estimate
+from bowsynth.metrics import cents, f0_estimate, nmse
 from bowsynth.rollout import SHIPPED_DIR, render_operator, rollout_states
 from bowsynth.model import load_model
 
@@ -18,8 +19,6 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
     m = load_model(path)
     sc = Scene(**{**m.meta.scene, "duration": 30.0})
     r = render_operator(sc, model=m)  # raises if the rollout leaves the domain or turns non-finite
-    assert np.all(np.isfinite(r.q)) and np.all(np.isfinite(r.p))
-    assert np.all(m.domain.contains(r.q[::97], r.p[::97]))
     ref = render_fdm(sc.replace(duration=5.0), oversample=8)
     # pitch of the last seconds of the 30 s operator render against the FDM's steady state
     f_op = f0_estimate(r.q[-5 * sc.sample_rate:], sc.sample_rate, tail=1.0)
@@ -27,17 +26,34 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
     assert abs(cents(f_op, f_ref)) < 1.0
 
 
+# Measured on the shipped models (64 random states, 2 s, the command: this test with print statements): voices that
+# left the domain (all after their first window) 0 / 1 / 3; the others' largest relative amplitude deviation from the
+# FDM's limit cycle over the last 0.5 s 7.1e-5 / 3.9e-4 / 6.8e-3, largest pitch error 0.0025 / 0.0099 / 0.20 cents.
+# Limits: 4x (at least 2 voices for the count).
+CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), "paper-fb1000": (12, 2.7e-2, 0.8)}
+
+
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
-def test_random_states_in_domain_roll_out_finite(path):
+def test_random_states_in_domain_converge_to_the_limit_cycle(path):
+    """Voices started anywhere in the model's domain, with the domain check on, stay in it and settle on the FDM's
+    limit cycle (amplitude and pitch of the last 0.5 s of 2 s)."""
     m = load_model(path)
     d = m.domain
     rng = np.random.default_rng(1)
     x = rng.uniform([d.q_lo, d.p_lo], [d.q_hi, d.p_hi], size=(4000, 2))
     x = x[d.contains(x[:, 0], x[:, 1])][:64]
     sc = Scene(**m.meta.scene)
-    q, p, fail = rollout_states(m, x, 2 * sc.sample_rate, sc.omega / sc.sample_rate, check_domain=False)
-    assert np.all(fail[:, 0] == -1), fail
-    assert np.all(np.isfinite(q)) and np.all(np.isfinite(p))
+    q, p, fail = rollout_states(m, x, 2 * sc.sample_rate, sc.omega / sc.sample_rate)
+    ok = fail[:, 0] == -1
+    max_left, amp_tol, cents_tol = CONVERGENCE.get(path.stem, (2, 1e-3, 0.05))
+    assert len(x) == 64 and (~ok).sum() <= max_left, fail[~ok]
+    ref = render_fdm(sc.replace(duration=2.0), oversample=8)
+    tail = slice(-sc.sample_rate // 2, None)
+    amp = np.abs(p[ok][:, tail]).max(1) / np.abs(ref.p[tail]).max() - 1
+    assert np.abs(amp).max() < amp_tol
+    f_ref = f0_estimate(ref.q[tail], sc.sample_rate, tail=1.0)
+    worst = max(abs(cents(f0_estimate(v[tail], sc.sample_rate, tail=1.0), f_ref)) for v in q[ok])
+    assert worst < cents_tol
 
 
 @pytest.mark.parametrize("fb", [2000.0, 5000.0, 10_000.0])
@@ -45,8 +61,14 @@ def test_fdm_high_force_oversamples_and_stays_finite(fb):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r = render_fdm(Scene(fb=fb, duration=0.2))
-    assert np.all(np.isfinite(r.p)) and r.info["oversample"] >= (2 if fb >= 10_000 else 1)
-    assert np.abs(r.p).max() < 50
+    # the smallest factor whose step keeps the scheme's solution unique: k < e / (F_B sqrt(2a))
+    os_ = r.info["oversample"]
+    k_max = math.e / (fb * math.sqrt(2 * 100.0))
+    assert 1 / (44100 * os_) < k_max and (os_ == 1 or 1 / (44100 * (os_ - 1)) > 0.99 * k_max)
+    assert np.all(np.isfinite(r.p)) and np.abs(r.p).max() < 50
+    # against the same scheme at 4x the rate: measured NMSE(p) 2.8e-5, 4.1e-5, 1.1e-5 (fb 2000, 5000, 10000)
+    ref = render_fdm(Scene(fb=fb, duration=0.2), oversample=4 * os_)
+    assert nmse(r.p, ref.p) < 2e-4
 
 
 @pytest.mark.parametrize("vb,a", [(0.01, 100.0), (1.0, 100.0), (0.2, 10.0), (0.2, 1000.0), (1.0, 1000.0)])

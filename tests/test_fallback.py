@@ -1,0 +1,86 @@
+"""--fallback fdm: the FDM continuation of a stray voice is an FDM render from the operator's state at the hand-off
+(sample at - 1, `at` the first sample of the window where the rollout left), and the samples before it are the
+operator's; single voices, both rollout loops, and through the CLI."""
+
+import sys
+import subprocess
+
+import numpy as np
+import pytest
+
+from bowsynth import Scene, load_model, render_fdm, render_operator
+from bowsynth.rollout import BATCH_FROM, rollout_states
+from bowsynth.wav import read_wav
+
+
+def thin(model):
+    """Shrink the model's domain to a thin strip around q = 0, so renders from near rest leave it within a few
+    windows (the weights, and so the rollout up to the hand-off, are unchanged)."""
+    d = model.domain
+    d.mask[:] = False
+    d.mask[d.mask.shape[0] // 2 - 1: d.mask.shape[0] // 2 + 1, :] = True
+    d.q_lo, d.q_hi = -1e-3, 1e-3
+    return model
+
+
+def check_continuations(model, scenes, renders) -> list[int]:
+    """Each render (of a scene, rolled out together with fallback fdm) = the operator up to its hand-off, then the FDM
+    from the operator's state there. Returns each voice's `at`."""
+    sc0 = scenes[0]
+    dtau = sc0.omega / sc0.sample_rate
+    x0 = [[sc.q0, sc.p0] for sc in scenes]
+    n = sc0.n_samples
+    # the same rollout (same loop, same batch: float32 rounding depends on both), with and without the domain check
+    _, _, fail = rollout_states(model, x0, n, dtau)
+    q_op, p_op, fail_off = rollout_states(model, x0, n, dtau, check_domain=False)
+    assert np.all(fail_off[:, 0] == -1)
+    ats = []
+    for i, (sc, r) in enumerate(zip(scenes, renders)):
+        at = int(fail[i, 0])
+        assert 1 < at < n - 100, at  # the voice left the domain inside the render, after its first window
+        start = at - 1
+        np.testing.assert_array_equal(r.q[:start], q_op[i, :start])
+        np.testing.assert_array_equal(r.p[:start], p_op[i, :start])
+        cont = render_fdm(sc.replace(q0=float(q_op[i, start]), p0=float(p_op[i, start]),
+                                     duration=(n - start) / sc.sample_rate))
+        np.testing.assert_array_equal(r.q[start:], cont.q.astype(r.q.dtype))
+        np.testing.assert_array_equal(r.p[start:], cont.p.astype(r.p.dtype))
+        # and it is neither the FDM from the scene's start nor the operator's own continuation
+        assert np.abs(r.p[start:] - render_fdm(sc).p[start:]).max() > 1e-4 * np.abs(cont.p).max()
+        assert np.abs(r.p[start + 50:] - p_op[i, start + 50:]).max() > 1e-6 * np.abs(cont.p).max()
+        ats.append(at)
+    return ats
+
+
+def test_single_voice_continuation_is_the_fdm_from_the_hand_off_state(tiny_model):
+    m = thin(load_model(tiny_model))
+    sc = Scene(fb=100, duration=0.1)
+    r = render_operator(sc, model=m, fallback="fdm")
+    [at] = check_continuations(m, [sc], [r])
+    assert r.method == "operator+fdm" and f"t = {at / sc.sample_rate:.4f} s" in r.info["notes"][0]
+
+
+@pytest.mark.parametrize("voices", [2, BATCH_FROM + 1], ids=["voice-loop", "batch-loop"])
+def test_batched_continuations_are_the_fdm_from_each_hand_off_state(tiny_model, voices):
+    m = thin(load_model(tiny_model))
+    scenes = [Scene(fb=100, duration=0.1, q0=-3e-6 * i, p0=1e-4 * i) for i in range(voices)]
+    renders = render_operator(scenes, model=m, fallback="fdm")
+    check_continuations(m, scenes, renders)
+    assert all(r.method == "operator+fdm" for r in renders)
+
+
+def test_cli_fallback_writes_the_continuation(tmp_path, tiny_model):
+    m = thin(load_model(tiny_model))
+    small = tmp_path / "small.safetensors"
+    m.save(small)
+    wav = tmp_path / "f.wav"
+    r = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--fb", "100", "-d", "0.1", "--signal", "p",
+                        "--model", str(small), "--fallback", "fdm", str(wav)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "finished with the FDM" in r.stdout
+    sc = Scene(fb=100, duration=0.1)
+    expect = render_operator(sc, model=load_model(small), fallback="fdm")
+    got = read_wav(wav).physical
+    # the WAV stores the signal scaled to its peak in float32 (wav.py); compare at that precision
+    np.testing.assert_allclose(got, expect.p, rtol=0, atol=1e-6 * np.abs(expect.p).max())
