@@ -226,10 +226,10 @@ def _bases(model: OperatorModel, dtaus: np.ndarray):
 
 TRUNK_GRID = 4096
 BATCH_FROM = 8  # compiled loops: from this many voices on, the window-at-a-time loop with BLAS products is faster
-# Importing numba and loading its cached loops costs ~0.5 s on an idle 2-core machine (1.4 s under load), more than
-# the whole numpy rollout of most renders: a 5 s note at 100 Hz took 1/5 of that in numpy (4x the compiled loop, whose
-# import it saves), so numba is used only where the numpy loop's estimated time (idle machine) exceeds NUMBA_PAYS_FROM,
-# or once numba is imported anyway (the FDM ran in this process). Measured in docs/BENCHMARKS.md (issue 12).
+# Importing numba and loading its cached loops costs more than the whole numpy rollout of most renders (measured on
+# the shared 2-core machine: importing numba 0.5-1.4 s; a 5 s note at 100 Hz 0.3 s in numpy, 0.02 s compiled; the
+# whole process ~0.45 s on an idle one), so numba is used only where the numpy loop's estimated time (idle machine)
+# exceeds NUMBA_PAYS_FROM, or once numba is imported anyway (the FDM ran in this process). docs/BENCHMARKS.md, issue 12.
 NUMBA_PAYS_FROM = 0.5
 
 
@@ -513,16 +513,18 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
 # correction. From rest the bow's onset separates forces well; from a state in a stick phase (F_B 1000) two windows
 # of another force can look the same, so the check does not use the render's own initial state.
 # Measured (benchmarks/physics_check.py, docs/BENCHMARKS.md): the shipped models score 3.8e-7, 3.7e-6 and 5.1e-5;
-# their files edited to claim 1.5x or 2x the bow force 0.14 to 1.1, 1.1x 0.008 to 0.23. Cost ~3-8 ms once per model.
+# their files edited to claim 1.5x or 2x the bow force 0.14 to 1.1, 1.1x 0.008 to 0.23. Cost 2-7 ms once per model
+# (shared machine).
 CHECK_WINDOWS = 2
-CHECK_STEPS = 256
+CHECK_STEPS = 128  # 256 gave the same errors to 3 digits, at twice the cost
+RK4_STIFF = 1.0  # RK4 steps h with h * stiffness <= this (stable to 2.8); 0.5 gave the same errors to 3 digits
 PHYSICS_MAX_ERROR = 5e-3  # ~100x the worst shipped model
 
 
 def reference_tau(q0: float, p0: float, beta: float, vb: float, a: float, dtau: float, n: int):
     """q, p at tau = j dtau, j < n, by RK4 on the dimensionless ODE (pure Python floats: no compiler to load)."""
     stiff = 1.0 + beta * math.sqrt(2.0 * a) * physics.E_HALF  # largest |d p' / d p| (phi' peaks at eta = 0)
-    sub = max(1, math.ceil(dtau * stiff / 0.5))  # RK4 step h * stiffness <= 0.5: accurate, far from unstable
+    sub = max(1, math.ceil(dtau * stiff / RK4_STIFF))
     h = dtau / sub
     f = physics.rhs_tau
     q, p = float(q0), float(p0)
