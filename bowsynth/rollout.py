@@ -226,17 +226,17 @@ def _bases(model: OperatorModel, dtaus: np.ndarray):
 
 TRUNK_GRID = 4096
 BATCH_FROM = 8  # compiled loops: from this many voices on, the window-at-a-time loop with BLAS products is faster
-# Importing numba and loading its cached loops costs more than the whole numpy rollout of most renders (measured on
-# the shared 2-core machine: importing numba 0.5-1.4 s; a 5 s note at 100 Hz 0.3 s in numpy, 0.02 s compiled; the
-# whole process ~0.45 s on an idle one), so numba is used only where the numpy loop's estimated time (idle machine)
-# exceeds NUMBA_PAYS_FROM, or once numba is imported anyway (the FDM ran in this process). docs/BENCHMARKS.md, issue 12.
+# Importing numba and loading its cached loops (0.39 s measured, 0.5-1.4 s under heavier load) costs more than the
+# whole numpy rollout of most renders (a 5 s note at 100 Hz: 0.044 s in numpy, ~0.01 s compiled), so numba is used
+# only where the numpy loop's estimated time exceeds NUMBA_PAYS_FROM, or once numba is imported anyway (the FDM ran
+# in this process). docs/BENCHMARKS.md, issue 12.
 NUMBA_PAYS_FROM = 0.5
 
 
 def _numpy_seconds(rounds: int, voice_windows: int, voice_samples: int) -> float:
-    """Estimated time of `_roll_numpy`: ~45 numpy calls per window of the chain, a product per voice and block, and
-    the samples themselves."""
-    return 80e-6 * rounds + 2e-6 * voice_windows + 4e-9 * voice_samples
+    """Estimated time of `_roll_numpy` (fitted on the shared machine at load ~5: 1 voice x 5 s 0.044 s, 100 voices
+    at 100 pitches x 1 s 0.16 s, x 5 s 0.81 s; importing numba and loading the loops took 0.39 s there)."""
+    return 80e-6 * rounds + 6e-6 * voice_windows + 15e-9 * voice_samples
 
 
 def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
@@ -305,7 +305,7 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     B = x0.shape[0]
     k = endb.shape[-1]
     width = Hw.shape[-1]
-    n_max = Bq.shape[-1]
+    n_hi = np.ceil(spw).astype(np.int64)
     sp, nl = spw[vidx], n_lo[vidx]
     W = int(np.ceil((n_samples + 0.5) / sp.min())) + 1  # enough windows to pass n_samples
     ends = np.floor(np.arange(1, W + 1)[None, :] * sp[:, None] + 0.5).astype(np.int64)  # kernels.window_end
@@ -371,15 +371,16 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
             wb = min(w1, int(done[b]))
             if wb <= w0:
                 continue
-            nw = wb - w0
+            nw, nh = wb - w0, n_hi[vidx[b]]
             xf = X_blk[b, :nw].astype(np.float32)
             ones = np.ones((nw, 1), np.float32)
-            Tq = np.concatenate([O_blk[b, :nw, :k], xf, ones], axis=1) @ Bq[vidx[b]]  # (nw, n_max): one per window
-            Tp = np.concatenate([O_blk[b, :nw, k:], xf[:, ::-1] * pm, ones], axis=1) @ Bp[vidx[b]]
+            # (nw, n_hi): one row per window, this pitch's columns only (the stack is padded to the longest window)
+            Tq = np.concatenate([O_blk[b, :nw, :k], xf, ones], axis=1) @ Bq[vidx[b], :, :nh]
+            Tp = np.concatenate([O_blk[b, :nw, k:], xf[:, ::-1] * pm, ones], axis=1) @ Bp[vidx[b], :, :nh]
             # sample i lies in window w at offset i - starts[w]
             first, last = int(starts[b, w0]), min(int(ends[b, wb - 1]), n_samples)
             lens = np.minimum(ends[b, w0:wb], last) - starts[b, w0:wb]
-            flat = np.repeat(np.arange(nw) * n_max - (starts[b, w0:wb] - first), lens) + np.arange(last - first)
+            flat = np.repeat(np.arange(nw) * nh - (starts[b, w0:wb] - first), lens) + np.arange(last - first)
             q_out[b, first:last] = Tq.ravel()[flat]
             p_out[b, first:last] = Tp.ravel()[flat]
 
