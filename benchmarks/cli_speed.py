@@ -83,12 +83,12 @@ def in_process(runs: int) -> tuple[float, float]:
     to, tf = [], []
     for _ in range(runs):
         t0 = time.perf_counter()
-        render_operator(sc)
+        loop = render_operator(sc).info["loop"]
         to.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         render_fdm(sc)
         tf.append(time.perf_counter() - t0)
-    return statistics.median(to), statistics.median(tf)
+    return statistics.median(to), statistics.median(tf), loop
 
 
 def main():
@@ -127,8 +127,8 @@ def main():
             print(f"| `score` {n} voices x {dur} s at {n} pitches{', --mix' if extra else ' (a WAV each)'} | "
                   f"{mo:.3f} | {mf:.3f} | {mo / mf:.2f} (fdm / operator {mf / mo:.1f}x) |")
         os.chdir(cwd)
-        io, if_ = in_process(runs)
-        print(f"| in one process: `render_operator(scene)` (no model) vs `render_fdm(scene)`, 5 s | {io:.4f} | "
+        io, if_, loop = in_process(runs)
+        print(f"| in one process: `render_operator(scene)` (no model; {loop} loop) vs `render_fdm(scene)`, 5 s | {io:.4f} | "
               f"{if_:.4f} | {io / if_:.2f} (fdm / operator {if_ / io:.1f}x) |")
         print(f"\nload average at the end {os.getloadavg()[0]:.2f}")
 

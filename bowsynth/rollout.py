@@ -230,7 +230,8 @@ BATCH_FROM = 8  # compiled loops: from this many voices on, the window-at-a-time
 # the cache's code loaded; measured at load ~4-5 on the shared 2-core machine), more than the whole numpy rollout of
 # most renders (a 5 s note at 100 Hz: 0.044 s in numpy, ~0.01 s compiled; 100 voices x 5 s at 100 pitches: 0.81 s in
 # numpy, 0.58 s compiled). So the compiled loops run only where the numpy loop's estimated time exceeds
-# NUMBA_PAYS_FROM (less once numba is imported), or once they have run in this process. docs/BENCHMARKS.md, issue 12.
+# NUMBA_PAYS_FROM, or once numba is imported (a process that ran the FDM: a notebook, training's validation, bench,
+# where the first call's 0.5 s is repaid by every later render). docs/BENCHMARKS.md, issue 12.
 NUMBA_PAYS_FROM = 1.0
 
 
@@ -241,14 +242,12 @@ def _numpy_seconds(rounds: int, voice_windows: int, voice_samples: int) -> float
 
 
 def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
-    """'numba' when the compiled loops already ran in this process or the numpy loop's estimated time repays loading
-    them, else 'numpy'."""
-    spw = _operator(model).window / np.atleast_1d(np.asarray(dtau, dtype=float))
-    kernels = sys.modules.get(f"{__package__}.kernels")
-    if kernels is not None and (kernels.roll_batch if len(spw) >= BATCH_FROM else kernels.roll_voices).signatures:
+    """'numba' when numba is already imported or the numpy loop's estimated time repays loading it, else 'numpy'."""
+    if "numba" in sys.modules:  # a process that already paid the import (the FDM ran): its renders repay the rest
         return "numba"
+    spw = _operator(model).window / np.atleast_1d(np.asarray(dtau, dtype=float))
     slow = _numpy_seconds(int(n_samples / spw.min()) + 1, int(np.sum(n_samples / spw)) + len(spw), n_samples * len(spw))
-    return "numba" if slow > NUMBA_PAYS_FROM * (0.6 if "numba" in sys.modules else 1.0) else "numpy"
+    return "numba" if slow > NUMBA_PAYS_FROM else "numpy"
 
 
 def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, check_domain: bool = True,
