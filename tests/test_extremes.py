@@ -116,8 +116,8 @@ TRAIN_INTS = ["--steps", "--seed", "--width", "--depth", "--n-data"]
 
 @pytest.fixture
 def fake_train(monkeypatch):
-    """Stand in for the trainer (minutes of work per example): build the real TrainConfig from what the CLI passes
-    and check it is a budget that ends, then stop."""
+    """Stand in for the trainer (minutes of work per example): the real config validation runs, then the config
+    must be a budget that ends with settings the trainer can use; then stop."""
     from bowsynth.errors import BowsynthError
 
     seen = {}
@@ -125,16 +125,14 @@ def fake_train(monkeypatch):
     class Stop(BowsynthError):
         exit_code = 1
 
-    def train(scene, minutes=None, steps=None, **kw):
-        from bowsynth.train import TrainConfig
-
-        if minutes is None and steps is None:
-            minutes = 5.0
-        TrainConfig(minutes=minutes, steps=steps)
-        assert minutes is None or (math.isfinite(minutes) and 0 < minutes <= 7 * 24 * 60)
-        assert steps is None or 1 <= steps <= 10**9
-        assert kw["width"] >= 1 and kw["depth"] >= 1 and 0 <= kw["seed"] < 2**32
-        assert kw["window_ms"] is None or math.isfinite(kw["window_ms"]) and kw["window_ms"] > 0
+    def train(scene, config=None, **kw):
+        config.validate()
+        assert config.minutes is None or (math.isfinite(config.minutes) and 0 < config.minutes <= 7 * 24 * 60)
+        assert config.steps is None or 1 <= config.steps <= 10**9
+        assert config.minutes or config.steps
+        assert config.net.width >= 1 and config.net.depth >= 1 and 0 <= config.seed < 2**64
+        assert config.window is None or math.isfinite(config.window) and config.window > 0
+        assert math.isfinite(config.checkpoint_seconds)
         seen["called"] = True
         raise Stop("stopped by the test")
 
