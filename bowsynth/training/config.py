@@ -62,6 +62,8 @@ class TrainConfig:
         if not (1 <= self.net.width <= 1024 and 1 <= self.net.depth <= 32):
             raise UsageError(f"--width must be in [1, 1024] and --depth in [1, 32], got {self.net.width}, "
                              f"{self.net.depth}")
+        if not 0 <= self.seed < 2**32:  # numpy refuses negative seeds, torch ones past 2^64: an internal error
+            raise UsageError(f"--seed must be in [0, 2^32), got {self.seed}")
         if not 16 <= self.n_data <= 1_000_000:
             raise UsageError(f"--n-data must be in [16, 1000000], got {self.n_data}")
         if not (math.isfinite(self.checkpoint_seconds) and self.checkpoint_seconds > 0):
