@@ -173,7 +173,7 @@ def render_fdm(scene: Scene, oversample: int = 1) -> Render:
     q[0] = scene.q0  # exact by construction; avoid the w * (q0 / w) rounding
     vb = scene.vb_at(t)
     return Render(scene, t, q, eta + vb, method="fdm" if os_ == 1 else f"fdm x{os_}",
-                  seconds=secs, info={"oversample": os_}, controls={"fb": scene.fb_at(t), "vb": vb})
+                  seconds=secs, info={"oversample": os_})
 
 
 def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None):

@@ -2,11 +2,34 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .scene import Scene
+
+
+class SceneControls(Mapping):
+    """The scene's own controls at the render's sample times, computed on first use: two float64 arrays per voice
+    are a measurable share of a many-voice score that never reads them (issue 12)."""
+
+    def __init__(self, scene: Scene, t: np.ndarray):
+        self._scene, self._t, self._arrays = scene, t, None
+
+    def _get(self) -> dict:
+        if self._arrays is None:
+            self._arrays = {"fb": self._scene.fb_at(self._t), "vb": self._scene.vb_at(self._t)}
+        return self._arrays
+
+    def __getitem__(self, key):
+        return self._get()[key]
+
+    def __iter__(self):
+        return iter(("fb", "vb"))
+
+    def __len__(self) -> int:
+        return 2
 
 
 @dataclass
@@ -26,11 +49,11 @@ class Render:
     method: str
     seconds: float = 0.0
     info: dict = field(default_factory=dict)
-    controls: dict = None
+    controls: Mapping = None
 
     def __post_init__(self):
         if self.controls is None:  # an engine that applies the scene's controls as given
-            self.controls = {"fb": self.scene.fb_at(self.t), "vb": self.scene.vb_at(self.t)}
+            self.controls = SceneControls(self.scene, self.t)
 
     @property
     def u(self) -> np.ndarray:
