@@ -42,7 +42,7 @@ DC_TAG = "highpass-5hz"
 
 # extension -> (soundfile format, subtype, description)
 FORMATS = {".wav": ("WAV", "FLOAT", "32-bit float WAV"), ".flac": ("FLAC", "PCM_24", "24-bit FLAC"),
-           ".ogg": ("OGG", "VORBIS", "Ogg Vorbis (lossy)")}
+           ".ogg": ("OGG", "VORBIS", "Ogg Vorbis, lossy")}
 LOSSY = {"OGG"}
 # libsndfile keeps RIFF INFO strings up to about 2 kB (longer ones are cut); Vorbis comments hold far more
 META_LIMIT = {"WAV": 2000, "FLAC": 1_000_000, "OGG": 1_000_000}
