@@ -19,6 +19,7 @@ CONTROLS = ("fb", "vb")  # the scene fields that may follow a curve
 # Bounds on magnitudes, far outside any playable value, so that every formula downstream (the FDM's step bounds,
 # u = q / w, the gain of a file) stays finite: 1e308 bow forces, speeds or states overflowed into internal errors.
 MIN_F0 = 1.0  # Hz: below it u = q / w grows without bound and nothing sounds
+MIN_A = 1e-9  # s^2/m^2: a friction curve this flat is no friction; 5e-324 underflowed a / a_model to 0
 MAGNITUDE_LIMITS = (("fb", 1e9, "m/s^2"), ("vb", 1e3, "m/s"), ("a", 1e9, "s^2/m^2"), ("q0", 1e3, "m/s"),
                     ("p0", 1e3, "m/s"))
 
@@ -84,6 +85,8 @@ class Scene:
                 raise SceneError(f"{name} must be within +-{lim:g} {unit}, got {big:g}")
         if self.f0 < MIN_F0:
             raise SceneError(f"f0 must be >= {MIN_F0:g} Hz, got {self.f0:g}")
+        if self.a < MIN_A:
+            raise SceneError(f"a must be >= {MIN_A:g} s^2/m^2, got {self.a:g}")
 
     @property
     def omega(self) -> float:
