@@ -164,10 +164,15 @@ def test_kill_training_then_resume(tmp_path):
 
 def test_ctrl_c_keeps_a_checkpoint(tmp_path):
     out = tmp_path / "c.safetensors"
+    ckpt = tmp_path / "c.ckpt.safetensors"
     proc = subprocess.Popen(BOW + ["train", "--fb", "100", "--width", "16", "--depth", "2", "--n-data", "64", "--out",
-                                   str(out), "--quiet", "--steps", "1000000", "--minutes", "10"],
+                                   str(out), "--quiet", "--steps", "1000000", "--minutes", "10",
+                                   "--checkpoint-every", "0.5"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(12)
+    t0 = time.time()
+    while not ckpt.exists() and time.time() - t0 < 180:  # training proper has begun (data preparation is done)
+        time.sleep(0.2)
+    ckpt.unlink()  # the checkpoint asserted below is the one Ctrl-C writes
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130
