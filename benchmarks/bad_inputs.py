@@ -1,11 +1,19 @@
 """Run each bad input through the real CLI and print a Markdown table of the message and exit code it gets.
 
     .venv/bin/python benchmarks/bad_inputs.py > docs/bad_inputs.md
+
+Round 2 adds special output paths, truncated and edited files, extreme numbers, and signals sent to real processes
+in several phases (the exit time after the signal is measured on a shared 2-core machine).
 """
 
+import os
+import signal
+import stat
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +46,49 @@ CASES = [
     ("anchors directory missing", "bench --anchors no_such_dir"),
     ("FDM past its uniqueness bound", "render --method fdm --fb 10000 -d 0.05 ok2.wav"),
     ("a scene that would need absurd oversampling", "render --method fdm --fb 1e6 --a 1e6 x.wav"),
+    # round 2: special output paths
+    ("output through a symlink (written through)", "render --method fdm -d 0.1 link.wav"),
+    ("output to a FIFO (written to, not replaced)", "render --method fdm -d 0.1 fifo"),
+    ("read-only existing output", "render --method fdm -d 0.1 ro.wav"),
+    ("read-only existing output with --force", "render --method fdm -d 0.1 --force ro2.wav"),
+    ("output path is a directory", "render --method fdm -d 0.1 adir"),
+    ("output format not supported", "render --method fdm -d 0.1 x.mp3"),
+    ("output to standard output", "render --method fdm -d 0.1 -"),
+    # round 2: files in
+    ("WAV cut to half its bytes", "compare half.wav"),
+    ("WAV cut by a few bytes", "compare short.wav"),
+    ("WAV header promising more data than present", "compare bigheader.wav"),
+    ("metadata duration edited", "compare edited.wav"),
+    ("FLAC cut short", "compare half.flac"),
+    ("lossy OGG compared", "compare ok.ogg"),
+    # round 2: extreme numbers
+    ("bow force 1e308 (FDM)", "render --method fdm --fb 1e308 x.wav"),
+    ("bow speed 1e308", "render --method fdm --vb 1e308 x.wav"),
+    ("bow force 1e-300", "render --method fdm -d 0.1 --fb 1e-300 x.wav"),
+    ("f0 16 kHz at 44.1 kHz (FDM)", "render --method fdm -d 0.1 --f0 16000 x.wav"),
+    ("f0 1e-300", "render --method fdm --f0 1e-300 x.wav"),
+    ("friction shape 5e-324", "render --a 5e-324 x.wav"),
+    ("huge oversampling", "render --method fdm --oversample 100000 x.wav"),
+    ("an hour at 384 kHz", "render --method fdm -d 3600 --sr 384000 x.wav"),
+    ("fixed gain that would clip", "render --method fdm -d 0.1 --gain 120 x.wav"),
+    ("infinite training budget", "train --fb 100 --minutes inf"),
+    ("training budget 1e308 minutes", "train --fb 100 --minutes 1e308"),
+    ("10^18 training steps", "train --fb 100 --steps 1000000000000000000"),
+    ("a network 10^9 wide", "train --fb 100 --width 1000000000"),
+    ("compare reference past two minutes of FDM", "compare long.wav --reference high"),
+    ("1000-voice mix", "score --score big.toml --method fdm --mix -q mix.wav"),
+]
+
+# (what, command, signal, seconds after start-up): the signal lands in the phase named
+SIGNALS = [
+    ("Ctrl-C during a long FDM render", "render --method fdm --oversample 200 -d 200 --force sig.wav", "SIGINT", 3),
+    ("SIGTERM during a long FDM render", "render --method fdm --oversample 200 -d 200 --force sig.wav", "SIGTERM", 3),
+    ("SIGTERM during compare's x100 reference", "compare long.wav --reference high --force", "SIGTERM", 3),
+    ("Ctrl-C during training data preparation", "train --fb 100 --n-data 1000000 --steps 5 --out t.safetensors",
+     "SIGINT", 3),
+    ("SIGTERM while training (after its first checkpoint)", "train --fb 100 --width 16 --depth 2 --n-data 64 "
+     "--minutes 10 --checkpoint-every 1 --out tt.safetensors", "SIGTERM", "tt.ckpt.safetensors"),
+    ("Ctrl-C while blocked writing to a FIFO nobody reads", "render --method fdm -d 0.1 lonely", "SIGINT", 4),
 ]
 
 
@@ -59,14 +110,94 @@ def main():
 
         save_file({"w": torch.zeros(1)}, str(d / "v9.safetensors"),
                   metadata={"bowsynth": json.dumps({"format": "bowsynth-operator", "format_version": 9})})
+        _round2_files(d, exe)
+        env = {"COLUMNS": "400", "PATH": "/usr/bin:/bin", "HOME": str(d), "TMPDIR": str(d / "tmp"),
+               "PYTHONPATH": os.environ.get("PYTHONPATH", "")}
         print("| bad input | command | exit code | what bowsynth says |")
         print("|---|---|---|---|")
         for what, cmd in CASES:
-            r = subprocess.run(exe + cmd.split(), cwd=d, capture_output=True, text=True, env={"COLUMNS": "400",
-                               "PATH": "/usr/bin:/bin", "HOME": str(d)})
-            msg = " / ".join(line for line in r.stderr.strip().splitlines() if line.strip()) or "(nothing)"
-            msg = msg.replace(str(d) + "/", "").replace("|", "\\|")
-            print(f"| {what} | `bowsynth {cmd}` | {r.returncode} | {msg} |")
+            reader = _drain(d / "fifo") if "fifo" in cmd.split() else None
+            r = subprocess.run(exe + cmd.split(), cwd=d, capture_output=True, env=env)
+            if reader:
+                reader.join(10)
+            err = r.stderr.decode(errors="replace")
+            if cmd.split()[-1] == "-":
+                err += f"(stdout: {len(r.stdout)} bytes starting {r.stdout[:4]!r})"
+            elif r.returncode == 0:
+                lines = r.stdout.decode(errors="replace").splitlines()
+                shown = [ln for ln in lines if ln.startswith(("wrote", "note:"))]
+                err += "".join(f"\n(stdout) {ln}" for ln in shown)
+            print(f"| {what} | `bowsynth {cmd}` | {r.returncode} | {_clean(err, d)} |")
+        for what, cmd, sig, wait in SIGNALS:
+            p = subprocess.Popen(exe + cmd.split(), cwd=d, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+            if isinstance(wait, str):  # wait for this file (the first checkpoint), then a little more
+                t0 = time.time()
+                while not (d / wait).exists() and time.time() - t0 < 300:
+                    time.sleep(0.2)
+                time.sleep(0.5)
+                wait = f"{time.time() - t0:.0f}"
+            else:
+                time.sleep(wait)
+            t0 = time.perf_counter()
+            p.send_signal(getattr(signal, sig))
+            _, err = p.communicate()
+            took = time.perf_counter() - t0
+            left = sorted(x.name for x in (d / "tmp").iterdir()) + sorted(x.name for x in d.glob(".*.tmp"))
+            print(f"| {what} | `bowsynth {cmd}`, {sig} after {wait} s | {p.returncode} | {_clean(err.decode(), d)} "
+                  f"(exit {took:.2f} s after the signal; temp files left: {len(left)}) |")
+        print(f"\nFiles after the special-path rows: link.wav is still a symlink: {(d / 'link.wav').is_symlink()}; "
+              f"fifo is still a FIFO: {stat.S_ISFIFO(os.stat(d / 'fifo').st_mode)}; ro.wav untouched: "
+              f"{(d / 'ro.wav').read_bytes() == b'precious'}; ro2.wav mode after --force: "
+              f"{stat.S_IMODE(os.stat(d / 'ro2.wav').st_mode):o}; the 1000-voice mix's metadata: "
+              f"{_mix_summary(d / 'mix.wav')}")
+
+
+def _mix_summary(path: Path) -> str:
+    import json
+
+    m = json.loads(sf.SoundFile(str(path)).comment)
+    return f"voices {m['voices']}, {len(m['names'])} names kept, names_truncated {m.get('names_truncated', False)}"
+
+
+def _clean(err: str, d: Path) -> str:
+    msg = " / ".join(line for line in err.strip().splitlines() if line.strip()) or "(nothing)"
+    return msg.replace(str(d) + "/", "").replace("|", "\\|")
+
+
+def _drain(fifo: Path) -> threading.Thread:
+    def read():
+        with open(fifo, "rb") as f:
+            f.read()
+
+    t = threading.Thread(target=read, daemon=True)
+    t.start()
+    return t
+
+
+def _round2_files(d: Path, exe) -> None:
+    (d / "tmp").mkdir()
+    (d / "t").mkdir()
+    (d / "adir").mkdir()
+    (d / "link.wav").symlink_to(d / "t" / "real.wav")
+    os.mkfifo(d / "fifo")
+    os.mkfifo(d / "lonely")
+    for name in ("ro.wav", "ro2.wav"):
+        (d / name).write_bytes(b"precious")
+        (d / name).chmod(0o444)
+    ok = (d / "ok.wav").read_bytes()
+    (d / "half.wav").write_bytes(ok[:len(ok) // 2])
+    (d / "short.wav").write_bytes(ok[:-6])
+    big = bytearray(ok)
+    i = big.find(b"data")
+    big[i + 4:i + 8] = (int.from_bytes(big[i + 4:i + 8], "little") + 4000).to_bytes(4, "little")
+    (d / "bigheader.wav").write_bytes(bytes(big))
+    (d / "edited.wav").write_bytes(ok.replace(b'"duration":0.1', b'"duration":0.2'))
+    for args in (["-d", "0.5", "ok.flac"], ["-d", "0.5", "ok.ogg"], ["-d", "300", "long.wav"]):
+        subprocess.run(exe + ["render", "--method", "fdm", *args], cwd=d, check=True, capture_output=True)
+    flac = (d / "ok.flac").read_bytes()
+    (d / "half.flac").write_bytes(flac[:len(flac) // 2])
+    (d / "big.toml").write_text("[defaults]\nduration = 0.01\n" + "".join(
+        f'[[voice]]\nname = "voice-number-{i}"\nfb = {50 + i % 50}\n' for i in range(1000)))
 
 
 if __name__ == "__main__":

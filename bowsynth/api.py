@@ -5,18 +5,28 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from .errors import BowsynthError, UsageError
+from .errors import BowsynthError, UsageError, interrupt_exit_code
 from .scene import Scene
 
 
 class Interrupted(BowsynthError):
-    exit_code = 130
+    """Training stopped by Ctrl-C (exit 130) or SIGTERM (exit 143) after saving its checkpoint."""
+
+    def __init__(self, msg: str, exit_code: int = 130):
+        super().__init__(msg)
+        self.exit_code = exit_code
 
 
-def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1):
-    """Render a Scene (or a list of Scenes) with engine 'operator' or 'fdm'; see `bowsynth.engines.render`."""
+def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1,
+           force: bool = False):
+    """Render a Scene (or a list of Scenes) with engine 'operator' or 'fdm'; see `bowsynth.engines.render`.
+
+    A request estimated past minutes of FDM work or gigabytes of memory is refused with the estimate (a UsageError)
+    unless force=True; see `bowsynth.limits`."""
     from .engines import render as _r
+    from .limits import check_request
 
+    check_request(scene, engine, oversample, force)
     return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample)
 
 
@@ -77,14 +87,15 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
         try:
             rep.update("training", tr.progress(), f"step {tr.step}, {config.optimizer}")
             tr.run(ckpt=ckpt, on_step=on_step)
-        except KeyboardInterrupt:
+            model = tr.model()
+            rep.update("validating: 1 s rollout against a x100 FDM", 0.0)
+            model.meta.validation = validate(model, scene)
+            rep.update("validating: 1 s rollout against a x100 FDM", 1.0)
+        except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM raised as errors.Terminated by the CLI
             tr.save_checkpoint(ckpt)
-            raise Interrupted(f"interrupted at step {tr.step}; checkpoint saved to {ckpt}; continue with the same "
-                              f"command and --resume") from None
-        model = tr.model()
-        rep.update("validating: 1 s rollout against a x100 FDM", 0.0)
-        model.meta.validation = validate(model, scene)
-        rep.update("validating: 1 s rollout against a x100 FDM", 1.0)
+            code = interrupt_exit_code(e)
+            raise Interrupted(f"{'terminated' if code == 143 else 'interrupted'} at step {tr.step}; checkpoint saved "
+                              f"to {ckpt}; continue with the same command and --resume", exit_code=code) from None
     model.save(out, force=True)
     ckpt.unlink(missing_ok=True)
     return TrainResult(model, out, tr.history)

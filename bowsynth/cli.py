@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import warnings
 from pathlib import Path
@@ -12,13 +13,13 @@ import typer
 from typer.exceptions import Abort, Exit, TyperException
 from rich.console import Console
 
-from .errors import BowsynthError, UsageError
+from .errors import BowsynthError, Terminated, UsageError, interrupt_exit_code
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="bowsynth: a bowed mass-spring synthesizer driven by a physics-informed DeepONet.")
 err = Console(stderr=True, highlight=False)
 out = Console(highlight=False)
-_state = {"debug": False}
+_state = {"debug": False, "signal": None}
 
 # Scene flags shared by render / train / compare. None means "take the preset's value, else the default".
 PresetOpt = typer.Option(None, "--preset", help="Preset scene name (see `bowsynth presets`); flags override it.")
@@ -63,9 +64,24 @@ def presets():
         out.print(f"[bold]{name}[/bold]  {fields}\n    {preset_description(name)}")
 
 
+ForceOpt = typer.Option(False, "--force", help="Replace a read-only output file; run work estimated past "
+                                                 "minutes or gigabytes.")
+DcOpt = typer.Option("remove", "--dc", help="remove (default): high-pass the written signal at 5 Hz (the bow's static "
+                                            "offset is not sound); keep: write it as rendered.")
+GainOpt = typer.Option(None, "--gain", help="Fixed gain in dB instead of peak normalisation: samples = signal (m or "
+                                            "m/s; a mix: the sum of voices at peak 1) x 10^(DB/20); refused if it "
+                                            "would clip.")
+
+
+def _speaker(output) -> Console:
+    """Where messages go: stderr when the audio itself goes to stdout."""
+    return err if str(output) == "-" else out
+
+
 @app.command()
 def render(
-    output: Path = typer.Argument(..., help="WAV file to write (32-bit float)."),
+    output: Path = typer.Argument(..., help="Audio file to write: .wav (32-bit float), .flac (24-bit), .ogg "
+                                            "(Vorbis), or - for WAV on standard output."),
     method: str = typer.Option("operator", "--method", "-m", help="Engine: operator (trained PI-DeepONet) or fdm."),
     preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
     vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, duration: Optional[float] = DurOpt,
@@ -74,29 +90,39 @@ def render(
     model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the model covering the scene)."),
     signal: str = typer.Option("u", "--signal", help="Signal to write: u (displacement, as the paper) or p (velocity)."),
     fallback: str = typer.Option("none", "--fallback", help="If the operator leaves its domain: none (stop) or fdm."),
+    dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
-    """Render a scene to a WAV file."""
-    from . import engines
-    from .wav import check_output_path, write_wav
+    """Render a scene to an audio file (WAV, FLAC, OGG, or - for stdout)."""
+    from . import api
+    from .engines import Engine, Fallback, _choice
+    from .wav import check_audio_output, check_dc, check_gain_db, check_meta_fits, render_meta, write_wav
+
+    method, fallback = _choice(Engine, method, "--method").value, _choice(Fallback, fallback, "--fallback").value
 
     if signal not in ("u", "p"):
         raise UsageError(f"--signal must be u or p, got {signal!r}")
     if oversample < 1:
         raise UsageError(f"--oversample must be >= 1, got {oversample}")
+    check_dc(dc)
+    check_gain_db(gain)
     scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0)
-    check_output_path(output)
-    r = engines.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample)
-    write_wav(output, r, signal=signal)
+    check_audio_output(output, force=force)
+    check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
+    r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force)
+    write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
     model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""
     if r.info.get("model_path"):
         model_note += f" ({r.info['model_path']})"
     setup = r.info.get("setup_seconds")
     setup_note = f" after {setup * 1e3:.0f} ms of start-up" if setup else ""
-    _say(quiet, f"wrote {output}: {scene.duration:g} s at {scene.sample_rate} Hz, method {r.method}{model_note}; "
-                f"rendered in {r.seconds * 1e3:.1f} ms ({r.realtime_factor:.0f}x real time){setup_note}")
-    for note in r.info.get("notes", []):
-        _say(quiet, note)
+    say = _speaker(output)
+    if not quiet:
+        say.print(f"wrote {'standard output' if str(output) == '-' else output}: {scene.duration:g} s at "
+                  f"{scene.sample_rate} Hz, method {r.method}{model_note}; rendered in {r.seconds * 1e3:.1f} ms "
+                  f"({r.realtime_factor:.0f}x real time){setup_note}", soft_wrap=True)
+        for note in r.info.get("notes", []):
+            say.print(note, soft_wrap=True)
 
 
 @app.command()
@@ -178,6 +204,8 @@ def compare(
     plot: Optional[Path] = typer.Option(None, "--plot", help="Write waveform, error and spectrogram plots to this PNG."),
     preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
     vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
+    force: bool = typer.Option(False, "--force", help="Replace a read-only --plot file; run FDM references "
+                                                     "estimated past a couple of minutes."),
 ):
     """Compare a render against the FDM: NMSE, NCC, pitch (cents), harmonics, spectrum, and speed."""
     import json
@@ -188,8 +216,8 @@ def compare(
     if reference not in ("audio", "high"):
         raise UsageError(f"--reference must be audio or high, got {reference!r}")
     if plot is not None:
-        check_output_path(plot)
-        if plot.suffix.lower() != ".png":
+        check_output_path(plot, force=force)
+        if plot.suffix.lower() != ".png" and str(plot) != "-":
             raise UsageError(f"--plot writes a PNG; give a .png file name, got {plot}")
     scene = None
     info = read_wav(wav)
@@ -197,15 +225,18 @@ def compare(
         if all(v is None for v in (preset, f0, fb, vb, a)):
             raise UsageError(f"{wav} has no bowsynth metadata; give the scene with --fb/--vb/--f0/... flags")
         scene = _scene(preset, f0, fb, vb, a, len(info.samples) / info.sample_rate, info.sample_rate, q0, p0)
-    c = compare_wav(wav, other, scene=scene, reference=reference)
+    c = compare_wav(wav, other, scene=scene, reference=reference, force=force)
+    say = _speaker(plot)  # a plot on stdout sends the table to stderr
     if json_out:
-        out.print_json(json.dumps(c.to_json()))
+        say.print_json(json.dumps(c.to_json()))
     else:
-        out.print(format_table(c))
+        say.print(format_table(c))
+        for note in c.notes:
+            say.print(f"note: {note}", soft_wrap=True)
     if plot is not None:
         plot_comparison(c, plot, info.sample_rate)
         if not json_out:
-            out.print(f"plot written to {plot}")
+            say.print(f"plot written to {'standard output' if str(plot) == '-' else plot}")
 
 
 @app.command()
@@ -216,6 +247,7 @@ def bench(
     out_prefix: Optional[Path] = typer.Option(None, "--out", help="Also write PREFIX.md, PREFIX.json and PREFIX.png."),
     anchors: Optional[Path] = typer.Option(None, "--anchors", help="Directory of the paper's rollouts (.npz) to "
                                                                    "score too (default ../shared/anchors if present)."),
+    force: bool = typer.Option(False, "--force", help="Replace read-only --out files."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
@@ -225,9 +257,10 @@ def bench(
     if what not in ("fdm", "all"):
         raise UsageError(f"bench target must be fdm or all, got {what!r}")
     if out_prefix is not None:
-        from .wav import check_output_path
+        from .outfile import check_output_path
 
-        check_output_path(out_prefix.with_suffix(".md"))
+        for ext in (".md", ".json", ".png"):
+            check_output_path(out_prefix.with_suffix(ext), force=force)
     if what == "fdm":
         rows = B.bench_fdm(quick=quick)
         out.print(json.dumps(rows, indent=2) if json_out else B.fdm_table(rows), soft_wrap=True)
@@ -237,16 +270,17 @@ def bench(
     res = B.run_all(quick=quick, out_prefix=out_prefix, anchor_dir=anchors or B.DEFAULT_ANCHORS)
     md, js = B.to_markdown(res), json.dumps(B.to_json(res), indent=2)
     if out_prefix is not None:
-        from .wav import atomic_write
+        from .outfile import atomic_write
 
-        atomic_write(out_prefix.with_suffix(".md"), lambda t: Path(t).write_text(md + "\n"))
-        atomic_write(out_prefix.with_suffix(".json"), lambda t: Path(t).write_text(js + "\n"))
+        atomic_write(out_prefix.with_suffix(".md"), lambda t: Path(t).write_text(md + "\n"), force=force)
+        atomic_write(out_prefix.with_suffix(".json"), lambda t: Path(t).write_text(js + "\n"), force=force)
     out.print(js if json_out else md, soft_wrap=True)
 
 
 @app.command()
 def score(
-    output: Path = typer.Argument(..., help="A directory (one WAV per voice) or, with --mix, a WAV file."),
+    output: Path = typer.Argument(..., help="A directory (one WAV per voice) or, with --mix, an audio file (.wav, "
+                                            ".flac, .ogg, or - for WAV on standard output)."),
     score_file: Optional[Path] = typer.Option(None, "--score", help="TOML score with [[voice]] tables (see README)."),
     presets_list: Optional[str] = typer.Option(None, "--presets", help="Comma-separated preset names, one voice each."),
     duration: Optional[float] = DurOpt,
@@ -255,47 +289,97 @@ def score(
     mix: bool = typer.Option(False, "--mix", help="Write one mixed WAV instead of one file per voice."),
     fallback: str = typer.Option("none", "--fallback", help="A voice that leaves its model's domain: none (stop) or "
                                                             "fdm (finish that voice with the FDM)."),
+    dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
     """Render many voices at once (a chord, a sweep) from a TOML score or a list of presets."""
     import time
 
-    from .score import load_score, render_voices, voices_from_presets, write_voices
-    from .wav import check_output_path
+    from .limits import check_request
+    from .outfile import check_output_path
+    from .score import load_score, render_voices, voice_paths, voices_from_presets, write_voices
+    from .wav import check_audio_output, check_dc, check_gain_db
 
     if (score_file is None) == (presets_list is None):
         raise UsageError("give exactly one of --score FILE.toml or --presets a,b,c")
     from .engines import Engine, Fallback, _choice
 
     method, fallback = _choice(Engine, method, "--method").value, _choice(Fallback, fallback, "--fallback").value
+    check_dc(dc)
+    check_gain_db(gain)
     if score_file is not None:
         voices = load_score(score_file)
         if duration is not None:
             voices = [type(v)(v.name, v.scene.replace(duration=duration)) for v in voices]
     else:
         voices = voices_from_presets([n.strip() for n in presets_list.split(",") if n.strip()], duration=duration)
+    if not voices:
+        raise UsageError("no voices to render")
     if mix:
-        check_output_path(output)
+        check_audio_output(output, force=force)
+    elif str(output) == "-":
+        raise UsageError("standard output (-) takes one file: add --mix")
     elif output.exists() and not output.is_dir():
         raise UsageError(f"{output} is a file; without --mix give a directory")
     elif not output.exists() and not output.parent.is_dir():
         raise UsageError(f"output directory {output.parent} does not exist")
+    elif output.is_dir():
+        for path in voice_paths(voices, output):
+            check_output_path(path, force=force)
+    check_request([v.scene for v in voices], method, 1, force, extra_voices=int(mix))
     t0 = time.perf_counter()
     renders = render_voices(voices, method=method, model=model, fallback=fallback)
     secs = time.perf_counter() - t0
+    say = _speaker(output)
     for v, r in zip(voices, renders):
         for note in r.info.get("notes", []):
-            _say(quiet, f"{v.name}: {note}")
-    paths = write_voices(voices, renders, output, mix=mix)
+            if not quiet:
+                say.print(f"{v.name}: {note}", soft_wrap=True)
+    paths = write_voices(voices, renders, output, mix=mix, dc=dc, gain_db=gain, force=force)
     audio = sum(v.scene.duration for v in voices)
     used = sorted({f"{r.info['model_id']} ({r.info['model_path']})" for r in renders if r.info.get("model_path")})
-    _say(quiet, f"rendered {len(voices)} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
-                f"({audio / secs:.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
-                + f"; wrote {', '.join(str(p) for p in paths)}")
+    if not quiet:
+        say.print(f"rendered {len(voices)} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
+                  f"({audio / secs:.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
+                  + f"; wrote {', '.join(str(p) for p in paths)}", soft_wrap=True)
+
+
+def _raise_on_signal(signum, frame):
+    # raised in the main thread between bytecodes, so `finally` blocks and temp-file cleanup run; a long compiled
+    # (numba) call delays it until the call returns (the FDM runs in chunks of well under a second for this)
+    _state["signal"] = signum
+    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _install_signal_handlers() -> dict:
+    """Install the handlers; returns the previous ones (main() restores them, for callers such as tests)."""
+    import threading
+
+    _state["signal"] = None
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    old = {signal.SIGTERM: signal.signal(signal.SIGTERM, _raise_on_signal)}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when started with SIGINT ignored
+        old[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_on_signal)
+    return old
+
+
+def _exit_interrupted(code: int) -> None:
+    err.print("terminated" if code == 143 else "interrupted")
+    sys.exit(code)
 
 
 def main() -> None:
     """Entry point: run the app, turning known failures into one line on stderr and an exit code."""
+    old = _install_signal_handlers()
+    try:
+        _run()
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _run() -> None:
     debug = "--debug" in sys.argv[1:]
     # numpy's OpenBLAS runs the rollout's small products on every core; on a busy 2-core machine each product then
     # waited on the other thread (measured 7-12 ms for a 257x64 by 64x64 product, 0.06-0.1 ms on one thread)
@@ -305,18 +389,16 @@ def main() -> None:
     warnings.filterwarnings("ignore", message=".*torch.jit.script.*")  # raised inside pytorch-optimizer
     warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"
     try:
-        app(standalone_mode=False)
+        rv = app(standalone_mode=False)
     except BowsynthError as e:
         if debug:
             raise
         err.print(f"error: {e}", soft_wrap=True)
         sys.exit(e.exit_code)
     except Abort:
-        err.print("aborted")
-        sys.exit(130)
-    except KeyboardInterrupt:
-        err.print("interrupted")
-        sys.exit(130)
+        _exit_interrupted(130)
+    except KeyboardInterrupt as e:
+        _exit_interrupted(interrupt_exit_code(e))
     except TyperException as e:
         if debug:
             raise
@@ -329,3 +411,11 @@ def main() -> None:
             raise
         err.print(f"internal error: {type(e).__name__}: {e} (rerun with --debug for the traceback)", soft_wrap=True)
         sys.exit(1)
+    # with standalone_mode=False typer turns a KeyboardInterrupt inside a command into a *returned* 130 (and an
+    # explicit Exit into its returned code): without this check Ctrl-C exited 0
+    if _state.get("signal") is not None:
+        _exit_interrupted(143 if _state["signal"] == signal.SIGTERM else 130)
+    if isinstance(rv, int) and rv != 0:
+        if rv == 130:
+            _exit_interrupted(130)
+        sys.exit(rv)

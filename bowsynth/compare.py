@@ -12,7 +12,7 @@ from .errors import UsageError
 from .fdm import render_fdm
 from .metrics import compare_signals
 from .scene import Scene
-from .wav import read_wav
+from .wav import read_wav, remove_dc
 
 HIGH_OVERSAMPLE = 100
 
@@ -26,6 +26,7 @@ class Comparison:
     columns: dict = field(default_factory=dict)  # label -> metrics dict
     seconds: dict = field(default_factory=dict)  # label -> render wall time
     series: dict = field(default_factory=dict, repr=False)  # label -> signal, for plots
+    notes: list = field(default_factory=list)  # what a reader of the scores must know (lossy file, DC handling)
 
     def to_json(self) -> dict:
         def clean(v):
@@ -37,17 +38,28 @@ class Comparison:
             speed = f / a
         return {"scene": self.scene.to_dict() if self.scene else None, "signal": self.signal,
                 "metrics": {k: {m: clean(v) for m, v in d.items()} for k, d in self.columns.items()},
-                "render_seconds": self.seconds, "speed_ratio_fdm_over_file": speed}
+                "render_seconds": self.seconds, "speed_ratio_fdm_over_file": speed, "notes": self.notes}
 
 
-def _fdm_signal(scene: Scene, signal: str, oversample: int):
+def _fdm_signal(scene: Scene, signal: str, oversample: int, dc_removed: bool):
+    """The FDM reference as the file would hold it: with the DC removed exactly as the file's was (the same
+    deterministic filter), so the scores compare the physics and not the filter."""
     r = render_fdm(scene, oversample=oversample)
-    return r.signal(signal), r.seconds
+    x = r.signal(signal)
+    return (remove_dc(x, scene.sample_rate) if dc_removed else x), r.seconds
 
 
-def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "audio") -> Comparison:
-    """Compare the WAV at `path` with the FDM render of its scene (from its metadata, else `scene`), or with the
-    WAV `other`. reference='high' adds a high-rate FDM (x100) as ground truth for both."""
+def _lossy_notes(*infos) -> list[str]:
+    return [f"{i.path.name} is {i.format} (lossy): the scores include the codec's error, not only the render's"
+            for i in infos if i.lossy]
+
+
+def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "audio", force: bool = False) -> Comparison:
+    """Compare the audio file at `path` with the FDM render of its scene (from its metadata, else `scene`), or with
+    the file `other`. reference='high' adds a high-rate FDM (x100) as ground truth for both. FDM references estimated
+    past a couple of minutes are refused unless force=True."""
+    from .limits import check_fdm
+
     if reference not in ("audio", "high"):
         raise UsageError(f"--reference must be audio or high, got {reference!r}")
     a = read_wav(path)
@@ -56,8 +68,14 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
         if a.sample_rate != b.sample_rate:
             raise UsageError(f"sample rates differ: {a.sample_rate} Hz and {b.sample_rate} Hz")
         n = min(len(a.samples), len(b.samples))
-        x, y = a.physical[:n], b.physical[:n]
-        c = Comparison(a.scene or b.scene, (a.meta or b.meta or {}).get("signal", "u"))
+        x, y = a.physical, b.physical
+        notes = _lossy_notes(a, b)
+        if a.dc_removed != b.dc_removed:  # filter the one that kept its DC, so the DC does not count as error
+            kept = b if a.dc_removed else a
+            notes.append(f"{kept.path.name} kept its DC; the same 5 Hz high-pass was applied to it before scoring")
+            x, y = (x, remove_dc(y, b.sample_rate)) if a.dc_removed else (remove_dc(x, a.sample_rate), y)
+        x, y = x[:n], y[:n]
+        c = Comparison(a.scene or b.scene, (a.meta or b.meta or {}).get("signal", "u"), notes=notes)
         c.columns[f"{a.path.name} vs {b.path.name}"] = compare_signals(x, y, a.sample_rate)
         c.seconds = {"file": (a.meta or {}).get("render_seconds"), "other": (b.meta or {}).get("render_seconds")}
         c.series = {a.path.name: x, b.path.name: y}
@@ -68,16 +86,21 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
     if a.sample_rate != sc.sample_rate:
         raise UsageError(f"{a.path} is at {a.sample_rate} Hz but its scene says {sc.sample_rate} Hz")
     sig = (a.meta or {}).get("signal", "u")
+    check_fdm(sc, 1, force, "the FDM reference")
+    if reference == "high":
+        check_fdm(sc, HIGH_OVERSAMPLE, force, f"the x{HIGH_OVERSAMPLE} FDM reference")
     x = a.physical
-    fdm, fdm_s = _fdm_signal(sc, sig, 1)
+    fdm, fdm_s = _fdm_signal(sc, sig, 1, a.dc_removed)
     n = min(len(x), len(fdm))
     x, fdm = x[:n], fdm[:n]
-    c = Comparison(sc, sig)
+    c = Comparison(sc, sig, notes=_lossy_notes(a))
+    if a.dc_removed:
+        c.notes.append("the file's DC was removed (5 Hz high-pass); the FDM references were filtered the same way")
     c.columns["file vs FDM"] = compare_signals(x, fdm, sc.sample_rate)
     c.seconds = {"file": (a.meta or {}).get("render_seconds"), "fdm": fdm_s}
     c.series = {"file": x, "FDM": fdm}
     if reference == "high":
-        hi, hi_s = _fdm_signal(sc, sig, HIGH_OVERSAMPLE)
+        hi, hi_s = _fdm_signal(sc, sig, HIGH_OVERSAMPLE, a.dc_removed)
         hi = hi[:n]
         c.columns[f"file vs FDM x{HIGH_OVERSAMPLE}"] = compare_signals(x, hi, sc.sample_rate)
         c.columns[f"FDM vs FDM x{HIGH_OVERSAMPLE}"] = compare_signals(fdm, hi, sc.sample_rate)

@@ -23,3 +23,15 @@ class ModelFileError(BowsynthError):
 
 class DomainError(BowsynthError):
     """A scene or a rollout outside the domain a model was trained on."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so that every cleanup path runs (finally blocks, temp files,
+    training's checkpoint); the CLI exits 143 (130 for Ctrl-C)."""
+
+    exit_code = 143
+
+
+def interrupt_exit_code(e: BaseException) -> int:
+    """The exit code for an interruption: 143 for SIGTERM, 130 for Ctrl-C."""
+    return getattr(e, "exit_code", 130)

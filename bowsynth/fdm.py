@@ -32,6 +32,7 @@ from .scene import Scene
 NEWTON_TOL = 1e-14  # absolute, m/s: eta is O(0.1-1)
 NEWTON_MAXIT = 60
 MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: refuse instead
+CHUNK_STEPS = 2_000_000  # scheme steps per compiled call (see run_fdm_raw)
 
 
 @overload(physics._exp)
@@ -82,15 +83,16 @@ def _control(ts, vs, t, i):
 
 
 @numba.njit(cache=True)
-def _kernel(u_prev, u_cur, eta, n_out, stride, k, w2, fb_t, fb_v, vb_t, vb_v, a, u_out, eta_out):
-    """Bow force and speed follow their breakpoints (fb_t, fb_v), (vb_t, vb_v) step by step, at t = n k."""
+def _kernel(u_prev, u_cur, eta, n0, n_out, stride, k, w2, fb_t, fb_v, vb_t, vb_v, a, u_out, eta_out):
+    """Bow force and speed follow their breakpoints (fb_t, fb_v), (vb_t, vb_v) step by step, at t = n k; this
+    call runs steps n0, n0 + 1, ..."""
     c = 2.0 / k
     ck = 2.0 / (k * k)
     ifb = 0
     ivb = 0
     for j in range(n_out):
         for s in range(stride):
-            t = (j * stride + s) * k
+            t = (n0 + j * stride + s) * k
             fb, ifb = _control(fb_t, fb_v, t, ifb)
             vb, ivb = _control(vb_t, vb_v, t, ivb)
             b = c * vb + ck * (u_prev - u_cur) + w2 * u_cur
@@ -120,8 +122,14 @@ def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None):
     fb_t, fb_v = breakpoints(fb)
     vb_t, vb_v = breakpoints(vb)
     eta = -vb_v[0] if eta0 is None else eta0
-    _kernel(float(u_prev), float(u_cur), float(eta), int(n_out), int(stride), float(k), float(w * w),
-            fb_t, fb_v, vb_t, vb_v, float(a), u_out, eta_out)
+    state = (float(u_prev), float(u_cur), float(eta))
+    # chunks of CHUNK_STEPS steps (~0.1-0.3 s each): Python runs signal handlers (Ctrl-C, SIGTERM) only between
+    # compiled calls, and a 20 s x200 render in one call ignored Ctrl-C for 13 s
+    per = max(1, CHUNK_STEPS // int(stride))
+    for j in range(0, int(n_out), per):
+        m = min(per, int(n_out) - j)
+        state = _kernel(*state, j * int(stride), m, int(stride), float(k), float(w * w), fb_t, fb_v, vb_t, vb_v,
+                        float(a), u_out[j:j + m], eta_out[j:j + m])
     return u_out, eta_out
 
 
@@ -129,17 +137,19 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
     """The oversampling factor to use: the one asked for, raised to respect the uniqueness bound if needed."""
     if oversample < 1 or int(oversample) != oversample:
         raise ValueError(f"oversample must be a whole number >= 1, got {oversample}")
-    need = physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate)
+    need = physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate, scene.f0)
     if need > MAX_OVERSAMPLE:
         raise SceneError(f"fb={scene.fb_max:g} with a={scene.a:g} needs the FDM oversampled x{need} at "
                          f"{scene.sample_rate} Hz (uniqueness bound k < e/(fb sqrt(2a))); the limit is "
                          f"x{MAX_OVERSAMPLE}: lower fb or a")
     if need > oversample:
         if warn:
-            warnings.warn(
-                f"fb={scene.fb_max:g} at {scene.sample_rate} Hz breaks the FDM uniqueness bound "
-                f"k < e/(fb sqrt(2a)); oversampling raised from {oversample} to {need}",
-                OversampleWarning, stacklevel=3)
+            if physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate) == need:
+                why = (f"fb={scene.fb_max:g} at {scene.sample_rate} Hz breaks the FDM uniqueness bound "
+                       f"k < e/(fb sqrt(2a))")
+            else:
+                why = f"f0={scene.f0:g} Hz at {scene.sample_rate} Hz breaks the FDM stability bound k < 2/w"
+            warnings.warn(f"{why}; oversampling raised from {oversample} to {need}", OversampleWarning, stacklevel=3)
         return need
     return int(oversample)
 

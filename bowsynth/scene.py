@@ -16,6 +16,12 @@ PRESET_DIR = Path(__file__).resolve().parent / "presets"
 
 MIN_RATE, MAX_RATE = 8_000, 384_000
 CONTROLS = ("fb", "vb")  # the scene fields that may follow a curve
+# Bounds on magnitudes, far outside any playable value, so that every formula downstream (the FDM's step bounds,
+# u = q / w, the gain of a file) stays finite: 1e308 bow forces, speeds or states overflowed into internal errors.
+MIN_F0 = 1.0  # Hz: below it u = q / w grows without bound and nothing sounds
+MIN_A = 1e-9  # s^2/m^2: a friction curve this flat is no friction; 5e-324 underflowed a / a_model to 0
+MAGNITUDE_LIMITS = (("fb", 1e9, "m/s^2"), ("vb", 1e3, "m/s"), ("a", 1e9, "s^2/m^2"), ("q0", 1e3, "m/s"),
+                    ("p0", 1e3, "m/s"))
 
 
 @dataclass(frozen=True)
@@ -72,6 +78,15 @@ class Scene:
             raise SceneError(f"duration must hold at least 2 samples, got {self.duration} s")
         if self.duration > 3600:
             raise SceneError(f"duration must be <= 3600 s, got {self.duration}")
+        for name, lim, unit in MAGNITUDE_LIMITS:
+            v = getattr(self, name)
+            big = max(abs(b) for b in controls.bounds(v)) if name in CONTROLS else abs(v)
+            if big > lim:
+                raise SceneError(f"{name} must be within +-{lim:g} {unit}, got {big:g}")
+        if self.f0 < MIN_F0:
+            raise SceneError(f"f0 must be >= {MIN_F0:g} Hz, got {self.f0:g}")
+        if self.a < MIN_A:
+            raise SceneError(f"a must be >= {MIN_A:g} s^2/m^2, got {self.a:g}")
 
     @property
     def omega(self) -> float:

@@ -20,8 +20,6 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from .errors import UsageError
 from .render import Render
 from .scene import Scene, make_scene
@@ -74,32 +72,32 @@ def safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "voice"
 
 
-def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u") -> list[Path]:
-    """One WAV per voice into the directory `out`, or (mix=True) their sum into the file `out`."""
-    from .wav import PEAK, write_float_wav, write_wav
+def voice_paths(voices, out: Path) -> list[Path]:
+    """The file each voice gets in the directory `out`: name.wav, and name-2.wav, ... for repeated names."""
+    paths = []
+    seen: dict[str, int] = {}
+    for v in voices:
+        stem = safe_name(v.name)
+        seen[stem] = seen.get(stem, 0) + 1
+        paths.append(out / (f"{stem}.wav" if seen[stem] == 1 else f"{stem}-{seen[stem]}.wav"))
+    return paths
+
+
+def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u", dc: str = "remove",
+                 gain_db: float | None = None, force: bool = True) -> list[Path]:
+    """One WAV per voice into the directory `out`, or (mix=True) their sum into the file `out` (see wav.write_mix)."""
+    from .wav import write_mix, write_wav
 
     if not mix:
         out.mkdir(parents=True, exist_ok=True)
-        paths = []
-        seen: dict[str, int] = {}
-        for v, r in zip(voices, renders):
-            stem = safe_name(v.name)
-            seen[stem] = seen.get(stem, 0) + 1
-            # voices of the same name (a preset listed twice) each get a file: name, name-2, ...
-            path = out / (f"{stem}.wav" if seen[stem] == 1 else f"{stem}-{seen[stem]}.wav")
-            write_wav(path, r, signal=signal)
-            paths.append(path)
+        paths = voice_paths(voices, out)
+        for path, r in zip(paths, renders):
+            write_wav(path, r, signal=signal, dc=dc, gain_db=gain_db, force=force)
         return paths
     rates = {r.scene.sample_rate for r in renders}
     if len(rates) != 1:
         raise UsageError(f"a mix needs one sample rate; the voices use {sorted(rates)}")
-    rate = rates.pop()
-    n = max(len(r.t) for r in renders)
-    x = np.zeros(n)
-    for r in renders:
-        s = r.signal(signal)
-        x[:len(s)] += s / (np.max(np.abs(s)) or 1.0)  # each voice at equal loudness
-    gain = PEAK / (np.max(np.abs(x)) or 1.0)
     # no scene of its own: `compare` on a mix asks for the scene flags
-    write_float_wav(out, x * gain, rate, {"bowsynth_mix": 1, "voices": [v.name for v in voices], "gain": gain})
+    write_mix(out, [r.signal(signal) for r in renders], [v.name for v in voices], rates.pop(), dc=dc,
+              gain_db=gain_db, force=force)
     return [out]

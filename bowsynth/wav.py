@@ -1,7 +1,16 @@
-"""WAV files with the render's own description inside, so `compare` needs nothing but the file.
+"""Audio files with the render's own description inside, so `compare` needs nothing but the file.
 
-32-bit float samples (quantisation far below any error we measure), peak-normalised; the gain, the scene, the
-method, the model id and the render time go into the RIFF INFO comment as JSON.
+Formats by extension, through soundfile: .wav (32-bit float: quantisation far below any error we measure), .flac
+(24-bit), .ogg (Vorbis, lossy); "-" writes WAV to standard output. Peak-normalised to -1 dBFS unless a fixed gain is
+asked for. The scene, the method, the model id, the gain and what was done to the DC go into the file's comment as
+JSON (RIFF INFO for WAV, a Vorbis comment for FLAC and OGG).
+
+DC: the bowed mass sits off its rest position while it is bowed (the friction force is a static load), about 0.045
+of full scale in a peak-normalised `u`; that offset is not sound. By default it is removed by `remove_dc`: a
+2nd-order Butterworth high-pass at 5 Hz run forward and backward (zero phase, 4th-order magnitude), then the
+remaining mean subtracted. Measured (tests/test_outfile.py): harmonic amplitudes of a 1 s note change by less than
+0.01 dB above 20 Hz. The metadata records it ("dc": "highpass-5hz"), and `compare` applies the same filter to its
+reference, so scores still measure the physics.
 """
 
 from __future__ import annotations
@@ -9,7 +18,8 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
+import struct
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,22 +27,65 @@ import numpy as np
 import soundfile as sf
 
 from .errors import UsageError
+from .outfile import atomic_write, check_output_path, is_stdout, resolve  # noqa: F401  (re-exported)
 from .render import Render
 from .scene import Scene
 
 META_KEY = "bowsynth"
-META_VERSION = 1
+META_VERSION = 2  # 2: "dc" says whether the DC was removed; version 1 files (DC kept) are still read
+READ_VERSIONS = (1, 2)
 PEAK = 0.891  # -1 dBFS
+DC_HZ = 5.0
+TINY_PEAK = 1e-200  # below this PEAK / peak (and the float32 samples) stop being meaningful numbers
+DC_MODES = ("remove", "keep")
+DC_TAG = "highpass-5hz"
+
+# extension -> (soundfile format, subtype, description)
+FORMATS = {".wav": ("WAV", "FLOAT", "32-bit float WAV"), ".flac": ("FLAC", "PCM_24", "24-bit FLAC"),
+           ".ogg": ("OGG", "VORBIS", "Ogg Vorbis, lossy")}
+LOSSY = {"OGG"}
+# libsndfile keeps RIFF INFO strings up to about 2 kB (longer ones are cut); Vorbis comments hold far more
+META_LIMIT = {"WAV": 2000, "FLAC": 1_000_000, "OGG": 1_000_000}
+
+
+def format_list() -> str:
+    return ", ".join(f"{ext} ({d})" for ext, (_, _, d) in FORMATS.items()) + ", or - (WAV to standard output)"
+
+
+def output_format(path) -> tuple[str, str]:
+    """(format, subtype) for an output path, from its extension; refuses anything else, before any work.
+
+    A FIFO or a character device without a known extension (/dev/null, a named pipe) gets WAV.
+    """
+    if is_stdout(path):
+        return "WAV", "FLOAT"
+    ext = Path(path).suffix.lower()
+    if ext in FORMATS:
+        return FORMATS[ext][:2]
+    try:
+        special = resolve(path, force=True).kind == "special"
+    except UsageError:
+        special = False
+    if special and not ext:
+        return "WAV", "FLOAT"
+    raise UsageError(f"cannot write {ext or 'a file without an extension'} ({path}); bowsynth writes {format_list()}")
+
+
+def check_audio_output(path, force: bool = False) -> tuple[str, str]:
+    """Everything about an audio output path that can be checked before rendering: writable, known format."""
+    check_output_path(path, force=force)
+    return output_format(path)
 
 
 @dataclass
 class WavInfo:
-    """What a WAV holds: the signal in physical units (samples / gain) and its metadata, if bowsynth wrote it."""
+    """What an audio file holds: the signal in physical units (samples / gain) and its metadata, if bowsynth wrote it."""
 
     path: Path
     samples: np.ndarray  # as stored, normalised
     sample_rate: int
     meta: dict | None
+    format: str = "WAV"
 
     @property
     def gain(self) -> float:
@@ -47,101 +100,191 @@ class WavInfo:
     def scene(self) -> Scene | None:
         return Scene.from_dict(self.meta["scene"]) if self.meta else None
 
+    @property
+    def dc_removed(self) -> bool:
+        return bool(self.meta) and self.meta.get("dc") == DC_TAG
 
-def check_output_path(path: str | os.PathLike, force: bool = True) -> Path:
-    """Fail early, before any work, when an output path can't be written."""
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
-    if p.is_dir():
-        raise UsageError(f"output path {p} is a directory; give a file name")
-    if not parent.is_dir():
-        raise UsageError(f"output directory {parent} does not exist")
-    if not os.access(parent, os.W_OK):
-        raise UsageError(f"output directory {parent} is not writable")
-    if p.exists() and not force:
-        raise UsageError(f"{p} exists; pass --force to overwrite it")
-    return p
+    @property
+    def lossy(self) -> bool:
+        return self.format in LOSSY
 
 
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+def remove_dc(x: np.ndarray, sample_rate: float) -> np.ndarray:
+    """The DC and the infrasonic drift of the onset removed (see the module docstring); a new float64 array."""
+    from scipy.signal import butter, sosfiltfilt
+
+    x = np.asarray(x, dtype=np.float64)
+    sos = butter(2, DC_HZ, btype="highpass", fs=sample_rate, output="sos")
+    y = sosfiltfilt(sos, x) if x.size > 64 else x.copy()
+    return y - y.mean() if y.size else y
 
 
-def atomic_write(path: Path, write) -> None:
-    """Call write(tmp_path) on a temp file beside `path`, then rename it over `path`: never a half-written file."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def gain_for(x: np.ndarray, gain_db: float | None) -> float:
+    """Peak normalisation to PEAK, or the fixed gain 10^(gain_db/20); a fixed gain that would clip is refused."""
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    if gain_db is None:
+        if peak < TINY_PEAK:  # e.g. --fb 1e-300 moves the mass by 1e-311 m: the gain would overflow
+            if peak > 0:
+                warnings.warn(f"the signal peaks at {peak:.3g}, too small to normalise: written as silence")
+            return 1.0
+        return PEAK / peak
+    if not math.isfinite(gain_db):
+        raise UsageError(f"--gain must be a finite number of dB, got {gain_db}")
+    g = 10.0 ** (gain_db / 20.0)
+    if not (math.isfinite(g) and g > 0):
+        raise UsageError(f"--gain {gain_db:g} dB is out of range")
+    if peak * g > 1.0:
+        fit = 20 * math.log10(PEAK / peak) if peak > 0 else 0.0
+        raise UsageError(f"--gain {gain_db:g} dB would clip (peak {20 * math.log10(peak * g):+.1f} dBFS); use at most "
+                         f"--gain {math.floor(fit * 10) / 10:g} for a -1 dBFS peak, or leave --gain out to normalise")
+    return g
 
 
-def write_wav(path, render: Render, signal: str = "u") -> dict:
-    """Write the render's `signal` ('u' or 'p') to `path`; returns the metadata written."""
+def check_gain_db(gain_db: float | None) -> None:
+    if gain_db is not None and not (math.isfinite(gain_db) and -400 < gain_db < 400):
+        raise UsageError(f"--gain must be a number of dB in (-400, 400), got {gain_db}")
+
+
+def check_dc(dc: str) -> None:
+    if dc not in DC_MODES:
+        raise UsageError(f"--dc must be remove or keep, got {dc!r}")
+
+
+def render_meta(scene: Scene, method: str, signal: str, gain: float, seconds: float, model, dc: str) -> dict:
+    return {META_KEY: META_VERSION, "scene": scene.to_dict(), "method": method, "signal": signal, "gain": gain,
+            "render_seconds": seconds, "model": model, "dc": DC_TAG if dc == "remove" else "kept"}
+
+
+def check_meta_fits(meta: dict, path) -> None:
+    """Refuse (before rendering, when called with a preview) metadata the chosen format cannot hold."""
+    fmt = output_format(path)[0]
+    size = len(json.dumps(meta, separators=(",", ":")))
+    if size > META_LIMIT[fmt]:
+        raise UsageError(f"the description of this render ({size} bytes of JSON) is too long for a {fmt} comment "
+                         f"(at most {META_LIMIT[fmt]}); write .flac or .ogg instead")
+
+
+def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_db: float | None = None,
+              force: bool = True) -> dict:
+    """Write the render's `signal` ('u' or 'p') to `path` (format by extension); returns the metadata written."""
+    check_dc(dc)
     x = render.signal(signal)
     if not np.all(np.isfinite(x)):
         raise ValueError("refusing to write non-finite samples")
-    peak = float(np.max(np.abs(x))) if x.size else 0.0
-    gain = PEAK / peak if peak > 0 else 1.0
-    meta = {
-        META_KEY: META_VERSION,
-        "scene": render.scene.to_dict(),
-        "method": render.method,
-        "signal": signal,
-        "gain": gain,
-        "render_seconds": render.seconds,
-        "model": render.info.get("model_id"),
-    }
-    write_float_wav(path, x * gain, render.scene.sample_rate, meta)
+    if dc == "remove":
+        x = remove_dc(x, render.scene.sample_rate)
+    gain = gain_for(x, gain_db)
+    meta = render_meta(render.scene, render.method, signal, gain, render.seconds, render.info.get("model_id"), dc)
+    write_float_wav(path, x * gain, render.scene.sample_rate, meta, force=force)
     return meta
 
 
-def write_float_wav(path, x: np.ndarray, sample_rate: int, meta: dict) -> None:
-    """Atomically write samples (already scaled to +-1) as 32-bit float WAV with `meta` as JSON in the comment."""
+def mix_meta(names: list[str], gain: float, dc: str) -> dict:
+    """A mix's metadata: the voice count and as many names as fit in a WAV comment (a 1000-voice mix still fits)."""
+    meta = {"bowsynth_mix": 1, "voices": len(names), "gain": gain, "dc": DC_TAG if dc == "remove" else "kept"}
+    kept, size = [], len(json.dumps(meta)) + 40
+    for n in names:
+        size += len(json.dumps(n)) + 2
+        if size > META_LIMIT["WAV"] - 100:
+            break
+        kept.append(n)
+    meta["names"] = kept
+    if len(kept) < len(names):
+        meta["names_truncated"] = True
+    return meta
+
+
+def write_mix(path, signals: list[np.ndarray], names: list[str], sample_rate: int, dc: str = "remove",
+              gain_db: float | None = None, force: bool = True) -> dict:
+    """Sum the voices, each at equal loudness (peak 1), then peak-normalise the sum to PEAK (never clips), or apply
+    the fixed gain `gain_db` (refused if it would clip)."""
+    check_dc(dc)
+    n = max(len(s) for s in signals)
+    x = np.zeros(n)
+    for s in signals:
+        x[:len(s)] += s / (np.max(np.abs(s)) or 1.0)
+    if dc == "remove":
+        x = remove_dc(x, sample_rate)
+    gain = gain_for(x, gain_db)
+    meta = mix_meta(names, gain, dc)
+    write_float_wav(path, x * gain, sample_rate, meta, force=force)
+    return meta
+
+
+def write_float_wav(path, x: np.ndarray, sample_rate: int, meta: dict, force: bool = True) -> None:
+    """Atomically write samples (already scaled to +-1) with `meta` as JSON in the comment; format by extension."""
     if not np.all(np.isfinite(x)):
         raise ValueError("refusing to write non-finite samples")
+    fmt, subtype = output_format(path)
+    check_meta_fits(meta, path)
     text = json.dumps(meta, separators=(",", ":"))
-    if len(text) > 2000:  # libsndfile keeps INFO strings up to about this length
-        raise ValueError("WAV metadata too long")
 
     def _write(tmp):
-        with sf.SoundFile(tmp, "w", sample_rate, 1, subtype="FLOAT", format="WAV") as f:
+        with sf.SoundFile(tmp, "w", sample_rate, 1, subtype=subtype, format=fmt) as f:
             f.comment = text
             f.software = "bowsynth"
             f.write(np.asarray(x, dtype=np.float32))
 
-    atomic_write(Path(path), _write)
+    atomic_write(path, _write, force=force)
+
+
+def _riff_shortfall(p: Path) -> tuple[int, int] | None:
+    """For a RIFF/WAVE file: (bytes its data chunk declares, bytes present) when fewer are present, else None."""
+    size = p.stat().st_size
+    with p.open("rb") as f:
+        head = f.read(12)
+        if len(head) < 12 or head[:4] != b"RIFF" or head[8:12] != b"WAVE":
+            return None
+        pos = 12
+        while pos + 8 <= size:
+            f.seek(pos)
+            cid, n = struct.unpack("<4sI", f.read(8))
+            if cid == b"data":
+                present = size - pos - 8
+                return (n, present) if n != 0xFFFFFFFF and present < n else None
+            pos += 8 + n + (n & 1)
+    return None
 
 
 def read_wav(path) -> WavInfo:
-    """Read any mono WAV; `meta` is None when bowsynth did not write it."""
+    """Read any mono audio file soundfile reads; `meta` is None when bowsynth did not write it.
+
+    A file with fewer samples than its header or its metadata promise (cut short in a copy, edited) is refused,
+    naming what is missing: scores over part of a file would look like scores over all of it.
+    """
     p = Path(path)
     if not p.is_file():
-        raise UsageError(f"WAV file {p} not found")
+        raise UsageError(f"audio file {p} not found" if p.suffix.lower() not in (".wav", "") else f"WAV file {p} not found")
     try:
         with sf.SoundFile(str(p)) as f:
             data = f.read(dtype="float64", always_2d=True)
             rate = f.samplerate
             comment = f.comment
+            fmt = f.format
     except (sf.LibsndfileError, RuntimeError) as e:
         raise UsageError(f"{p} is not a readable audio file ({e})") from None
+    short = _riff_shortfall(p) if fmt == "WAV" else None
+    if short is not None:
+        declared, present = short
+        raise UsageError(f"{p} is truncated: its header declares {declared} bytes of audio, only {present} are present "
+                         f"({100 * present / declared:.1f} %, {len(data)} frames = {len(data) / rate:g} s readable)")
     if data.shape[1] != 1:
         data = data.mean(axis=1, keepdims=True)
     meta = None
     try:
         m = json.loads(comment) if comment else None
-        if isinstance(m, dict) and m.get(META_KEY) == META_VERSION:
+        if isinstance(m, dict) and m.get(META_KEY) in READ_VERSIONS:
             meta = m
             Scene.from_dict(meta["scene"])
             if not (math.isfinite(float(meta["gain"])) and float(meta["gain"]) > 0):
                 raise ValueError("bad gain")
     except (ValueError, KeyError, TypeError):
         raise UsageError(f"{p} has damaged bowsynth metadata; pass the scene with --fb/--vb/... flags") from None
-    return WavInfo(p, data[:, 0], rate, meta)
+    if meta is not None:
+        want = Scene.from_dict(meta["scene"]).n_samples
+        if len(data) != want:
+            what = "missing" if len(data) < want else "extra"
+            raise UsageError(f"{p} holds {len(data)} frames ({len(data) / rate:g} s) but its bowsynth metadata describes "
+                             f"{want} ({want / rate:g} s): {abs(want - len(data))} frames {what}; the file was cut or "
+                             f"edited, re-render it")
+    return WavInfo(p, data[:, 0], rate, meta, fmt)

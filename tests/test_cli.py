@@ -67,7 +67,7 @@ def test_fdm_wav_compares_to_zero(tmp_path, monkeypatch, capsys):
 
 def test_metadata_round_trip_after_move(tmp_path):
     from bowsynth import Scene, render_fdm
-    from bowsynth.wav import write_wav
+    from bowsynth.wav import remove_dc, write_wav
 
     sc = Scene(fb=30, vb=0.15, f0=123.5, duration=0.2, sample_rate=48000, q0=0.01)
     r = render_fdm(sc)
@@ -75,7 +75,13 @@ def test_metadata_round_trip_after_move(tmp_path):
     os.rename(tmp_path / "a.wav", tmp_path / "b.wav")
     info = read_wav(tmp_path / "b.wav")
     assert info.scene == sc and info.meta["method"] == "fdm" and info.meta["signal"] == "u"
-    np.testing.assert_allclose(info.physical, r.u, rtol=1e-6, atol=1e-7 * np.abs(r.u).max())
+    assert info.dc_removed  # by default the written signal is the render with its DC removed
+    clean = remove_dc(r.u, sc.sample_rate)
+    np.testing.assert_allclose(info.physical, clean, rtol=1e-6, atol=1e-7 * np.abs(clean).max())
+    write_wav(tmp_path / "k.wav", r, dc="keep")
+    kept = read_wav(tmp_path / "k.wav")
+    assert not kept.dc_removed
+    np.testing.assert_allclose(kept.physical, r.u, rtol=1e-6, atol=1e-7 * np.abs(r.u).max())
     assert not list(tmp_path.glob(".*tmp"))  # no temp file left behind
 
 

@@ -1,0 +1,154 @@
+"""Ctrl-C and SIGTERM sent to real bowsynth processes in each phase: one line, exit 130 / 143, no temp file, the old
+output untouched, training's checkpoint kept."""
+
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+
+CODE = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated")}
+
+
+def _start(args, tmp_path, **kw):
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir(exist_ok=True)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), TMPDIR=str(tmpdir), PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "bowsynth", *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+
+
+def _handlers_installed(proc, timeout=120):
+    """Wait until the process has installed its SIGTERM handler (read from /proc): from then on a signal is
+    bowsynth's to handle, whatever phase it lands in."""
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        try:
+            caught = int(Path(f"/proc/{proc.pid}/status").read_text().split("SigCgt:")[1].split()[0], 16)
+        except (FileNotFoundError, IndexError):
+            caught = 0
+        if caught & (1 << (signal.SIGTERM - 1)):
+            return
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    raise AssertionError("bowsynth never installed its signal handlers")
+
+
+def _stop(proc, sig, timeout=60):
+    proc.send_signal(sig)
+    # the bound: the long work below would run for minutes; a handled signal ends it within seconds
+    out, err = proc.communicate(timeout=timeout)
+    return proc.returncode, out, err
+
+
+def _check(code, err, sig):
+    want, word = CODE[sig]
+    assert code == want, err
+    assert err.strip() == word or (err.count("\n") == 1 and word in err), err
+    assert "Traceback" not in err
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_during_a_long_fdm_render(sig, tmp_path):
+    out = tmp_path / "x.wav"
+    out.write_bytes(b"precious")
+    # ~1.8e9 scheme steps: minutes of compiled FDM (hence --force); chunked, so the signal lands within a chunk
+    proc = _start(["render", "--method", "fdm", "--oversample", "200", "-d", "200", "--force", str(out)], tmp_path)
+    _handlers_installed(proc)
+    time.sleep(4)  # into the numba loop (start-up and compile-cache load take ~1-3 s)
+    code, _, err = _stop(proc, sig)
+    _check(code, err, sig)
+    assert out.read_bytes() == b"precious"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tmp", "x.wav"] and not list((tmp_path / "tmp").iterdir())
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+def test_sigterm_during_compare_high_reference(tmp_path):
+    from bowsynth import Scene, render_fdm
+    from bowsynth.wav import write_wav
+
+    wav = tmp_path / "long.wav"
+    write_wav(wav, render_fdm(Scene(duration=60.0)))  # its x100 reference: 2.6e8 steps, ~20 s
+    proc = _start(["compare", str(wav), "--reference", "high", "--plot", str(tmp_path / "p.png")], tmp_path)
+    _handlers_installed(proc)
+    time.sleep(4)
+    code, out, err = _stop(proc, signal.SIGTERM)
+    _check(code, err, signal.SIGTERM)
+    assert not out and not (tmp_path / "p.png").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_signal_while_blocked_writing_to_a_fifo(sig, tmp_path):
+    """No reader on the FIFO: bowsynth blocks opening it after rendering; a signal must still end it cleanly,
+    leave the FIFO a FIFO and remove its private temp file."""
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    proc = _start(["render", "--method", "fdm", "-d", "0.5", str(fifo)], tmp_path)
+    _handlers_installed(proc)
+    t0 = time.time()
+    while not list((tmp_path / "tmp").iterdir()) and time.time() - t0 < 120:  # the temp file: writing has begun
+        time.sleep(0.05)
+    time.sleep(0.5)
+    code, _, err = _stop(proc, sig)
+    _check(code, err, sig)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert not list((tmp_path / "tmp").iterdir())
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+def test_sigint_during_training_data_preparation(tmp_path):
+    out = tmp_path / "m.safetensors"
+    # a million FDM trajectories: data preparation alone would take many minutes
+    proc = _start(["train", "--fb", "100", "--width", "16", "--depth", "2", "--n-data", "1000000", "--steps", "5",
+                   "--quiet", "--out", str(out)], tmp_path)
+    _handlers_installed(proc)
+    time.sleep(4)
+    code, _, err = _stop(proc, signal.SIGINT)
+    assert code == 130 and err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err, err
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+def test_sigterm_during_training_keeps_a_checkpoint(tmp_path):
+    out = tmp_path / "t.safetensors"
+    ckpt = tmp_path / "t.ckpt.safetensors"
+    proc = _start(["train", "--fb", "100", "--width", "16", "--depth", "2", "--n-data", "64", "--out", str(out),
+                   "--quiet", "--steps", "1000000", "--minutes", "10", "--checkpoint-every", "0.5"], tmp_path)
+    _handlers_installed(proc)
+    t0 = time.time()
+    while not ckpt.exists() and time.time() - t0 < 180:  # training proper has begun
+        time.sleep(0.2)
+    code, _, err = _stop(proc, signal.SIGTERM)
+    assert code == 143, err
+    assert err.count("\n") == 1 and "terminated at step" in err and "checkpoint saved" in err and "--resume" in err
+    assert ckpt.exists() and not out.exists()
+    from safetensors import safe_open
+
+    with safe_open(str(ckpt), framework="pt") as f:
+        assert json.loads(f.metadata()["bowsynth_checkpoint"])["step"] > 0
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_fdm_in_chunks_equals_one_call(monkeypatch):
+    """The FDM runs in chunks so that signals land between them; chunking must not change a sample, also when
+    the bow follows a curve (the chunk's start time carries over)."""
+    import numpy as np
+
+    from bowsynth import Scene, fdm
+
+    sc = Scene(fb=[[0.0, 50.0], [0.05, 300.0]], vb=[[0.0, 0.1], [0.08, 0.25]], duration=0.1)
+    monkeypatch.setattr(fdm, "CHUNK_STEPS", 10**12)
+    whole = fdm.render_fdm(sc, oversample=3)
+    monkeypatch.setattr(fdm, "CHUNK_STEPS", 1001)  # 333 samples a chunk
+    parts = fdm.render_fdm(sc, oversample=3)
+    np.testing.assert_array_equal(whole.q, parts.q)
+    np.testing.assert_array_equal(whole.p, parts.p)
