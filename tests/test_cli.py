@@ -38,15 +38,20 @@ def test_train_render_compare(tmp_path, monkeypatch, capsys):
     from bowsynth import load_model, render_fdm, render_operator
     from bowsynth.metrics import nmse
 
-    expect = render_operator(info.scene, model=load_model(model), fallback="fdm").u
+    from bowsynth.wav import remove_dc
+
+    assert info.dc_removed  # the default: the static offset is not sound
+    expect = remove_dc(render_operator(info.scene, model=load_model(model), fallback="fdm").u, info.sample_rate)
     np.testing.assert_allclose(info.physical, expect, rtol=0, atol=1e-6 * np.abs(expect).max())
     code, out, err = run_main(["compare", str(wav), "--json"], capsys, monkeypatch)
     assert code == 0, err
     j = json.loads(out)
     m = j["metrics"]["file vs FDM"]
     assert {"nmse", "ncc_percent", "cents"} <= set(m) and "render_seconds" in j
-    # compare reports the file's error against the audio-rate FDM, not some other number
-    assert m["nmse"] == pytest.approx(nmse(info.physical, render_fdm(info.scene).u), rel=1e-9)
+    # compare reports the file's error against the audio-rate FDM (its DC removed as the file's was), not some
+    # other number
+    assert m["nmse"] == pytest.approx(nmse(info.physical, remove_dc(render_fdm(info.scene).u, info.sample_rate)),
+                                      rel=1e-9)
 
 
 def test_fdm_wav_compares_to_zero(tmp_path, monkeypatch, capsys):
