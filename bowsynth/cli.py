@@ -32,15 +32,25 @@ DurOpt = typer.Option(None, "--duration", "-d", help="Duration, s (default 1.0).
 RateOpt = typer.Option(None, "--sample-rate", "--sr", help="Sample rate, Hz (default 44100).")
 Q0Opt = typer.Option(None, "--q0", help="Initial q = w u(0), m/s (default 0).")
 P0Opt = typer.Option(None, "--p0", help="Initial velocity u_t(0), m/s (default 0).")
+PitchOpt = typer.Option(None, "--pitch", help="The pitch you hear, Hz or a note name (A4, C#3, Bb2; C0..B8): solves "
+                                              "for the f0 that sounds there with this bow (instead of --f0).")
+A4Opt = typer.Option(None, "--a4", help="Tuning of --pitch note names: A4 in Hz (default 440).")
 
 
-def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0):
+def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=None):
     from .controls import parse_control
     from .scene import make_scene
 
     fb = None if fb is None else parse_control(fb, "fb")
     vb = None if vb is None else parse_control(vb, "vb")
-    return make_scene(preset, f0=f0, fb=fb, vb=vb, a=a, duration=duration, sample_rate=sample_rate, q0=q0, p0=p0)
+    return make_scene(preset, f0=f0, fb=fb, vb=vb, a=a, duration=duration, sample_rate=sample_rate, q0=q0, p0=p0,
+                      pitch=pitch, a4=a4)
+
+
+def _pitch_hz(pitch, a4) -> float:
+    from .pitch import A4_HZ, parse_pitch
+
+    return parse_pitch(pitch, A4_HZ if a4 is None else a4)
 
 
 def _say(quiet: bool, msg: str) -> None:
@@ -70,6 +80,7 @@ def render(
     preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
     vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, duration: Optional[float] = DurOpt,
     sample_rate: Optional[int] = RateOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
+    pitch: Optional[str] = PitchOpt, a4: Optional[float] = A4Opt,
     oversample: int = typer.Option(1, "--oversample", help="FDM only: render at this multiple of the sample rate."),
     model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the model covering the scene)."),
     signal: str = typer.Option("u", "--signal", help="Signal to write: u (displacement, as the paper) or p (velocity)."),
@@ -84,8 +95,14 @@ def render(
         raise UsageError(f"--signal must be u or p, got {signal!r}")
     if oversample < 1:
         raise UsageError(f"--oversample must be >= 1, got {oversample}")
-    scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0)
+    scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4)
     check_output_path(output)
+    if pitch is not None:
+        from .pitch import note_name
+
+        hz = _pitch_hz(pitch, a4)
+        held = "" if not scene.varying else " (tuned at the values the bow holds)"
+        _say(quiet, f"pitch {hz:.2f} Hz ({note_name(hz, a4 or 440.0)}): f0 {scene.f0:.4f} Hz{held}")
     r = engines.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample)
     write_wav(output, r, signal=signal)
     model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""

@@ -161,8 +161,24 @@ def preset_description(name: str) -> str:
         return tomllib.load(fh).get("description", "")
 
 
-def make_scene(preset: str | None = None, **overrides) -> Scene:
-    """A Scene from an optional preset, with the non-None overrides applied on top."""
+def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, **overrides) -> Scene:
+    """A Scene from an optional preset, with the non-None overrides applied on top.
+
+    pitch (Hz or a note name such as "A4", tuned to a4, default 440 Hz) replaces f0 by the f0 that sounds at that
+    pitch with the scene's bow (see `bowsynth.pitch`); a preset's f0 gives way to it, an explicit f0 conflicts."""
     fields = load_preset(preset) if preset else {}
+    if pitch is not None:
+        from . import pitch as P
+
+        if overrides.get("f0") is not None:
+            raise UsageError("give the note as pitch or as f0, not both")
+        fields.pop("f0", None)
+        fields.update({k: v for k, v in overrides.items() if v is not None})
+        hz = P.parse_pitch(pitch, P.A4_HZ if a4 is None else a4)
+        sc = Scene.from_dict({**fields, "f0": hz})  # validates the bow before the solve
+        held = dict(fb=P.held_value(sc.fb, sc.duration), vb=P.held_value(sc.vb, sc.duration))
+        return sc.replace(f0=P.f0_for_pitch(hz, a=sc.a, **held))
+    if a4 is not None:
+        raise UsageError("--a4 tunes a note name or pitch: give --pitch too")
     fields.update({k: v for k, v in overrides.items() if v is not None})
     return Scene.from_dict(fields)
