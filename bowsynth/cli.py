@@ -263,52 +263,70 @@ def bench(
 
 @app.command()
 def score(
-    output: Path = typer.Argument(..., help="A directory (one WAV per voice) or, with --mix, a WAV file."),
-    score_file: Optional[Path] = typer.Option(None, "--score", help="TOML score with [[voice]] tables (see README)."),
+    output: Path = typer.Argument(..., help="A directory (one WAV per note, and notes.json) or, with --mix, a WAV file."),
+    score_file: Optional[Path] = typer.Option(None, "--score", help="A TOML score (docs/score.md) or a MIDI file (.mid)."),
     presets_list: Optional[str] = typer.Option(None, "--presets", help="Comma-separated preset names, one voice each."),
     duration: Optional[float] = DurOpt,
     method: str = typer.Option("operator", "--method", "-m", help="operator (one batched rollout) or fdm (one by one)."),
-    model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the one covering each voice)."),
-    mix: bool = typer.Option(False, "--mix", help="Write one mixed WAV instead of one file per voice."),
-    fallback: str = typer.Option("none", "--fallback", help="A voice that leaves its model's domain: none (stop) or "
-                                                            "fdm (finish that voice with the FDM)."),
+    model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the one covering each note)."),
+    mix: bool = typer.Option(False, "--mix", help="Write one mixed WAV (each note at its start) instead of one file per note."),
+    stems: Optional[Path] = typer.Option(None, "--stems", help="With --mix: also write one WAV per note into this "
+                                                                "directory (what `compare` on the mix reads)."),
+    a4: Optional[float] = typer.Option(None, "--a4", help="MIDI files: the tuning of A4 in Hz (default 440)."),
+    fallback: str = typer.Option("none", "--fallback", help="A note no model covers, or that leaves its model's domain: "
+                                                            "none (stop before rendering) or fdm (render it with the FDM)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
-    """Render many voices at once (a chord, a sweep) from a TOML score or a list of presets."""
+    """Play a score: notes in time from a TOML score or a MIDI file (or one voice per preset), in one batched rollout.
+
+    A TOML score has [defaults] and [[voice]] tables; a voice holds [[voice.note]] tables with start, duration
+    (s), pitch ("A4", "C#3", Hz) or f0, fb (m/s^2) or beta (F_B / w), vb, a, release, preset. fb, beta and vb take
+    numbers or curves [[t, value], ...] (t in s from the note's start). A voice without notes is one note from 0.
+    Each note is tuned to sound at its pitch (at the bow's held values), ends with a bow stop (v_B -> 0 over
+    `release` s, default 0.05), and overlaps freely. MIDI: channels are voices; velocity sets F_B / w and v_B,
+    CC2 bow pressure, CC11 expression. Notes no model covers are listed before anything renders. See docs/score.md.
+    """
     import time
 
-    from .score import load_score, render_voices, voices_from_presets, write_voices
+    from .score import load_score, render_notes, voices_from_presets, write_voices
     from .wav import check_output_path
 
     if (score_file is None) == (presets_list is None):
-        raise UsageError("give exactly one of --score FILE.toml or --presets a,b,c")
+        raise UsageError("give exactly one of --score FILE.toml|FILE.mid or --presets a,b,c")
     from .engines import Engine, Fallback, _choice
 
     method, fallback = _choice(Engine, method, "--method").value, _choice(Fallback, fallback, "--fallback").value
+    if stems is not None and not mix:
+        raise UsageError("--stems goes with --mix (without --mix the output directory holds the stems)")
     if score_file is not None:
-        voices = load_score(score_file)
         if duration is not None:
-            voices = [type(v)(v.name, v.scene.replace(duration=duration)) for v in voices]
+            raise UsageError("--duration applies to --presets; a score gives each note its duration")
+        notes = load_score(score_file, a4=a4)
     else:
-        voices = voices_from_presets([n.strip() for n in presets_list.split(",") if n.strip()], duration=duration)
+        if a4 is not None:
+            raise UsageError("--a4 retunes MIDI files; presets have their own f0")
+        notes = voices_from_presets([n.strip() for n in presets_list.split(",") if n.strip()], duration=duration)
     if mix:
         check_output_path(output)
-    elif output.exists() and not output.is_dir():
-        raise UsageError(f"{output} is a file; without --mix give a directory")
-    elif not output.exists() and not output.parent.is_dir():
-        raise UsageError(f"output directory {output.parent} does not exist")
+    for d in ([] if mix else [output]) + ([stems] if stems is not None else []):
+        if d.exists() and not d.is_dir():
+            raise UsageError(f"{d} is a file; stems go into a directory")
+        if not d.exists() and not d.parent.is_dir():
+            raise UsageError(f"output directory {d.parent} does not exist")
     t0 = time.perf_counter()
-    renders = render_voices(voices, method=method, model=model, fallback=fallback)
+    renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file)
     secs = time.perf_counter() - t0
-    for v, r in zip(voices, renders):
-        for note in r.info.get("notes", []):
-            _say(quiet, f"{v.name}: {note}")
-    paths = write_voices(voices, renders, output, mix=mix)
-    audio = sum(v.scene.duration for v in voices)
+    for n, r in zip(notes, renders):
+        for line in r.info.get("notes", []):
+            _say(quiet, f"{n.describe()}: {line}")
+    paths = write_voices(notes, renders, output, mix=mix, stems=stems)
+    audio = sum(n.scene.duration for n in notes)
+    voices = len({n.name for n in notes})
     used = sorted({f"{r.info['model_id']} ({r.info['model_path']})" for r in renders if r.info.get("model_path")})
-    _say(quiet, f"rendered {len(voices)} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
-                f"({audio / secs:.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
-                + f"; wrote {', '.join(str(p) for p in paths)}")
+    shown = ", ".join(str(p) for p in paths[:4]) + (f" and {len(paths) - 4} more" if len(paths) > 4 else "")
+    _say(quiet, f"rendered {len(notes)} notes in {voices} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
+                f"({audio / max(secs, 1e-9):.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
+                + f"; wrote {shown}")
 
 
 def main() -> None:

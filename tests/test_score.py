@@ -57,7 +57,8 @@ def test_score_file_and_mix(tmp_path, tiny_model, monkeypatch, capsys):
     assert mix.meta is None and np.max(np.abs(mix.samples)) > 0.5 and np.all(np.isfinite(mix.samples))
     code, out, err = run_main(["score", "--presets", "paper-fb10,paper-fb100", "--method", "fdm", "-d", "0.05",
                                str(tmp_path / "p")], capsys, monkeypatch)
-    assert code == 0 and sorted(p.name for p in (tmp_path / "p").iterdir()) == ["paper-fb10.wav", "paper-fb100.wav"]
+    assert code == 0 and sorted(p.name for p in (tmp_path / "p").iterdir()) == ["notes.json", "paper-fb10.wav",
+                                                                               "paper-fb100.wav"]
 
 
 def test_voices_without_a_named_model_share_one_rollout(tmp_path, monkeypatch):
