@@ -344,7 +344,7 @@ def main() -> None:
     except BowsynthError as e:
         if debug:
             raise
-        err.print(f"error: {e}", soft_wrap=True)
+        err.print(f"error: {e}", soft_wrap=True, markup=False)  # messages quote TOML tables: [[voice]]
         sys.exit(e.exit_code)
     except Abort:
         err.print("aborted")

@@ -144,6 +144,8 @@ def _num(where: str, key: str, v, lo=None, hi=None) -> float:
 
 
 def _control(where: str, key: str, v):
+    if isinstance(v, Curve):
+        return v
     if isinstance(v, list):
         try:
             return as_control(v)
@@ -330,7 +332,13 @@ def load_score(path, a4: float | None = None) -> list[Note]:
 def voices_from_presets(names: list[str], **overrides) -> list[Note]:
     from .scene import make_scene
 
-    return [Note(n, make_scene(n, **overrides), label=n) for n in names]
+    seen: dict[str, int] = {}
+    out = []
+    for n in names:  # a preset listed twice is two voices: name, name-2, ...
+        seen[n] = seen.get(n, 0) + 1
+        name = n if seen[n] == 1 else f"{n}-{seen[n]}"
+        out.append(Note(name, make_scene(n, **overrides), label=name))
+    return out
 
 
 # --- what the models cover ----------------------------------------------------------------------------------------
