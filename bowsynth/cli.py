@@ -190,7 +190,7 @@ def models():
 def compare(
     wav: Path = typer.Argument(..., help="A WAV written by `bowsynth render` (or any mono WAV, with scene flags)."),
     other: Optional[Path] = typer.Argument(None, help="A second WAV: compare the two directly instead of with the FDM."),
-    reference: str = typer.Option("audio", "--reference", help="audio: the FDM at the file's rate; high: also a x100 FDM as ground truth."),
+    reference: str = typer.Option("high", "--reference", help="high (default): a x100 FDM, the truth, with the audio-rate FDM beside; audio: the audio-rate FDM only (fast)."),
     json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Write waveform, error and spectrogram plots to this PNG."),
     preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
@@ -210,6 +210,17 @@ def compare(
             raise UsageError(f"--plot writes a PNG; give a .png file name, got {plot}")
     scene = None
     info = read_wav(wav)
+    from .compare import compare_mix, format_mix_table, mix_meta
+
+    if info.meta is None and other is None and mix_meta(wav) is not None:
+        if plot is not None:
+            raise UsageError("--plot draws one note; give a stem of the mix (its stems directory has one per note)")
+        rows = compare_mix(wav, reference=reference)
+        if json_out:
+            out.print_json(json.dumps([{"note": n, **c.to_json()} for n, c in rows]))
+        else:
+            out.print(format_mix_table(rows))
+        return
     if info.meta is None and other is None:
         if all(v is None for v in (preset, f0, fb, vb, a)):
             raise UsageError(f"{wav} has no bowsynth metadata; give the scene with --fb/--vb/--f0/... flags")
