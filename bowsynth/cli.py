@@ -65,12 +65,31 @@ def _main(debug: bool = typer.Option(False, "--debug", help="Show full traceback
 
 @app.command()
 def presets():
-    """List the preset scenes."""
-    from .scene import list_presets, load_preset, preset_description
+    """List the preset scenes, the pitch each sounds at, and the model that plays it (or how to get one)."""
+    from .errors import DomainError
+    from .pitch import note_name, sounding_pitch
+    from .rollout import available_models, find_model
+    from .scene import list_presets, load_preset, make_scene, preset_description
+    from rich.markup import escape
 
+    models = available_models()
     for name in list_presets():
-        fields = " ".join(f"{k}={v:g}" for k, v in load_preset(name).items())
-        out.print(f"[bold]{name}[/bold]  {fields}\n    {preset_description(name)}")
+        fields = " ".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}"
+                          for k, v in load_preset(name).items())
+        sc = make_scene(name)
+        if sc.varying:
+            heard, who = "its pitch when the bow holds its median values", (
+                f"none: FDM only (a bow gesture; no model follows one yet): `bowsynth render --preset {name} "
+                f"--method fdm`")
+        else:
+            hz = sounding_pitch(sc.f0, sc.fb, sc.vb, sc.a)
+            heard = f"{hz:.2f} Hz ({note_name(hz)})"
+            try:
+                who = find_model(sc, models).path.name
+            except DomainError:
+                who = f"none: FDM only, train with `bowsynth train --preset {name}`"
+        out.print(f"[bold]{name}[/bold]  {escape(fields)}\n    {escape(preset_description(name))}\n    f0 {sc.f0:.4g} Hz "
+                  f"sounds at {heard}; model: {escape(who)}", soft_wrap=True)
 
 
 @app.command()
