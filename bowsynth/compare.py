@@ -93,12 +93,12 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
         hi, hi_s = _fdm_signal(sc, sig, HIGH_OVERSAMPLE)
         hi = hi[:n]
         c.columns[f"file vs FDM x{HIGH_OVERSAMPLE} (truth)"] = cmp(x, hi)
-        c.columns["file vs FDM (audio rate)"] = cmp(x, fdm)
+        c.columns["file vs FDM"] = cmp(x, fdm)
         c.columns[f"FDM vs FDM x{HIGH_OVERSAMPLE}"] = cmp(fdm, hi)
         c.seconds[f"fdm_x{HIGH_OVERSAMPLE}"] = hi_s
         c.series[f"FDM x{HIGH_OVERSAMPLE}"] = hi
     else:
-        c.columns["file vs FDM (audio rate)"] = cmp(x, fdm)
+        c.columns["file vs FDM"] = cmp(x, fdm)
     return c
 
 

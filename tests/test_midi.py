@@ -114,15 +114,17 @@ def test_velocity_and_controllers_shape_the_bow(tmp_path):
     assert sc.vb_at(1.0 + n.release) == 0.0  # the bow stop after the note-off
 
 
-def test_midi_mix_notes_start_on_time_and_sound_in_tune(tmp_path, capsys, monkeypatch):
-    """The mix (FDM: the notes hold one F_B / w, so paper-fb100 would also cover them; the FDM keeps the test
-    independent of the operator) places each note at its MIDI onset and each sounds within 1 cent of ET."""
+@pytest.mark.parametrize("method", ["operator", "fdm"])
+def test_midi_mix_notes_start_on_time_and_sound_in_tune(tmp_path, capsys, monkeypatch, method):
+    """The mix places each note at its MIDI onset and each sounds within 1 cent of ET: with the operator (velocity
+    64 is paper-fb100's F_B / w and v_B, so the shipped model plays every note) and with the FDM."""
     path = tmp_path / "p.mid"
     want = piece(path)
     out, stems = tmp_path / "mix.wav", tmp_path / "stems"
     code, so, err = run_main(["score", "--score", str(path), "--mix", str(out), "--stems", str(stems),
-                              "--method", "fdm"], capsys, monkeypatch)
+                              "--method", method], capsys, monkeypatch)
     assert code == 0, err
+    assert all(r["method"].startswith(method) for r in json.loads((stems / "notes.json").read_text())["notes"])
     index = json.loads((stems / "notes.json").read_text())["notes"]
     mix = read_wav(out)
     sr = mix.sample_rate
@@ -199,3 +201,24 @@ def test_notes_outside_every_model_are_reported_before_rendering(tmp_path, capsy
     code, so, err = run_main(["score", "--score", str(path), "--mix", str(out), "--fallback", "fdm"], capsys,
                              monkeypatch)
     assert code == 0 and out.exists() and "rendered by the FDM" in so, err
+
+
+def test_compare_on_a_mix_goes_note_by_note(tmp_path, capsys, monkeypatch):
+    path = tmp_path / "p.mid"
+    piece(path)
+    out, stems = tmp_path / "mix.wav", tmp_path / "stems"
+    code, _, err = run_main(["score", "--score", str(path), "--mix", str(out), "--stems", str(stems)], capsys,
+                            monkeypatch)
+    assert code == 0, err
+    code, so, err = run_main(["compare", str(out), "--json"], capsys, monkeypatch)
+    assert code == 0, err
+    rows = json.loads(so)
+    assert len(rows) == 4
+    for r in rows:
+        truth = r["metrics"]["file vs FDM x100 (truth)"]
+        # the shipped operator against the truth, over each note's sustain
+        assert truth["nmse"] < 1e-3 and abs(truth["cents"]) < 0.2
+    # without stems a mix says why it cannot be compared
+    code, _, err = run_main(["score", "--score", str(path), "--mix", str(tmp_path / "m2.wav")], capsys, monkeypatch)
+    code, _, err = run_main(["compare", str(tmp_path / "m2.wav")], capsys, monkeypatch)
+    assert code == 2 and "--stems" in err and len(err.strip().splitlines()) == 1
