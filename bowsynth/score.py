@@ -45,8 +45,24 @@ from .render import Render
 from .scene import Scene, load_preset
 
 RELEASE = 0.05  # s: default bow-stop time
-TAIL = 0.03  # s after the bow stops: the friction has damped the mass by then (about 7 time constants at F_B 16)
+TAIL = 0.03  # s: the shortest render after the bow stops
+TAIL_TIME_CONSTANTS = 7.0  # e^-7: -60 dB
+MAX_TAIL = 2.0
 MAX_RELEASE = 10.0
+
+
+def stop_tail(fb: float, f0: float, a: float) -> float:
+    """Seconds to render after the bow has stopped (v_B = 0) for the mass to come to rest (-60 dB).
+
+    On a stopped bow the friction is a damper of rate c = F_B phi'(0): the mass rings down at c / 2 when c < 2w;
+    above that it creeps back to rest at the slow root (c - sqrt(c^2 - 4 w^2)) / 2 (a pressed bow holds the mass
+    aside: measured at F_B / w 0.64, C2, 19 % of the peak was left 30 ms after the stop)."""
+    c = fb * physics.dphi(0.0, a)
+    if c <= 0:
+        return MAX_TAIL
+    w = physics.omega(f0)
+    rate = 0.5 * (c - math.sqrt(max(c * c - 4 * w * w, 0.0)))
+    return float(min(MAX_TAIL, max(TAIL, TAIL_TIME_CONSTANTS / rate)))
 
 TOP_KEYS = {"defaults": "table of note defaults", "voice": "array of voice tables", "a4": "tuning, Hz",
             "title": "text"}
@@ -219,7 +235,8 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
         if beta is not None:
             fb = _scale(beta, physics.omega(f0))
         if release > 0:
-            vb_full, duration = _with_release(vb, hold, release), hold + release + TAIL
+            fb_end = float(Scene(f0=f0, fb=fb, a=a).fb_at(hold + release))
+            vb_full, duration = _with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0, a)
         else:
             vb_full, duration = vb, hold
         scene = Scene(f0=f0, fb=fb, vb=vb_full, a=a, duration=duration, sample_rate=rate, **rest)

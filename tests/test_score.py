@@ -204,3 +204,19 @@ def test_example_scores_load(tmp_path):
     ex = Path(__file__).resolve().parents[1] / "examples"
     for f in sorted(ex.glob("*.toml")) + sorted(ex.glob("*.mid")):
         assert load_score(f), f
+
+
+@pytest.mark.parametrize("fields", [{"pitch": "C2", "beta": 0.637}, {"pitch": "C2", "fb": 1000.0},
+                                    {"pitch": "A2", "fb": 1000.0}, {"pitch": "C2", "beta": 0.04},
+                                    {"pitch": "A4", "beta": 0.159}, {"pitch": "C2", "beta": 2.5}])
+def test_bow_stop_brings_the_mass_to_rest_before_the_render_ends(fields):
+    """A pressed bow holds the mass aside after it stops; the tail runs until it has crept back (-60 dB)."""
+    from bowsynth.fdm import render_fdm
+    from bowsynth.score import note_from_fields
+
+    n = note_from_fields("v", {"duration": 0.4, **fields}, "test")
+    u = render_fdm(n.scene).u
+    assert np.max(np.abs(u[-441:])) < 1e-3 * np.max(np.abs(u))
+    # and not much longer than needed: 30 ms before the end it was still above -80 dB of the peak (a heavy bow)
+    if fields.get("fb", 0) >= 1000 or fields.get("beta", 0) > 0.5:
+        assert np.max(np.abs(u[-int(0.04 * 44100):-int(0.03 * 44100)])) > 1e-4 * np.max(np.abs(u))
