@@ -46,7 +46,7 @@ from .scene import Scene, load_preset
 
 RELEASE = 0.05  # s: default bow-stop time
 TAIL = 0.03  # s: the shortest render after the bow stops
-TAIL_TIME_CONSTANTS = 7.0  # e^-7: -60 dB
+TAIL_TIME_CONSTANTS = 10.0  # e^-10 by the linear rate; the saturated friction of the first ms is slower
 MAX_TAIL = 2.0
 MAX_RELEASE = 10.0
 

@@ -217,6 +217,8 @@ def test_bow_stop_brings_the_mass_to_rest_before_the_render_ends(fields):
     n = note_from_fields("v", {"duration": 0.4, **fields}, "test")
     u = render_fdm(n.scene).u
     assert np.max(np.abs(u[-441:])) < 1e-3 * np.max(np.abs(u))
-    # and not much longer than needed: 30 ms before the end it was still above -80 dB of the peak (a heavy bow)
-    if fields.get("fb", 0) >= 1000 or fields.get("beta", 0) > 0.5:
-        assert np.max(np.abs(u[-int(0.04 * 44100):-int(0.03 * 44100)])) > 1e-4 * np.max(np.abs(u))
+    # a heavy bow holds the mass aside: a fixed 30 ms after the stop would have cut the note off well above that
+    stop = int(round((n.hold + n.release) * 44100))
+    if fields["pitch"] == "C2" and (fields.get("fb", 0) >= 1000 or fields.get("beta", 0) > 0.5):
+        assert np.max(np.abs(u[stop + 1300:stop + 1400])) > 1e-2 * np.max(np.abs(u))
+    assert n.scene.duration - n.hold - n.release < 0.3
