@@ -318,7 +318,7 @@ def score(
     """
     import time
 
-    from .score import load_score, render_notes, voices_from_presets, write_voices
+    from .score import check_stems_fit, load_score, render_notes, voices_from_presets, write_voices
     from .wav import check_output_path
 
     if (score_file is None) == (presets_list is None):
@@ -343,6 +343,8 @@ def score(
             raise UsageError(f"{d} is a file; stems go into a directory")
         if not d.exists() and not d.parent.is_dir():
             raise UsageError(f"output directory {d.parent} does not exist")
+    if stems is not None or not mix:
+        check_stems_fit(notes)
     t0 = time.perf_counter()
     renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file)
     secs = time.perf_counter() - t0

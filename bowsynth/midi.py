@@ -29,6 +29,7 @@ from .errors import UsageError
 CC_PRESSURE, CC_EXPRESSION = 2, 11
 NEUTRAL = {CC_PRESSURE: 64, CC_EXPRESSION: 127}
 CC_RAMP = 0.005  # s: a controller step becomes a ramp this long
+MAX_POINTS = 16  # breakpoints a controller curve keeps per note (the WAV metadata holds the scene: ~2000 characters)
 BETA_AT_64 = 1.0 / (2.0 * math.pi)  # paper-fb100's F_B / w
 VB_AT_64 = 0.2
 
@@ -167,7 +168,18 @@ def controller_curve(piece: MidiPiece, channel: int, cc: int, start: float, end:
             out.append((t, v))
         else:
             out[-1] = (out[-1][0], v)
-    return out
+    return thin(out, MAX_POINTS)
+
+
+def thin(points: list, max_points: int) -> list:
+    """At most max_points breakpoints: repeatedly drop the inner point whose removal changes the curve least (a
+    dense controller stream keeps its shape: the points where it turns). Times rounded to 0.1 ms."""
+    pts = [(round(t, 4), float(v)) for t, v in points]
+    while len(pts) > max_points:
+        cost = [abs(pts[i][1] - (pts[i - 1][1] + (pts[i + 1][1] - pts[i - 1][1]) * (pts[i][0] - pts[i - 1][0])
+                                 / (pts[i + 1][0] - pts[i - 1][0]))) for i in range(1, len(pts) - 1)]
+        del pts[1 + cost.index(min(cost))]
+    return pts
 
 
 def channel_name(channel: int) -> str:

@@ -331,7 +331,7 @@ def _midi_control(piece, n, cc, base: float, factor):
     from .midi import controller_curve
 
     pts = controller_curve(piece, n.channel, cc, n.start, n.end)
-    return as_control([(t, base * factor(v)) for t, v in pts])
+    return as_control([(t, float(f"{base * factor(v):.7g}")) for t, v in pts])
 
 
 def load_score(path, a4: float | None = None) -> list[Note]:
@@ -488,6 +488,19 @@ def stem_names(notes: list[Note]) -> list[str]:
             seen[base] = seen.get(base, 0) + 1
             names[i] = f"{base}.wav" if seen[base] == 1 else f"{base}-{seen[base]}.wav"
     return names
+
+
+STEM_META_CHARS = 1500  # a stem's scene must fit the WAV comment (about 2000 characters) beside the other fields
+
+
+def check_stems_fit(notes: list[Note]) -> None:
+    """Before rendering: every note's scene fits a stem's metadata (else a one-line ScoreError)."""
+    for n in notes:
+        size = len(json.dumps(n.scene.to_dict(), separators=(",", ":")))
+        if size > STEM_META_CHARS:
+            raise ScoreError(f"{n.describe()}: its bow curves are too long to store in a stem's metadata ({size} "
+                             f"characters, at most {STEM_META_CHARS}); use fewer breakpoints, or write only the mix "
+                             f"(--mix without --stems)")
 
 
 def write_stems(notes, renders, out: Path, signal: str = "u") -> list[Path]:

@@ -222,3 +222,27 @@ def test_compare_on_a_mix_goes_note_by_note(tmp_path, capsys, monkeypatch):
     code, _, err = run_main(["score", "--score", str(path), "--mix", str(tmp_path / "m2.wav")], capsys, monkeypatch)
     code, _, err = run_main(["compare", str(tmp_path / "m2.wav")], capsys, monkeypatch)
     assert code == 2 and "--stems" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_dense_controller_stream_is_thinned_and_keeps_its_turns(tmp_path, capsys, monkeypatch):
+    mid = mido.MidiFile(type=0, ticks_per_beat=TPB)
+    tr = mido.MidiTrack([mido.Message("note_on", note=57, velocity=64, time=0)])
+    values = [90 + int(30 * abs((i % 40) - 20) / 20) for i in range(200)]  # a triangle LFO every 10 ticks
+    tr += [mido.Message("control_change", control=11, value=v, time=10) for v in values]
+    tr.append(mido.Message("note_off", note=57, time=0))
+    mid.tracks.append(tr)
+    mid.save(tmp_path / "cc.mid")
+    (n,) = load_score(tmp_path / "cc.mid")
+    vb = n.scene.vb
+    assert len(vb.points) <= 16 + 2  # the thinned curve plus the bow stop
+    step = velocity_vb(64) / 127  # one CC11 step
+    assert abs(min(vb.values[:-1]) - 90 * step) <= 2 * step  # the troughs survive within two controller steps
+    assert abs(max(vb.values[2:-2]) - 120 * step) <= 2 * step  # and the peaks
+    t = np.linspace(0.05, 1.95, 400)  # and between them the thinned curve stays near the stream
+    stream = np.interp(t, 0.5 / TPB * 10 * np.arange(1, 201), np.array(values) * step)
+    assert np.max(np.abs(vb.at(t) - stream)) <= 4 * step
+    out, stems = tmp_path / "m.wav", tmp_path / "st"
+    code, _, err = run_main(["score", "--score", str(tmp_path / "cc.mid"), "--mix", str(out), "--stems", str(stems),
+                             "--method", "fdm"], capsys, monkeypatch)
+    assert code == 0, err
+    assert read_wav(stems / "ch1.wav").scene.vb == vb

@@ -187,6 +187,8 @@ def test_score_renders_notes_in_tune_at_their_starts(tmp_path, capsys, monkeypat
     ('[[voice]]\nstart = 1.0\n[[voice.note]]\nf0 = 100.0\n', "start belongs to each"),
     ('a4 = 20.0\n[[voice]]\nf0 = 100.0\n', "a4 must be in"),
     ('[defaults]\nduration = 1.0\n', "no [[voice]]"),
+    ('[[voice]]\n[[voice.note]]\nfb = [' + ", ".join(f"[{i / 100}, {100 + i}]" for i in range(200)) + ']\n',
+     "too long to store in a stem"),
 ])
 def test_bad_scores_are_one_line_exit_2_nothing_written(tmp_path, capsys, monkeypatch, text, match):
     p = tmp_path / "bad.toml"
