@@ -309,9 +309,10 @@ def score(
 ):
     """Play a score: notes in time from a TOML score or a MIDI file (or one voice per preset), in one batched rollout.
 
-    A TOML score has [defaults] and [[voice]] tables; a voice holds [[voice.note]] tables with start, duration
-    (s), pitch ("A4", "C#3", Hz) or f0, fb (m/s^2) or beta (F_B / w), vb, a, release, preset. fb, beta and vb take
-    numbers or curves [[t, value], ...] (t in s from the note's start). A voice without notes is one note from 0.
+    A TOML score has \\[defaults] and \\[\\[voice]] tables; a voice holds \\[\\[voice.note]] tables with start,
+    duration (s), pitch ("A4", "C#3", Hz) or f0, fb (m/s^2) or beta (F_B / w), vb, a, release, preset. fb, beta and
+    vb take numbers or curves \\[\\[t, value], ...] (t in s from the note's start). A voice without notes is one
+    note from 0.
     Each note is tuned to sound at its pitch (at the bow's held values), ends with a bow stop (v_B -> 0 over
     `release` s, default 0.05), and overlaps freely. MIDI: channels are voices; velocity sets F_B / w and v_B,
     CC2 bow pressure, CC11 expression. Notes no model covers are listed before anything renders. See docs/score.md.

@@ -93,7 +93,7 @@ def read_midi(path) -> MidiPiece:
     try:
         mid = mido.MidiFile(str(p))
     except (OSError, EOFError, ValueError, KeyError, IndexError, TypeError) as e:
-        raise UsageError(f"{p} is not a standard MIDI file ({e or type(e).__name__})") from None
+        raise UsageError(f"{p} is not a standard MIDI file ({_why(e)})") from None
     if mid.type == 2:
         raise UsageError(f"{p} is a type 2 MIDI file (independent sequences); only types 0 and 1 are read")
     if not any(len(t) for t in mid.tracks):
@@ -105,7 +105,7 @@ def read_midi(path) -> MidiPiece:
     try:
         events = list(mid)  # merged tracks, times in seconds through every tempo change
     except (ValueError, KeyError, IndexError, TypeError, EOFError) as e:
-        raise UsageError(f"{p} is not a readable MIDI file ({e or type(e).__name__})") from None
+        raise UsageError(f"{p} is not a readable MIDI file ({_why(e)})") from None
 
     def close(key, at):
         nonlocal zero
@@ -144,6 +144,12 @@ def read_midi(path) -> MidiPiece:
     if zero:
         piece.remarks.append(f"{zero} note(s) of zero length dropped")
     return piece
+
+
+def _why(e: Exception) -> str:
+    if isinstance(e, EOFError):
+        return "it ends early: truncated"
+    return str(e) or type(e).__name__
 
 
 def controller_curve(piece: MidiPiece, channel: int, cc: int, start: float, end: float) -> list[tuple[float, float]]:

@@ -154,7 +154,7 @@ def test_midi_mix_notes_start_on_time_and_sound_in_tune(tmp_path, capsys, monkey
 @pytest.mark.parametrize("make,match", [
     (lambda p: p.write_text("not a midi file"), "not a standard MIDI file"),
     (lambda p: p.write_bytes(b"MThd\x00\x00\x00\x06\x00\x01\x00\x02\x01\xe0MTrk\x00\x00\x00\x40\x00\x90"),
-     "not a standard MIDI file"),  # truncated
+     "truncated"),
     (lambda p: p.write_bytes(b""), "not a standard MIDI file"),
     (lambda p: mido.MidiFile(type=1).save(p), "empty MIDI file"),
     (lambda p: _only_tempo(p), "has no notes"),
