@@ -82,7 +82,8 @@ def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch,
     code, out, err = run_main([*args, "--fallback", "fdm", str(tmp_path / "v")], capsys, monkeypatch)
     assert code == 0, err
     assert out.count("finished with the FDM") == 2
-    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["paper-fb100-2.wav", "paper-fb100.wav"]
+    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["notes.json", "paper-fb100-2.wav",
+                                                                   "paper-fb100.wav"]
     assert np.all(np.isfinite(read_wav(tmp_path / "v" / "paper-fb100-2.wav").samples))
 
 
