@@ -179,9 +179,10 @@ def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_
     return meta
 
 
-def mix_meta(names: list[str], gain: float, dc: str) -> dict:
-    """A mix's metadata: the voice count and as many names as fit in a WAV comment (a 1000-voice mix still fits)."""
-    meta = {"bowsynth_mix": 1, "voices": len(names), "gain": gain, "dc": DC_TAG if dc == "remove" else "kept"}
+def mix_meta(names: list[str], gain: float, dc: str, **fields) -> dict:
+    """A mix's metadata: the voice count, `fields` (bowsynth.score: notes, signal, stems) and as many voice names as
+    fit in a WAV comment (a 1000-voice mix still fits)."""
+    meta = {"bowsynth_mix": 1, "voices": len(names), **fields, "gain": gain, "dc": DC_TAG if dc == "remove" else "kept"}
     kept, size = [], len(json.dumps(meta)) + 40
     for n in names:
         size += len(json.dumps(n)) + 2
@@ -194,19 +195,18 @@ def mix_meta(names: list[str], gain: float, dc: str) -> dict:
     return meta
 
 
-def write_mix(path, signals: list[np.ndarray], names: list[str], sample_rate: int, dc: str = "remove",
-              gain_db: float | None = None, force: bool = True) -> dict:
-    """Sum the voices, each at equal loudness (peak 1), then peak-normalise the sum to PEAK (never clips), or apply
-    the fixed gain `gain_db` (refused if it would clip)."""
+def write_mix(path, x: np.ndarray, names: list[str], sample_rate: int, dc: str = "remove",
+              gain_db: float | None = None, force: bool = True, **fields) -> dict:
+    """Write a mix, `x` being the notes already summed at their starts (bowsynth.score.mix_notes): the DC removed
+    once, from the sum, then peak-normalised to PEAK (never clips) or the fixed gain `gain_db` (refused if it would
+    clip)."""
     check_dc(dc)
-    n = max(len(s) for s in signals)
-    x = np.zeros(n)
-    for s in signals:
-        x[:len(s)] += s / (np.max(np.abs(s)) or 1.0)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("refusing to write non-finite samples")
     if dc == "remove":
         x = remove_dc(x, sample_rate)
     gain = gain_for(x, gain_db)
-    meta = mix_meta(names, gain, dc)
+    meta = mix_meta(names, gain, dc, **fields)
     write_float_wav(path, x * gain, sample_rate, meta, force=force)
     return meta
 
