@@ -237,3 +237,31 @@ def test_bow_stop_brings_the_mass_to_rest_before_the_render_ends(fields):
     if fields["pitch"] == "C2" and (fields.get("fb", 0) >= 1000 or fields.get("beta", 0) > 0.5):
         assert np.max(np.abs(u[stop + 1300:stop + 1400])) > 1e-2 * np.max(np.abs(u))
     assert n.scene.duration - n.hold - n.release < 0.5
+
+
+def test_score_outputs_follow_the_output_rules(tmp_path, capsys, monkeypatch):
+    """Stems, notes.json and the mix go through the same output machinery as `render`: a read-only stem is refused
+    without --force before anything renders; with it, a FLAC mix beside WAV stems, --dc keep and a fixed --gain
+    are recorded in every file."""
+    p = tmp_path / "s.toml"
+    p.write_text('[[voice]]\nname = "v"\n[[voice.note]]\nduration = 0.05\npitch = "A3"\n')
+    stems, mix = tmp_path / "st", tmp_path / "m.flac"
+    stems.mkdir()
+    ro = stems / "v.wav"
+    ro.write_bytes(b"precious")
+    ro.chmod(0o444)
+    args = ["score", "--score", str(p), "--method", "fdm", "--mix", str(mix), "--stems", str(stems)]
+    code, _, err = run_main(args, capsys, monkeypatch)
+    assert code == 2 and "read-only" in err and "--force" in err and len(err.strip().splitlines()) == 1, err
+    assert ro.read_bytes() == b"precious" and not mix.exists() and not (stems / "notes.json").exists()
+    code, _, err = run_main([*args, "--force", "--dc", "keep", "--gain", "-20"], capsys, monkeypatch)
+    assert code == 0, err
+    stem = read_wav(ro)
+    assert stem.meta["dc"] == "kept" and math.isclose(stem.gain, 0.1)
+    assert json.loads((stems / "notes.json").read_text())["dc"] == "kept"
+    assert sf.info(str(mix)).format == "FLAC"
+    meta = json.loads(sf.SoundFile(str(mix)).comment)
+    assert meta["dc"] == "kept" and math.isclose(meta["gain"], 0.1) and meta["stems"] == "st" and meta["notes"] == 1
+    code, _, err = run_main(["score", "--score", str(p), "--method", "fdm", "--mix", "-", "--stems", "-"], capsys,
+                            monkeypatch)
+    assert code == 2 and "not standard output" in err, err
