@@ -125,16 +125,12 @@ def fake_train(monkeypatch):
     class Stop(BowsynthError):
         exit_code = 1
 
-    def train(scene, minutes=None, steps=None, **kw):
-        from bowsynth.train import TrainConfig
-
-        if minutes is None and steps is None:
-            minutes = 5.0
-        TrainConfig(minutes=minutes, steps=steps)
-        assert minutes is None or (math.isfinite(minutes) and 0 < minutes <= 7 * 24 * 60)
-        assert steps is None or 1 <= steps <= 10**9
-        assert kw["width"] >= 1 and kw["depth"] >= 1 and 0 <= kw["seed"] < 2**32
-        assert kw["window_ms"] is None or math.isfinite(kw["window_ms"]) and kw["window_ms"] > 0
+    def train(scene, config=None, **kw):
+        config.validate()  # what the real api.train does first
+        assert config.minutes is None or (math.isfinite(config.minutes) and 0 < config.minutes <= 24 * 60)
+        assert config.steps is None or 1 <= config.steps <= 10**7
+        assert config.net.width >= 1 and config.net.depth >= 1 and 0 <= config.seed < 2**32
+        assert config.window is None or math.isfinite(config.window) and config.window > 0
         seen["called"] = True
         raise Stop("stopped by the test")
 
