@@ -81,6 +81,12 @@ def test_cli_fallback_writes_the_continuation(tmp_path, tiny_model):
     assert "finished with the FDM" in r.stdout
     sc = Scene(fb=100, duration=0.1)
     expect = render_operator(sc, model=load_model(small), fallback="fdm")
-    got = read_wav(wav).physical
-    # the WAV stores the signal scaled to its peak in float32 (wav.py); compare at that precision
-    np.testing.assert_allclose(got, expect.p, rtol=0, atol=1e-6 * np.abs(expect.p).max())
+    info = read_wav(wav)
+    got = info.physical
+    # the file holds the signal with its DC removed (the default --dc remove), scaled to its peak in float32
+    # (wav.py); compare with the same filter at that precision
+    from bowsynth.wav import remove_dc
+
+    assert info.dc_removed
+    want = remove_dc(expect.p, sc.sample_rate)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
