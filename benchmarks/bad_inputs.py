@@ -77,6 +77,18 @@ CASES = [
     ("a network 10^9 wide", "train --fb 100 --width 1000000000"),
     ("compare reference past two minutes of FDM", "compare long.wav --reference high"),
     ("1000-voice mix", "score --score big.toml --method fdm --mix -q mix.wav"),
+    # issue 11: scores, MIDI and pitch names
+    ("MIDI input that is not a MIDI file", "score --score notmidi.mid --method fdm --mix m.wav"),
+    ("empty MIDI file", "score --score empty.mid --method fdm --mix m.wav"),
+    ("MIDI file with no notes", "score --score notempo.mid --method fdm --mix m.wav"),
+    ("notes outside every model's range", "score --score uncovered.toml --mix m.wav"),
+    ("unknown score key", "score --score unknownkey.toml --method fdm --mix m.wav"),
+    ("pitch and f0 both given", "score --score pitchf0.toml --method fdm --mix m.wav"),
+    ("voice defined twice", "score --score twice.toml --method fdm --mix m.wav"),
+    ("curve times not increasing", "score --score unsorted.toml --method fdm --mix m.wav"),
+    ("note start < 0", "score --score negstart.toml --method fdm --mix m.wav"),
+    ("pitch name H4 (German B)", "render --method fdm --pitch H4 x.wav"),
+    ("pitch name A10 (above B8)", "render --method fdm --pitch A10 x.wav"),
 ]
 
 # (what, command, signal, seconds after start-up): the signal lands in the phase named
@@ -196,8 +208,26 @@ def _round2_files(d: Path, exe) -> None:
         subprocess.run(exe + ["render", "--method", "fdm", *args], cwd=d, check=True, capture_output=True)
     flac = (d / "ok.flac").read_bytes()
     (d / "half.flac").write_bytes(flac[:len(flac) // 2])
+    _score_files(d)
     (d / "big.toml").write_text("[defaults]\nduration = 0.01\n" + "".join(
         f'[[voice]]\nname = "voice-number-{i}"\nfb = {50 + i % 50}\n' for i in range(1000)))
+
+
+def _score_files(d: Path) -> None:
+    import mido
+
+    (d / "notmidi.mid").write_text("not a midi file")
+    mido.MidiFile(type=1).save(d / "empty.mid")
+    mid = mido.MidiFile(type=0)
+    mid.tracks.append(mido.MidiTrack([mido.MetaMessage("set_tempo", tempo=400_000, time=0)]))
+    mid.save(d / "notempo.mid")
+    note = '[[voice]]\nname = "v"\n[[voice.note]]\nduration = 0.1\n'
+    (d / "uncovered.toml").write_text(note + 'pitch = "A4"\nbeta = 2.0\n')
+    (d / "unknownkey.toml").write_text(note + 'pitch = "A4"\nvelocity = 3\n')
+    (d / "pitchf0.toml").write_text(note + 'pitch = "A4"\nf0 = 440.0\n')
+    (d / "twice.toml").write_text('[[voice]]\nname = "a"\n[[voice]]\nname = "a"\n')
+    (d / "unsorted.toml").write_text(note + "fb = [[0.5, 100.0], [0.2, 50.0]]\n")
+    (d / "negstart.toml").write_text(note + "start = -0.5\n")
 
 
 if __name__ == "__main__":

@@ -33,20 +33,30 @@ DurOpt = typer.Option(None, "--duration", "-d", help="Duration, s (default 1.0).
 RateOpt = typer.Option(None, "--sample-rate", "--sr", help="Sample rate, Hz (default 44100).")
 Q0Opt = typer.Option(None, "--q0", help="Initial q = w u(0), m/s (default 0).")
 P0Opt = typer.Option(None, "--p0", help="Initial velocity u_t(0), m/s (default 0).")
+PitchOpt = typer.Option(None, "--pitch", help="The pitch you hear, Hz or a note name (A4, C#3, Bb2; C0..B8): solves "
+                                              "for the f0 that sounds there with this bow (instead of --f0).")
+A4Opt = typer.Option(None, "--a4", help="Tuning of --pitch note names: A4 in Hz (default 440).")
 
 
-def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0):
+def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=None):
     from .controls import parse_control
     from .scene import make_scene
 
     fb = None if fb is None else parse_control(fb, "fb")
     vb = None if vb is None else parse_control(vb, "vb")
-    return make_scene(preset, f0=f0, fb=fb, vb=vb, a=a, duration=duration, sample_rate=sample_rate, q0=q0, p0=p0)
+    return make_scene(preset, f0=f0, fb=fb, vb=vb, a=a, duration=duration, sample_rate=sample_rate, q0=q0, p0=p0,
+                      pitch=pitch, a4=a4)
 
 
-def _say(quiet: bool, msg: str) -> None:
+def _pitch_hz(pitch, a4) -> float:
+    from .pitch import A4_HZ, parse_pitch
+
+    return parse_pitch(pitch, A4_HZ if a4 is None else a4)
+
+
+def _say(quiet: bool, msg: str, console: Console | None = None) -> None:
     if not quiet:
-        out.print(msg, soft_wrap=True)
+        (console or out).print(msg, soft_wrap=True)
 
 
 @app.callback()
@@ -56,12 +66,31 @@ def _main(debug: bool = typer.Option(False, "--debug", help="Show full traceback
 
 @app.command()
 def presets():
-    """List the preset scenes."""
-    from .scene import list_presets, load_preset, preset_description
+    """List the preset scenes, the pitch each sounds at, and the model that plays it (or how to get one)."""
+    from .errors import DomainError
+    from .pitch import note_name, sounding_pitch
+    from .rollout import available_models, find_model
+    from .scene import list_presets, load_preset, make_scene, preset_description
+    from rich.markup import escape
 
+    models = available_models()
     for name in list_presets():
-        fields = " ".join(f"{k}={v:g}" for k, v in load_preset(name).items())
-        out.print(f"[bold]{name}[/bold]  {fields}\n    {preset_description(name)}")
+        fields = " ".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}"
+                          for k, v in load_preset(name).items())
+        sc = make_scene(name)
+        if sc.varying:
+            heard, who = "its pitch when the bow holds its median values", (
+                f"none: FDM only (a bow gesture; no model follows one yet): `bowsynth render --preset {name} "
+                f"--method fdm`")
+        else:
+            hz = sounding_pitch(sc.f0, sc.fb, sc.vb, sc.a)
+            heard = f"{hz:.2f} Hz ({note_name(hz)})"
+            try:
+                who = find_model(sc, models).path.name
+            except DomainError:
+                who = f"none: FDM only, train with `bowsynth train --preset {name}`"
+        out.print(f"[bold]{name}[/bold]  {escape(fields)}\n    {escape(preset_description(name))}\n    f0 {sc.f0:.4g} Hz "
+                  f"sounds at {heard}; model: {escape(who)}", soft_wrap=True)
 
 
 ForceOpt = typer.Option(False, "--force", help="Replace a read-only output file; run work estimated past "
@@ -69,8 +98,8 @@ ForceOpt = typer.Option(False, "--force", help="Replace a read-only output file;
 DcOpt = typer.Option("remove", "--dc", help="remove (default): high-pass the written signal at 5 Hz (the bow's static "
                                             "offset is not sound); keep: write it as rendered.")
 GainOpt = typer.Option(None, "--gain", help="Fixed gain in dB instead of peak normalisation: samples = signal (m or "
-                                            "m/s; a mix: the sum of voices at peak 1) x 10^(DB/20); refused if it "
-                                            "would clip.")
+                                            "m/s; a mix: the sum of the notes' q = w u, or of p) x 10^(DB/20); "
+                                            "refused if it would clip.")
 
 
 def _speaker(output) -> Console:
@@ -86,6 +115,7 @@ def render(
     preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
     vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, duration: Optional[float] = DurOpt,
     sample_rate: Optional[int] = RateOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
+    pitch: Optional[str] = PitchOpt, a4: Optional[float] = A4Opt,
     oversample: int = typer.Option(1, "--oversample", help="FDM only: render at this multiple of the sample rate."),
     model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the model covering the scene)."),
     signal: str = typer.Option("u", "--signal", help="Signal to write: u (displacement, as the paper) or p (velocity)."),
@@ -106,9 +136,15 @@ def render(
         raise UsageError(f"--oversample must be >= 1, got {oversample}")
     check_dc(dc)
     check_gain_db(gain)
-    scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0)
+    scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4)
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
+    if pitch is not None:
+        from .pitch import note_name
+
+        hz = _pitch_hz(pitch, a4)
+        held = "" if not scene.varying else " (tuned at the values the bow holds)"
+        _say(quiet, f"pitch {hz:.2f} Hz ({note_name(hz, a4 or 440.0)}): f0 {scene.f0:.4f} Hz{held}", _speaker(output))
     r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force)
     write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
     model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""
@@ -199,7 +235,7 @@ def models():
 def compare(
     wav: Path = typer.Argument(..., help="A WAV written by `bowsynth render` (or any mono WAV, with scene flags)."),
     other: Optional[Path] = typer.Argument(None, help="A second WAV: compare the two directly instead of with the FDM."),
-    reference: str = typer.Option("audio", "--reference", help="audio: the FDM at the file's rate; high: also a x100 FDM as ground truth."),
+    reference: str = typer.Option("high", "--reference", help="high (default): a x100 FDM, the truth, with the audio-rate FDM beside; audio: the audio-rate FDM only (fast)."),
     json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Write waveform, error and spectrogram plots to this PNG."),
     preset: Optional[str] = PresetOpt, f0: Optional[float] = F0Opt, fb: Optional[str] = FbOpt,
@@ -221,6 +257,17 @@ def compare(
             raise UsageError(f"--plot writes a PNG; give a .png file name, got {plot}")
     scene = None
     info = read_wav(wav)
+    from .compare import compare_mix, format_mix_table, mix_meta
+
+    if info.meta is None and other is None and mix_meta(wav) is not None:
+        if plot is not None:
+            raise UsageError("--plot draws one note; give a stem of the mix (its stems directory has one per note)")
+        rows = compare_mix(wav, reference=reference, force=force)
+        if json_out:
+            out.print_json(json.dumps([{"note": n, **c.to_json()} for n, c in rows]))
+        else:
+            out.print(format_mix_table(rows))
+        return
     if info.meta is None and other is None:
         if all(v is None for v in (preset, f0, fb, vb, a)):
             raise UsageError(f"{wav} has no bowsynth metadata; give the scene with --fb/--vb/--f0/... flags")
@@ -279,69 +326,89 @@ def bench(
 
 @app.command()
 def score(
-    output: Path = typer.Argument(..., help="A directory (one WAV per voice) or, with --mix, an audio file (.wav, "
-                                            ".flac, .ogg, or - for WAV on standard output)."),
-    score_file: Optional[Path] = typer.Option(None, "--score", help="TOML score with [[voice]] tables (see README)."),
+    output: Path = typer.Argument(..., help="A directory (one WAV per note, and notes.json) or, with --mix, an "
+                                            "audio file (.wav, .flac, .ogg, or - for WAV on standard output)."),
+    score_file: Optional[Path] = typer.Option(None, "--score", help="A TOML score (docs/score.md) or a MIDI file (.mid)."),
     presets_list: Optional[str] = typer.Option(None, "--presets", help="Comma-separated preset names, one voice each."),
     duration: Optional[float] = DurOpt,
     method: str = typer.Option("operator", "--method", "-m", help="operator (one batched rollout) or fdm (one by one)."),
-    model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the one covering each voice)."),
-    mix: bool = typer.Option(False, "--mix", help="Write one mixed WAV instead of one file per voice."),
-    fallback: str = typer.Option("none", "--fallback", help="A voice that leaves its model's domain: none (stop) or "
-                                                            "fdm (finish that voice with the FDM)."),
+    model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the one covering each note)."),
+    mix: bool = typer.Option(False, "--mix", help="Write one mixed file (each note at its start) instead of one file per note."),
+    stems: Optional[Path] = typer.Option(None, "--stems", help="With --mix: also write one WAV per note into this "
+                                                                "directory (what `compare` on the mix reads)."),
+    a4: Optional[float] = typer.Option(None, "--a4", help="MIDI files: the tuning of A4 in Hz (default 440)."),
+    fallback: str = typer.Option("none", "--fallback", help="A note no model covers, or that leaves its model's domain: "
+                                                            "none (stop before rendering) or fdm (render it with the FDM)."),
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
-    """Render many voices at once (a chord, a sweep) from a TOML score or a list of presets."""
+    """Play a score: notes in time from a TOML score or a MIDI file (or one voice per preset), in one batched rollout.
+
+    A TOML score has \\[defaults] and \\[\\[voice]] tables; a voice holds \\[\\[voice.note]] tables with start,
+    duration (s), pitch ("A4", "C#3", Hz) or f0, fb (m/s^2) or beta (F_B / w), vb, a, release, preset. fb, beta and
+    vb take numbers or curves \\[\\[t, value], ...] (t in s from the note's start). A voice without notes is one
+    note from 0.
+    Each note is tuned to sound at its pitch (at the bow's held values), ends with a bow stop (v_B -> 0 over
+    `release` s, default 0.05), and overlaps freely. MIDI: channels are voices; velocity sets F_B / w and v_B,
+    CC2 bow pressure, CC11 expression. Notes no model covers are listed before anything renders. See docs/score.md.
+    """
     import time
 
     from .limits import check_request
     from .outfile import check_output_path
-    from .score import load_score, render_voices, voice_paths, voices_from_presets, write_voices
+    from .score import check_outputs_fit, load_score, render_notes, stem_paths, voices_from_presets, write_voices
     from .wav import check_audio_output, check_dc, check_gain_db
 
     if (score_file is None) == (presets_list is None):
-        raise UsageError("give exactly one of --score FILE.toml or --presets a,b,c")
+        raise UsageError("give exactly one of --score FILE.toml|FILE.mid or --presets a,b,c")
     from .engines import Engine, Fallback, _choice
 
     method, fallback = _choice(Engine, method, "--method").value, _choice(Fallback, fallback, "--fallback").value
     check_dc(dc)
     check_gain_db(gain)
+    if stems is not None and not mix:
+        raise UsageError("--stems goes with --mix (without --mix the output directory holds the stems)")
     if score_file is not None:
-        voices = load_score(score_file)
         if duration is not None:
-            voices = [type(v)(v.name, v.scene.replace(duration=duration)) for v in voices]
+            raise UsageError("--duration applies to --presets; a score gives each note its duration")
+        notes = load_score(score_file, a4=a4)
     else:
-        voices = voices_from_presets([n.strip() for n in presets_list.split(",") if n.strip()], duration=duration)
-    if not voices:
+        if a4 is not None:
+            raise UsageError("--a4 retunes MIDI files; presets have their own f0")
+        notes = voices_from_presets([n.strip() for n in presets_list.split(",") if n.strip()], duration=duration)
+    if not notes:
         raise UsageError("no voices to render")
     if mix:
         check_audio_output(output, force=force)
     elif str(output) == "-":
         raise UsageError("standard output (-) takes one file: add --mix")
-    elif output.exists() and not output.is_dir():
-        raise UsageError(f"{output} is a file; without --mix give a directory")
-    elif not output.exists() and not output.parent.is_dir():
-        raise UsageError(f"output directory {output.parent} does not exist")
-    elif output.is_dir():
-        for path in voice_paths(voices, output):
-            check_output_path(path, force=force)
-    check_request([v.scene for v in voices], method, 1, force, extra_voices=int(mix))
+    for d in ([] if mix else [output]) + ([stems] if stems is not None else []):
+        if str(d) == "-":
+            raise UsageError("--stems needs a directory, not standard output (-)")
+        if d.exists() and not d.is_dir():
+            raise UsageError(f"{d} is a file; stems go into a directory" + ("" if mix else " (or add --mix)"))
+        if not d.exists() and not d.parent.is_dir():
+            raise UsageError(f"output directory {d.parent} does not exist")
+        if d.is_dir():
+            for path in stem_paths(notes, d):
+                check_output_path(path, force=force)
+    check_outputs_fit(notes, output if mix else None, stems if mix else output, dc=dc)
+    check_request([n.scene for n in notes], method, 1, force, extra_voices=int(mix))
     t0 = time.perf_counter()
-    renders = render_voices(voices, method=method, model=model, fallback=fallback)
+    renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file)
     secs = time.perf_counter() - t0
     say = _speaker(output)
-    for v, r in zip(voices, renders):
-        for note in r.info.get("notes", []):
-            if not quiet:
-                say.print(f"{v.name}: {note}", soft_wrap=True)
-    paths = write_voices(voices, renders, output, mix=mix, dc=dc, gain_db=gain, force=force)
-    audio = sum(v.scene.duration for v in voices)
+    for n, r in zip(notes, renders):
+        for line in r.info.get("notes", []):
+            _say(quiet, f"{n.describe()}: {line}", say)
+    paths = write_voices(notes, renders, output, mix=mix, stems=stems, dc=dc, gain_db=gain, force=force)
+    audio = sum(n.scene.duration for n in notes)
+    voices = len({n.name for n in notes})
     used = sorted({f"{r.info['model_id']} ({r.info['model_path']})" for r in renders if r.info.get("model_path")})
-    if not quiet:
-        say.print(f"rendered {len(voices)} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
-                  f"({audio / secs:.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
-                  + f"; wrote {', '.join(str(p) for p in paths)}", soft_wrap=True)
+    shown = ", ".join(str(p) for p in paths[:4]) + (f" and {len(paths) - 4} more" if len(paths) > 4 else "")
+    _say(quiet, f"rendered {len(notes)} notes in {voices} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
+                f"({audio / max(secs, 1e-9):.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
+                + f"; wrote {shown}", say)
 
 
 def _raise_on_signal(signum, frame):
@@ -393,7 +460,7 @@ def _run() -> None:
     except BowsynthError as e:
         if debug:
             raise
-        err.print(f"error: {e}", soft_wrap=True)
+        err.print(f"error: {e}", soft_wrap=True, markup=False)  # messages quote TOML tables: [[voice]]
         sys.exit(e.exit_code)
     except Abort:
         _exit_interrupted(130)

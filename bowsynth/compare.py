@@ -54,10 +54,16 @@ def _lossy_notes(*infos) -> list[str]:
             for i in infos if i.lossy]
 
 
-def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "audio", force: bool = False) -> Comparison:
-    """Compare the audio file at `path` with the FDM render of its scene (from its metadata, else `scene`), or with
-    the file `other`. reference='high' adds a high-rate FDM (x100) as ground truth for both. FDM references estimated
-    past a couple of minutes are refused unless force=True."""
+def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "high",
+                pitch_seconds: float | None = None, force: bool = False) -> Comparison:
+    """Compare the audio file at `path` with the FDM render of its scene (from its metadata, curves included, else
+    `scene`), or with the file `other`.
+
+    reference='high' (default): first against a x100 FDM, the truth, then against the audio-rate FDM (what a user
+    would otherwise run) and that FDM against the truth; 'audio': the audio-rate FDM only (fast, but at high pitch
+    and force it is the less accurate of the two). pitch_seconds: measure the pitch on the steady half of the first
+    seconds only (a note's sustain, before its bow stop). Every FDM reference gets the file's DC treatment. FDM
+    references estimated past a couple of minutes are refused unless force=True."""
     from .limits import check_fdm
 
     if reference not in ("audio", "high"):
@@ -82,6 +88,9 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
         return c
     sc = a.scene or scene
     if sc is None:
+        mix = mix_meta(a.path)
+        if mix is not None:
+            raise UsageError(_mix_hint(a.path, mix))
         raise UsageError(f"{a.path} has no bowsynth metadata; give the scene with --fb/--vb/--f0/... flags")
     if a.sample_rate != sc.sample_rate:
         raise UsageError(f"{a.path} is at {a.sample_rate} Hz but its scene says {sc.sample_rate} Hz")
@@ -96,17 +105,107 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
     c = Comparison(sc, sig, notes=_lossy_notes(a))
     if a.dc_removed:
         c.notes.append("the file's DC was removed (5 Hz high-pass); the FDM references were filtered the same way")
-    c.columns["file vs FDM"] = compare_signals(x, fdm, sc.sample_rate)
     c.seconds = {"file": (a.meta or {}).get("render_seconds"), "fdm": fdm_s}
     c.series = {"file": x, "FDM": fdm}
+    k = n if pitch_seconds is None else max(4, min(n, int(round(pitch_seconds * sc.sample_rate))))
+
+    def cmp(u, v):
+        return compare_signals(u, v, sc.sample_rate, pitch_signal_x=u[:k], pitch_signal_ref=v[:k])
+
     if reference == "high":
         hi, hi_s = _fdm_signal(sc, sig, HIGH_OVERSAMPLE, a.dc_removed)
         hi = hi[:n]
-        c.columns[f"file vs FDM x{HIGH_OVERSAMPLE}"] = compare_signals(x, hi, sc.sample_rate)
-        c.columns[f"FDM vs FDM x{HIGH_OVERSAMPLE}"] = compare_signals(fdm, hi, sc.sample_rate)
+        c.columns[f"file vs FDM x{HIGH_OVERSAMPLE} (truth)"] = cmp(x, hi)
+        c.columns["file vs FDM"] = cmp(x, fdm)
+        c.columns[f"FDM vs FDM x{HIGH_OVERSAMPLE}"] = cmp(fdm, hi)
         c.seconds[f"fdm_x{HIGH_OVERSAMPLE}"] = hi_s
         c.series[f"FDM x{HIGH_OVERSAMPLE}"] = hi
+    else:
+        c.columns["file vs FDM"] = cmp(x, fdm)
     return c
+
+
+def mix_meta(path) -> dict | None:
+    """The metadata of a mix written by `bowsynth score --mix` (None for any other file)."""
+    import json
+
+    import soundfile as sf
+
+    try:
+        with sf.SoundFile(str(path)) as f:
+            m = json.loads(f.comment or "null")
+    except (RuntimeError, ValueError, sf.LibsndfileError):
+        return None
+    return m if isinstance(m, dict) and m.get("bowsynth_mix") else None
+
+
+def _mix_hint(path, mix: dict) -> str:
+    return (f"{path} is a mix of {mix.get('notes', 'several')} notes; a note cannot be cut out of the sum where notes "
+            f"overlap, so it is compared through its stems: render it again with `bowsynth score ... --mix {path} "
+            f"--stems DIR` and compare {path} (or each DIR/*.wav)")
+
+
+def mix_stems(path) -> tuple[Path, list[dict]]:
+    """The stems directory of a mix and its notes (from notes.json), or a UsageError saying why there are none."""
+    import json
+
+    p = Path(path)
+    mix = mix_meta(p)
+    if mix is None:
+        raise UsageError(f"{p} is not a bowsynth mix")
+    if not mix.get("stems"):
+        raise UsageError(_mix_hint(p, mix))
+    d = (p.resolve().parent / mix["stems"]).resolve()
+    index = d / "notes.json"
+    if not index.is_file():
+        raise UsageError(f"the stems of {p} are gone (no {index}); render the mix again with --stems")
+    try:
+        notes = json.loads(index.read_text())["notes"]
+        files = [d / str(n["file"]) for n in notes]
+    except (ValueError, KeyError, TypeError):
+        raise UsageError(f"{index} is damaged; render the mix again with --stems") from None
+    missing = [f.name for f in files if not f.is_file()]
+    if missing:
+        raise UsageError(f"stems of {p} missing in {d}: {', '.join(missing[:5])}")
+    return d, notes
+
+
+def compare_mix(path, reference: str = "high", force: bool = False) -> list[tuple[dict, Comparison]]:
+    """Each note of a mix (through the stems written beside it) against the FDM of its own scene, the pitch
+    measured over the note's sustain. Each stem's references get that stem's DC treatment (compare_wav)."""
+    d, notes = mix_stems(path)
+    return [(n, compare_wav(d / n["file"], reference=reference, pitch_seconds=n.get("duration"), force=force))
+            for n in notes]
+
+
+MIX_ROWS = [("nmse", "NMSE", "{:.3g}"), ("cents", "cents", "{:+.3f}")]
+
+
+def format_mix_table(rows: list[tuple[dict, Comparison]]):
+    """One row per note: the file against the truth (x100 FDM) and, beside, against the audio-rate FDM."""
+    from rich.table import Table
+
+    from .pitch import note_name
+
+    labels = list(rows[0][1].columns) if rows else []
+    short = dict(zip(labels[:2], ["x100", "FDM"] if len(labels) > 1 else ["FDM"]))
+    t = Table(title=f"each note against the FDM of its own scene (x100: the FDM at {HIGH_OVERSAMPLE}x the rate, the "
+                    f"truth; FDM: at the file's rate)")
+    t.add_column("note")
+    t.add_column("start s", justify="right")
+    for label in short:
+        for _, name, _ in MIX_ROWS:
+            t.add_column(f"{name} vs {short[label]}", justify="right")
+    for n, c in rows:
+        vals = []
+        for label in short:
+            d = c.columns[label]
+            for key, _, fmt in MIX_ROWS:
+                v = d.get(key)
+                vals.append("n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v))
+        name = f"{n.get('voice', '')} {note_name(n['pitch']) if n.get('pitch') else n['file']}"
+        t.add_row(name, f"{n['start']:.3f}", *vals)
+    return t
 
 
 ROWS = [("nmse", "NMSE", "{:.3g}"), ("ncc_percent", "NCC (%)", "{:.4f}"), ("f0_hz", "f0 (Hz)", "{:.4f}"),
@@ -118,8 +217,7 @@ ROWS = [("nmse", "NMSE", "{:.3g}"), ("ncc_percent", "NCC (%)", "{:.4f}"), ("f0_h
 def format_table(c: Comparison):
     from rich.table import Table
 
-    t = Table(title=f"signal {c.signal}" + (f", scene fb={c.scene.fb:g} f0={c.scene.f0:g} vb={c.scene.vb:g} "
-                                             f"a={c.scene.a:g} {c.scene.duration:g} s" if c.scene else ""))
+    t = Table(title=f"signal {c.signal}" + (f", scene {c.scene.describe()} {c.scene.duration:g} s" if c.scene else ""))
     t.add_column("metric")
     for label in c.columns:
         t.add_column(label, justify="right")

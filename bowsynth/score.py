@@ -1,103 +1,600 @@
-"""Many voices at once: a TOML score (or a list of presets) rendered in one batched operator rollout.
+"""Scores: notes in time, from a TOML score (docs/score.md), a MIDI file (`bowsynth.midi`) or a list of presets,
+rendered in one batched rollout and mixed with each note at its start.
 
-    # score.toml
-    [defaults]          # optional, applied to every voice
-    duration = 2.0
+    # score.toml (docs/score.md has the whole format)
+    a4 = 440.0
+    [defaults]
+    beta = 0.15915494     # F_B / w, so one model plays every pitch (or fb = 100.0, a fixed force)
+    vb = 0.2
+    release = 0.05        # the bow slows to a stop over 50 ms after each note's duration
     [[voice]]
-    name = "root"
-    preset = "paper-fb100"
-    [[voice]]
-    name = "fifth"
-    preset = "paper-fb100"
-    f0 = 150.0
-    fb = 150.0          # same F_B / w, so the same model plays it
+    name = "melody"
+    [[voice.note]]
+    start = 0.0
+    duration = 0.5
+    pitch = "A4"
+    [[voice.note]]
+    start = 0.5
+    duration = 1.0
+    pitch = "C#5"
+    vb = [[0.0, 0.15], [0.8, 0.25]]   # a gesture: times from the note's start
+
+A note is its own bowed mass from rest; a voice is a name for a group of notes (one stem), and its notes may
+overlap. The end of a note is a physical bow stop: v_B falls linearly to 0 over `release` seconds, the friction
+(its slope is positive below v_B = 1/sqrt(2a)) damps the mass, and the render stops TAIL s later. A note's sustain
+is rendered by the chosen engine; its release by the FDM from the sustain's last state (no operator model follows
+a bow gesture yet), so a note ends the same way with either engine.
 """
 
 from __future__ import annotations
 
+import json
+import math
+import os
 import re
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import UsageError
+import numpy as np
+
+from . import physics
+from .controls import Curve, as_control
+from .errors import DomainError, SceneError, UsageError
 from .render import Render
-from .scene import Scene, make_scene
+from .scene import Scene, load_preset
+
+RELEASE = 0.05  # s: default bow-stop time
+TAIL = 0.03  # s: the shortest render after the bow stops
+TAIL_TIME_CONSTANTS = 10.0  # e^-10 by the linear rate; the saturated friction of the first ms is slower
+MAX_TAIL = 2.0
+MAX_RELEASE = 10.0
+
+
+def stop_tail(fb: float, f0: float, a: float) -> float:
+    """Seconds to render after the bow has stopped (v_B = 0) for the mass to come to rest (-60 dB).
+
+    On a stopped bow the friction is a damper of rate c = F_B phi'(0): the mass rings down at c / 2 when c < 2w;
+    above that it creeps back to rest at the slow root (c - sqrt(c^2 - 4 w^2)) / 2 (a pressed bow holds the mass
+    aside: measured at F_B / w 0.64, C2, 19 % of the peak was left 30 ms after the stop)."""
+    c = fb * physics.dphi(0.0, a)
+    if c <= 0:
+        return MAX_TAIL
+    w = physics.omega(f0)
+    rate = 0.5 * (c - math.sqrt(max(c * c - 4 * w * w, 0.0)))
+    return float(min(MAX_TAIL, max(TAIL, TAIL_TIME_CONSTANTS / rate)))
+
+TOP_KEYS = {"defaults": "table of note defaults", "voice": "array of voice tables", "a4": "tuning, Hz",
+            "title": "text"}
+NOTE_KEYS = {"start", "duration", "pitch", "f0", "fb", "beta", "vb", "a", "release", "preset", "sample_rate",
+             "q0", "p0"}
+VOICE_KEYS = NOTE_KEYS | {"name", "note"}
+DEFAULT_KEYS = NOTE_KEYS - {"start"}
+EXCLUSIVE = (("pitch", "f0"), ("fb", "beta"))
+
+
+class ScoreError(UsageError):
+    """A score (TOML or MIDI) that cannot be played as written."""
 
 
 @dataclass
-class Voice:
+class Note:
+    """One note: its own bowed mass from rest, starting `start` s into the piece.
+
+    `scene` is the whole note (its sustain of `hold` s, then the bow stop of `release` s and the tail); `name` is
+    its voice. `pitch` is the asked pitch in Hz (None for a note given by f0)."""
+
     name: str
     scene: Scene
+    start: float = 0.0
+    hold: float | None = None
+    release: float = 0.0
+    pitch: float | None = None
+    label: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.hold is None:
+            self.hold = self.scene.duration
+
+    @property
+    def end(self) -> float:
+        return self.start + self.scene.duration
+
+    @property
+    def gesture(self) -> bool:
+        """Does the bow change during the sustain (before the release)?"""
+        return self.sustain_scene().varying
+
+    def sustain_scene(self, extra_samples: int = 0) -> Scene:
+        """The note without its release: the controls over [0, hold], constant ones as numbers."""
+        sc = self.scene
+        n = int(round(self.hold * sc.sample_rate)) + extra_samples
+        return sc.replace(fb=_clip(sc.fb, self.hold), vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
+
+    def describe(self) -> str:
+        return self.label or self.name
 
 
-def load_score(path) -> list[Voice]:
+# legacy name: a voice of the round-1 format is one note from 0
+Voice = Note
+
+
+def _clip(control, end: float):
+    """A control over [0, end] only (what it does after `end` dropped), as a number if constant there."""
+    if not isinstance(control, Curve):
+        return control
+    t = np.concatenate([[0.0], control.times[(control.times > 0) & (control.times < end)], [end]])
+    pts = [(float(a), float(b)) for a, b in zip(t, control.at(t))]
+    dedup = [pts[0]] + [p for prev, p in zip(pts, pts[1:]) if p[0] > prev[0]]
+    return as_control(dedup)
+
+
+def _with_release(vb, hold: float, release: float):
+    """vb over [0, hold], then a linear fall to 0 over `release` seconds."""
+    held = _clip(vb, hold)
+    at_hold = float(held.at(hold)) if isinstance(held, Curve) else float(held)
+    pts = held.to_list() if isinstance(held, Curve) else [[0.0, at_hold], [hold, at_hold]]
+    if pts[-1][0] < hold:
+        pts.append([hold, at_hold])
+    if pts[0][0] == hold == 0.0:
+        pts = [[0.0, at_hold]]
+    pts.append([hold + release, 0.0])
+    return as_control(pts)
+
+
+def _scale(control, k: float):
+    if isinstance(control, Curve):
+        return Curve(tuple((t, v * k) for t, v in control.points))
+    return float(control) * k
+
+
+def _num(where: str, key: str, v, lo=None, hi=None) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ScoreError(f"{where}: {key} must be a number, got {v!r}")
+    if lo is not None and v < lo:
+        raise ScoreError(f"{where}: {key} must be >= {lo:g}, got {v:g}")
+    if hi is not None and v > hi:
+        raise ScoreError(f"{where}: {key} must be <= {hi:g}, got {v:g}")
+    return float(v)
+
+
+def _control(where: str, key: str, v):
+    if isinstance(v, Curve):
+        return v
+    if isinstance(v, list):
+        try:
+            return as_control(v)
+        except SceneError as e:
+            raise ScoreError(f"{where}: {key} curve: {e}") from None
+    return _num(where, key, v)
+
+
+def _layer(where: str, table: dict, allowed: set[str]) -> dict:
+    """A table's fields with its preset expanded below them; checks keys and exclusive pairs."""
+    unknown = set(table) - allowed
+    if unknown:
+        raise ScoreError(f"{where}: unknown key(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(allowed))})")
+    for a, b in EXCLUSIVE:
+        if a in table and b in table:
+            raise ScoreError(f"{where}: both {a} and {b} given; a note takes one of them")
+    fields = {}
+    if "preset" in table:
+        try:
+            fields.update(load_preset(str(table["preset"])))
+        except UsageError as e:
+            raise ScoreError(f"{where}: {e}") from None
+    for a, b in EXCLUSIVE:  # an explicit key replaces its partner from the preset
+        if a in table:
+            fields.pop(b, None)
+        if b in table:
+            fields.pop(a, None)
+    fields.update({k: v for k, v in table.items() if k not in ("preset", "note", "name")})
+    return fields
+
+
+def _merge(*layers: dict) -> dict:
+    out: dict = {}
+    for layer in layers:
+        for a, b in EXCLUSIVE:
+            if a in layer:
+                out.pop(b, None)
+            if b in layer:
+                out.pop(a, None)
+        out.update(layer)
+    return out
+
+
+def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, label: str = "") -> Note:
+    """A Note from merged score fields (start, duration, pitch or f0, fb or beta, vb, a, release, ...)."""
+    from . import pitch as P
+
+    d = Scene()
+    start = _num(where, "start", fields.get("start", 0.0), lo=0.0)
+    hold = _num(where, "duration", fields.get("duration", d.duration), lo=0.0)
+    if hold <= 0:
+        raise ScoreError(f"{where}: duration must be > 0 s, got {hold:g}")
+    release = _num(where, "release", fields.get("release", RELEASE), lo=0.0, hi=MAX_RELEASE)
+    a = _num(where, "a", fields.get("a", d.a))
+    vb = _control(where, "vb", fields.get("vb", d.vb))
+    rate = fields.get("sample_rate", d.sample_rate)
+    beta = _control(where, "beta", fields["beta"]) if "beta" in fields else None
+    fb = None if beta is not None else _control(where, "fb", fields.get("fb", d.fb))
+    rest = {k: fields[k] for k in ("q0", "p0") if k in fields}
+    try:
+        if "pitch" in fields:
+            hz = P.parse_pitch(fields["pitch"], a4)
+            held = dict(vb=P.held_value(vb, hold), a=a)
+            if beta is not None:
+                f0 = P.tune(hz, None, beta=P.held_value(beta, hold), a4=a4, **held).f0
+            else:
+                f0 = P.tune(hz, P.held_value(fb, hold), a4=a4, **held).f0
+        else:
+            hz = None
+            f0 = _num(where, "f0", fields.get("f0", d.f0))
+        if beta is not None:
+            fb = _scale(beta, physics.omega(f0))
+        if release > 0:
+            fb_end = float(Scene(f0=f0, fb=fb, a=a).fb_at(hold + release))
+            vb_full, duration = _with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0, a)
+        else:
+            vb_full, duration = vb, hold
+        scene = Scene(f0=f0, fb=fb, vb=vb_full, a=a, duration=duration, sample_rate=rate, **rest)
+    except UsageError as e:
+        raise ScoreError(f"{where}: {e}") from None
+    return Note(name, scene, start=start, hold=hold, release=release, pitch=hz,
+                label=label or where)
+
+
+def load_toml_score(path) -> list[Note]:
     p = Path(path)
     if not p.is_file():
-        raise UsageError(f"score file {p} not found")
+        raise ScoreError(f"score file {p} not found")
     try:
         with p.open("rb") as fh:
             data = tomllib.load(fh)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise UsageError(f"score {p} is not valid TOML ({e})") from None
+        raise ScoreError(f"score {p} is not valid TOML ({e})") from None
+    unknown = set(data) - set(TOP_KEYS)
+    if unknown:
+        raise ScoreError(f"score {p}: unknown top-level key(s) {', '.join(sorted(unknown))} (known: "
+                         f"{', '.join(f'{k} ({v})' for k, v in TOP_KEYS.items())})")
+    from .pitch import A4_HZ, check_a4
+
+    try:
+        a4 = check_a4(data.get("a4", A4_HZ))
+    except UsageError as e:
+        raise ScoreError(f"score {p}: {e}") from None
     defaults = data.get("defaults", {})
+    if not isinstance(defaults, dict):
+        raise ScoreError(f"score {p}: [defaults] must be a table")
+    base = _layer(f"score {p}, [defaults]", defaults, DEFAULT_KEYS)
     voices = data.get("voice")
     if not isinstance(voices, list) or not voices:
-        raise UsageError(f"score {p} has no [[voice]] entries")
-    out = []
+        raise ScoreError(f"score {p} has no [[voice]] entries")
+    notes, names = [], set()
     for i, v in enumerate(voices):
         if not isinstance(v, dict):
-            raise UsageError(f"score {p}: voice {i + 1} is not a table")
-        fields = {**defaults, **v}
-        name = str(fields.pop("name", f"voice{i + 1}"))
-        preset = fields.pop("preset", None)
-        try:
-            out.append(Voice(name, make_scene(preset, **fields)))
-        except UsageError as e:
-            raise UsageError(f"score {p}, voice {name!r}: {e}") from None
+            raise ScoreError(f"score {p}: voice {i + 1} is not a table")
+        name = str(v.get("name", f"voice{i + 1}"))
+        if name in names:
+            raise ScoreError(f"score {p}: voice {name!r} is defined twice (give each [[voice]] its own name)")
+        names.add(name)
+        where = f"score {p}, voice {name!r}"
+        layer = _layer(where, v, VOICE_KEYS)
+        note_tables = v.get("note")
+        if note_tables is None:  # the round-1 form: the voice is one note from its start (default 0)
+            notes.append(note_from_fields(name, _merge(base, layer), where, a4, label=name))
+            continue
+        if not isinstance(note_tables, list) or not note_tables:
+            raise ScoreError(f"{where}: note must be an array of tables ([[voice.note]])")
+        if "start" in v:
+            raise ScoreError(f"{where}: start belongs to each [[voice.note]], not to a voice with notes")
+        for j, nt in enumerate(note_tables):
+            w = f"{where}, note {j + 1}"
+            if not isinstance(nt, dict):
+                raise ScoreError(f"{w} is not a table")
+            notes.append(note_from_fields(name, _merge(base, layer, _layer(w, nt, NOTE_KEYS)), w, a4,
+                                          label=f"{name} #{j + 1}"))
+    return notes
+
+
+def load_midi_score(path, a4: float = 440.0) -> list[Note]:
+    """The notes of a MIDI file with the bow of `bowsynth.midi`'s mapping; channels are voices."""
+    from . import midi as M
+
+    piece = read_midi_checked(path)
+    notes = []
+    for n in piece.notes:
+        hold = n.end - n.start
+        beta = _midi_control(piece, n, M.CC_PRESSURE, M.velocity_beta(n.velocity), M.pressure_factor)
+        vb = _midi_control(piece, n, M.CC_EXPRESSION, M.velocity_vb(n.velocity), M.expression_factor)
+        voice = M.channel_name(n.channel)
+        from .pitch import note_name, midi_to_hz
+
+        where = f"{Path(path).name}: {voice} note {note_name(midi_to_hz(n.number, a4), a4)} at {n.start:.3f} s"
+        if not 12 <= n.number <= 119:
+            raise ScoreError(f"{where}: MIDI note {n.number} is outside C0..B8")
+        notes.append(note_from_fields(voice, {"start": n.start, "duration": hold, "pitch": midi_to_hz(n.number, a4),
+                                              "beta": beta, "vb": vb}, where, a4, label=where.split(": ", 1)[1]))
+        notes[-1].extra = {"midi_note": n.number, "velocity": n.velocity}
+    return notes
+
+
+def read_midi_checked(path):
+    from .midi import read_midi
+
+    return read_midi(path)
+
+
+def _midi_control(piece, n, cc, base: float, factor):
+    from .midi import controller_curve
+
+    pts = controller_curve(piece, n.channel, cc, n.start, n.end)
+    return as_control([(t, float(f"{base * factor(v):.7g}")) for t, v in pts])
+
+
+def load_score(path, a4: float | None = None) -> list[Note]:
+    """The notes of a TOML score or a MIDI file (told apart by content and name)."""
+    from .midi import is_midi
+    from .pitch import A4_HZ, check_a4
+
+    if is_midi(path):
+        return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4))
+    if a4 is not None:
+        raise ScoreError("--a4 retunes MIDI files; a TOML score sets its own with a top-level a4 = ...")
+    return load_toml_score(path)
+
+
+def voices_from_presets(names: list[str], **overrides) -> list[Note]:
+    from .scene import make_scene
+
+    seen: dict[str, int] = {}
+    out = []
+    for n in names:  # a preset listed twice is two voices: name, name-2, ...
+        seen[n] = seen.get(n, 0) + 1
+        name = n if seen[n] == 1 else f"{n}-{seen[n]}"
+        out.append(Note(name, make_scene(n, **overrides), label=name))
     return out
 
 
-def voices_from_presets(names: list[str], **overrides) -> list[Voice]:
-    return [Voice(n, make_scene(n, **overrides)) for n in names]
+# --- what the models cover ----------------------------------------------------------------------------------------
+
+def score_box(notes: list[Note]) -> dict:
+    """The box of dimensionless physics the notes visit during their sustains (the release is the FDM's):
+    {'beta': (lo, hi), 'vb': (lo, hi), 'a': (lo, hi), 'f0': (lo, hi), 'notes': n, 'gestures': n with curves}."""
+    if not notes:
+        raise ScoreError("no notes")
+    sus = [n.sustain_scene() for n in notes]
+    bl = [s.beta_range for s in sus]
+    vl = [s.vb_range for s in sus]
+    return {"beta": (min(b[0] for b in bl), max(b[1] for b in bl)), "vb": (min(v[0] for v in vl), max(v[1] for v in vl)),
+            "a": (min(s.a for s in sus), max(s.a for s in sus)), "f0": (min(s.f0 for s in sus), max(s.f0 for s in sus)),
+            "notes": len(notes), "gestures": sum(s.varying for s in sus)}
 
 
-def render_voices(voices: list[Voice], method: str = "operator", model=None, fallback: str = "none") -> list[Render]:
-    from .engines import render
+def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
+    """The notes no operator model can play (their sustain), each with the reason."""
+    from .rollout import _resolve, available_models
 
-    return render([v.scene for v in voices], engine=method, model=model, fallback=fallback)
+    models = None
+    if model is None:
+        models = available_models()
+    else:
+        from .model import OperatorModel, load_model
 
+        if not isinstance(model, OperatorModel):
+            model = load_model(model)
+    out = []
+    for n in notes:
+        sc = n.sustain_scene(1)
+        if sc.varying:
+            out.append((n, "the bow changes during the note and no model follows gestures yet"))
+            continue
+        try:
+            _resolve(sc, model, models)
+        except DomainError:
+            out.append((n, f"F_B / w = {sc.beta:.4g}, v_B = {sc.vb:g}, a = {sc.a:g}"))
+    return out
+
+
+def coverage_message(notes: list[Note], missing: list[tuple[Note, str]], source=None) -> str:
+    box = score_box(notes)
+    shown = "; ".join(f"{n.describe()} ({why})" for n, why in missing[:3])
+    more = f"; and {len(missing) - 3} more" if len(missing) > 3 else ""
+    train = f"bowsynth train --score {source}" if source else "bowsynth train"
+    return (f"{len(missing)} of {len(notes)} notes fall outside every model's range: {shown}{more}. The piece spans "
+            f"F_B / w {box['beta'][0]:.4g}..{box['beta'][1]:.4g}, v_B {box['vb'][0]:g}..{box['vb'][1]:g}, "
+            f"a {box['a'][0]:g}..{box['a'][1]:g}: train a model that covers it with `{train}`, or render with "
+            f"--method fdm (or --fallback fdm for these notes only)")
+
+
+# --- rendering ----------------------------------------------------------------------------------------------------
+
+def render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
+                 source=None) -> list[Render]:
+    """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
+    of the sustains, each release then by the FDM from the sustain's last state. Notes no model covers are
+    refused before anything renders (fallback 'fdm': rendered by the FDM instead, noted in info['notes'])."""
+    from .engines import Engine, Fallback, _choice, render
+
+    engine = _choice(Engine, method, "--method")
+    fb_mode = _choice(Fallback, fallback, "--fallback")
+    if engine is Engine.fdm:
+        return render([n.scene for n in notes], engine="fdm")
+    missing = {id(n): why for n, why in uncovered(notes, model)}
+    if missing and fb_mode is not Fallback.fdm:
+        raise ScoreError(coverage_message(notes, [(n, missing[id(n)]) for n in notes if id(n) in missing], source))
+    out: list = [None] * len(notes)
+    op = [i for i, n in enumerate(notes) if id(n) not in missing]
+    for i, n in enumerate(notes):
+        if id(n) in missing:
+            r = render(n.scene, engine="fdm")
+            r.info.setdefault("notes", []).append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
+            out[i] = r
+    if op:
+        sustains = [notes[i].sustain_scene(1 if notes[i].release > 0 else 0) for i in op]
+        rs = render(sustains, engine="operator", model=model, fallback=fallback)
+        for i, r in zip(op, rs):
+            out[i] = _finish_release(notes[i], r)
+    return out
+
+
+def _finish_release(note: Note, sus: Render) -> Render:
+    """The note's release by the FDM from the sustain's last state, joined to the sustain."""
+    if note.release <= 0:
+        return Render(note.scene, sus.t, sus.q, sus.p, sus.method, sus.seconds, sus.info)
+    from .fdm import render_fdm
+
+    sc = note.scene
+    n_hold = len(sus.q) - 1
+    tail = sc.n_samples - n_hold
+    rel_scene = Scene(f0=sc.f0, fb=float(sc.fb_at(note.hold)), vb=[[0.0, float(sc.vb_at(note.hold))],
+                                                                   [note.release, 0.0]],
+                      a=sc.a, duration=tail / sc.sample_rate, sample_rate=sc.sample_rate,
+                      q0=float(sus.q[-1]), p0=float(sus.p[-1]))
+    rel = render_fdm(rel_scene)
+    q = np.concatenate([np.asarray(sus.q[:n_hold], float), rel.q[:tail]])
+    p = np.concatenate([np.asarray(sus.p[:n_hold], float), rel.p[:tail]])
+    t = np.arange(len(q)) / sc.sample_rate
+    info = dict(sus.info)
+    info["release"] = "fdm"
+    return Render(sc, t, q, p, method=f"{sus.method} + fdm release", seconds=sus.seconds + rel.seconds, info=info)
+
+
+def render_voices(voices, method: str = "operator", model=None, fallback: str = "none") -> list[Render]:
+    return render_notes(voices, method=method, model=model, fallback=fallback)
+
+
+# --- writing ------------------------------------------------------------------------------------------------------
 
 def safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "voice"
 
 
-def voice_paths(voices, out: Path) -> list[Path]:
-    """The file each voice gets in the directory `out`: name.wav, and name-2.wav, ... for repeated names."""
-    paths = []
+def stem_names(notes: list[Note]) -> list[str]:
+    """File names of the notes' stems: `voice.wav` for a voice of one note, else `voice-001.wav`, ... in time order
+    (voices of the same name, a preset listed twice, get `name-2.wav`, ...)."""
+    per_voice: dict[str, list[int]] = {}
+    for i, n in enumerate(notes):
+        per_voice.setdefault(n.name, []).append(i)
+    names = [""] * len(notes)
     seen: dict[str, int] = {}
-    for v in voices:
-        stem = safe_name(v.name)
-        seen[stem] = seen.get(stem, 0) + 1
-        paths.append(out / (f"{stem}.wav" if seen[stem] == 1 else f"{stem}-{seen[stem]}.wav"))
+    for voice, idx in per_voice.items():
+        stem = safe_name(voice)
+        idx = sorted(idx, key=lambda i: (notes[i].start, i))
+        for k, i in enumerate(idx):
+            base = stem if len(idx) == 1 else f"{stem}-{k + 1:03d}"
+            seen[base] = seen.get(base, 0) + 1
+            names[i] = f"{base}.wav" if seen[base] == 1 else f"{base}-{seen[base]}.wav"
+    return names
+
+
+def stem_paths(notes: list[Note], out: Path) -> list[Path]:
+    """Every file a stems directory `out` will hold: one WAV per note, then notes.json."""
+    return [Path(out) / f for f in stem_names(notes)] + [Path(out) / "notes.json"]
+
+
+# the longest method, gain, time and model id a stem's metadata can hold: the size check runs before rendering
+_WORST_METHOD = "operator+fdm + fdm release"
+_WORST_FLOAT = 1 / 3
+_WORST_MODEL = "x" * 64
+
+
+def check_stems_fit(notes: list[Note], signal: str = "u", dc: str = "remove") -> None:
+    """Before rendering: every note's stem metadata (wav.render_meta, scene and curves included) fits a WAV comment
+    (else a one-line ScoreError naming the note)."""
+    from .wav import META_LIMIT, render_meta
+
+    for n in notes:
+        meta = render_meta(n.scene, _WORST_METHOD, signal, _WORST_FLOAT, _WORST_FLOAT, _WORST_MODEL, dc)
+        size = len(json.dumps(meta, separators=(",", ":")))
+        if size > META_LIMIT["WAV"]:
+            raise ScoreError(f"{n.describe()}: its bow curves are too long to store in a stem's metadata ({size} "
+                             f"characters, at most {META_LIMIT['WAV']}); use fewer breakpoints, or write only the mix "
+                             f"(--mix without --stems)")
+
+
+def check_outputs_fit(notes: list[Note], mix: Path | str | None = None, stems: Path | None = None,
+                      signal: str = "u", dc: str = "remove") -> None:
+    """The one metadata check before rendering: each stem's (when stems are written) and the mix's (when a mix is
+    written, in its format: `wav.check_meta_fits`)."""
+    from .wav import check_meta_fits
+
+    if stems is not None:
+        check_stems_fit(notes, signal, dc)
+    if mix is not None:
+        from .wav import mix_meta
+
+        check_meta_fits(mix_meta(_voice_names(notes), _WORST_FLOAT, dc, **_mix_extra(notes, mix, stems, signal)), mix)
+
+
+def _voice_names(notes) -> list[str]:
+    return list(dict.fromkeys(n.name for n in notes))
+
+
+def _mix_extra(notes, out, stems, signal) -> dict:
+    """A mix's own metadata fields beside wav.mix_meta's: the note count, the signal and where its stems are."""
+    extra = {"notes": len(notes), "signal": signal}
+    if stems is not None:  # relative to the mix's directory, so `compare` finds them from the mix
+        extra["stems"] = os.path.relpath(Path(stems).resolve(), Path(out).resolve().parent)
+    return extra
+
+
+def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove", gain_db: float | None = None,
+                force: bool = True) -> list[Path]:
+    """One audio file per note into the directory `out` (each with its own scene, so `compare` reads it; its DC
+    removed on its own, as `render` would), and `out/notes.json`: each note's file, voice, start, written duration
+    and pitch."""
+    from .wav import DC_TAG, atomic_write, write_wav
+
+    out.mkdir(parents=True, exist_ok=True)
+    paths, index = [], []
+    for n, r, fname in zip(notes, renders, stem_names(notes)):
+        path = out / fname
+        write_wav(path, r, signal=signal, dc=dc, gain_db=gain_db, force=force)
+        paths.append(path)
+        index.append({"file": fname, "voice": n.name, "start": n.start, "duration": n.hold, "release": n.release,
+                      "pitch": n.pitch, "label": n.describe(), "method": r.method, **n.extra})
+    text = json.dumps({"bowsynth_stems": 1, "signal": signal, "dc": DC_TAG if dc == "remove" else "kept",
+                       "notes": index}, indent=1)
+    atomic_write(out / "notes.json", lambda tmp: Path(tmp).write_text(text + "\n"), force=force)
     return paths
 
 
-def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u", dc: str = "remove",
-                 gain_db: float | None = None, force: bool = True) -> list[Path]:
-    """One WAV per voice into the directory `out`, or (mix=True) their sum into the file `out` (see wav.write_mix)."""
-    from .wav import write_mix, write_wav
-
-    if not mix:
-        out.mkdir(parents=True, exist_ok=True)
-        paths = voice_paths(voices, out)
-        for path, r in zip(paths, renders):
-            write_wav(path, r, signal=signal, dc=dc, gain_db=gain_db, force=force)
-        return paths
+def mix_notes(notes, renders, signal: str = "u") -> tuple[np.ndarray, int]:
+    """The notes summed, each placed at its start sample (as rendered: the DC is removed once, from the sum, by
+    `wav.write_mix`). A displacement is mixed as q = w u (the same waveform), so a note's loudness does not grow
+    with its period; velocity p is mixed as is."""
     rates = {r.scene.sample_rate for r in renders}
     if len(rates) != 1:
-        raise UsageError(f"a mix needs one sample rate; the voices use {sorted(rates)}")
-    # no scene of its own: `compare` on a mix asks for the scene flags
-    write_mix(out, [r.signal(signal) for r in renders], [v.name for v in voices], rates.pop(), dc=dc,
-              gain_db=gain_db, force=force)
-    return [out]
+        raise ScoreError(f"a mix needs one sample rate; the notes use {sorted(rates)}")
+    rate = rates.pop()
+    starts = [int(round(n.start * rate)) for n in notes]
+    x = np.zeros(max(s + len(r.q) for s, r in zip(starts, renders)))
+    for s, r in zip(starts, renders):
+        sig = np.asarray(r.q if signal == "u" else r.signal(signal), float)
+        x[s:s + len(sig)] += sig
+    return x, rate
+
+
+def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u", stems: Path | None = None,
+                 dc: str = "remove", gain_db: float | None = None, force: bool = True) -> list[Path]:
+    """Stems (one file per note) into the directory `out`, or (mix=True) the mix into the file `out` (and, with
+    `stems`, the stems into that directory; the mix's metadata points to them for `compare`).
+
+    DC (dc='remove'): each stem is filtered on its own, and the mix is the sum of the unfiltered notes at their
+    starts, filtered once. The filter (wav.remove_dc) is zero-phase with a mean subtraction, so it does not commute
+    with placing notes at other starts: the mix equals remove_dc(sum of the notes as rendered), not the sum of the
+    filtered stems (tests/test_midi.py checks the first exactly)."""
+    from .wav import write_mix
+
+    if not mix:
+        return write_stems(voices, renders, out, signal, dc=dc, gain_db=gain_db, force=force)
+    paths = []
+    if stems is not None:
+        paths += write_stems(voices, renders, stems, signal, dc=dc, gain_db=gain_db, force=force)
+    x, rate = mix_notes(voices, renders, signal)
+    write_mix(out, x, _voice_names(voices), rate, dc=dc, gain_db=gain_db, force=force,
+              **_mix_extra(voices, out, stems, signal))
+    return [out] + paths

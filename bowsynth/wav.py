@@ -6,9 +6,9 @@ asked for. The scene, the method, the model id, the gain and what was done to th
 JSON (RIFF INFO for WAV, a Vorbis comment for FLAC and OGG).
 
 DC: the bowed mass sits off its rest position while it is bowed (the friction force is a static load), about 0.045
-of full scale in a peak-normalised `u`; that offset is not sound. By default it is removed by `remove_dc`: the
-zero-phase response of a 2nd-order Butterworth high-pass at 5 Hz run forward and backward, then the remaining mean
-subtracted. Measured (tests/test_outfile.py): harmonic amplitudes of a 1 s note change by less than
+of full scale in a peak-normalised `u`; that offset is not sound. By default it is removed by `remove_dc`: a
+2nd-order Butterworth high-pass at 5 Hz run forward and backward (zero phase, 4th-order magnitude), then the
+remaining mean subtracted. Measured (tests/test_outfile.py): harmonic amplitudes of a 1 s note change by less than
 0.01 dB above 20 Hz. The metadata records it ("dc": "highpass-5hz"), and `compare` applies the same filter to its
 reference, so scores still measure the physics.
 """
@@ -110,22 +110,13 @@ class WavInfo:
 
 
 def remove_dc(x: np.ndarray, sample_rate: float) -> np.ndarray:
-    """The DC and the infrasonic drift of the onset removed (see the module docstring); a new float64 array.
+    """The DC and the infrasonic drift of the onset removed (see the module docstring); a new float64 array."""
+    from scipy.signal import butter, sosfiltfilt
 
-    The zero-phase response |H|^2 of a 2nd-order Butterworth high-pass at DC_HZ, (f/fc)^4 / (1 + (f/fc)^4) -- what
-    a forward-backward run of the filter gives -- applied in the frequency domain with numpy, so that writing a file
-    loads no scipy (0.3-0.9 s of start-up; the operator's render path keeps off scipy, torch and numba). The signal
-    is padded by odd reflection (a second at each end) so the circular wrap rings out before it reaches the signal.
-    """
     x = np.asarray(x, dtype=np.float64)
-    if x.size < 2:
-        return x - x.mean() if x.size else x.copy()
-    pad = int(sample_rate)
-    padded = np.pad(x, pad, mode="reflect", reflect_type="odd")
-    f = np.fft.rfftfreq(padded.size, 1.0 / sample_rate) / DC_HZ
-    f4 = f ** 4
-    y = np.fft.irfft(np.fft.rfft(padded) * (f4 / (1.0 + f4)), n=padded.size)[pad:pad + x.size]
-    return y - y.mean()
+    sos = butter(2, DC_HZ, btype="highpass", fs=sample_rate, output="sos")
+    y = sosfiltfilt(sos, x) if x.size > 64 else x.copy()
+    return y - y.mean() if y.size else y
 
 
 def gain_for(x: np.ndarray, gain_db: float | None) -> float:
@@ -188,9 +179,10 @@ def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_
     return meta
 
 
-def mix_meta(names: list[str], gain: float, dc: str) -> dict:
-    """A mix's metadata: the voice count and as many names as fit in a WAV comment (a 1000-voice mix still fits)."""
-    meta = {"bowsynth_mix": 1, "voices": len(names), "gain": gain, "dc": DC_TAG if dc == "remove" else "kept"}
+def mix_meta(names: list[str], gain: float, dc: str, **fields) -> dict:
+    """A mix's metadata: the voice count, `fields` (bowsynth.score: notes, signal, stems) and as many voice names as
+    fit in a WAV comment (a 1000-voice mix still fits)."""
+    meta = {"bowsynth_mix": 1, "voices": len(names), **fields, "gain": gain, "dc": DC_TAG if dc == "remove" else "kept"}
     kept, size = [], len(json.dumps(meta)) + 40
     for n in names:
         size += len(json.dumps(n)) + 2
@@ -203,19 +195,18 @@ def mix_meta(names: list[str], gain: float, dc: str) -> dict:
     return meta
 
 
-def write_mix(path, signals: list[np.ndarray], names: list[str], sample_rate: int, dc: str = "remove",
-              gain_db: float | None = None, force: bool = True) -> dict:
-    """Sum the voices, each at equal loudness (peak 1), then peak-normalise the sum to PEAK (never clips), or apply
-    the fixed gain `gain_db` (refused if it would clip)."""
+def write_mix(path, x: np.ndarray, names: list[str], sample_rate: int, dc: str = "remove",
+              gain_db: float | None = None, force: bool = True, **fields) -> dict:
+    """Write a mix, `x` being the notes already summed at their starts (bowsynth.score.mix_notes): the DC removed
+    once, from the sum, then peak-normalised to PEAK (never clips) or the fixed gain `gain_db` (refused if it would
+    clip)."""
     check_dc(dc)
-    n = max(len(s) for s in signals)
-    x = np.zeros(n)
-    for s in signals:
-        x[:len(s)] += s / (np.max(np.abs(s)) or 1.0)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("refusing to write non-finite samples")
     if dc == "remove":
         x = remove_dc(x, sample_rate)
     gain = gain_for(x, gain_db)
-    meta = mix_meta(names, gain, dc)
+    meta = mix_meta(names, gain, dc, **fields)
     write_float_wav(path, x * gain, sample_rate, meta, force=force)
     return meta
 

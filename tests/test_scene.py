@@ -34,3 +34,32 @@ def test_presets_and_overrides():
         make_scene("nope")
     with pytest.raises(SceneError, match="unknown scene field"):
         Scene.from_dict({"fbb": 1})
+
+
+def test_presets_sound_at_their_names_and_name_their_model(capsys, monkeypatch):
+    """`bowsynth presets`: every preset builds, says the pitch it sounds at, and which model plays it (or none)."""
+    from conftest import run_main
+
+    code, out, err = run_main(["presets"], capsys, monkeypatch)
+    assert code == 0, err
+    blocks = {b.split()[0]: b for b in out.strip().split("\n") if b and not b.startswith(" ")}
+    assert set(blocks) == set(list_presets())
+    text = out.replace("\n    ", " ")
+    for name in list_presets():
+        line = next(l for l in text.splitlines() if l.startswith(name + " "))
+        assert "model: " in line
+        if name in ("viola-a3", "violin-a4"):  # F_B / w of paper-fb100: the shipped model plays them
+            assert "model: paper-fb100.safetensors" in line
+            assert f"({name[-2:].upper()})" in line  # sounds at the named note
+    assert "model: none: FDM only, train with `bowsynth train --preset scratch-g2`" in text
+
+
+def test_make_scene_with_pitch_and_beta():
+    from bowsynth.pitch import sounding_pitch
+
+    s = make_scene(pitch="A3", beta=1 / (2 * math.pi))
+    assert math.isclose(s.beta, 1 / (2 * math.pi), rel_tol=1e-12)
+    assert math.isclose(sounding_pitch(s.f0, s.fb, s.vb), 220.0, rel_tol=1e-7)
+    assert make_scene(beta=0.2, f0=200).fb == pytest.approx(0.2 * 2 * math.pi * 200)
+    with pytest.raises(UsageError, match="fb or as beta"):
+        make_scene(beta=0.2, fb=100)

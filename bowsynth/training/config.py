@@ -53,6 +53,8 @@ class TrainConfig:
             raise UsageError(f"--minutes must be > 0 and at most {MAX_MINUTES} (a day), got {self.minutes:g}")
         if self.steps is not None and not (1 <= self.steps <= MAX_STEPS):
             raise UsageError(f"--steps must be >= 1 and at most {MAX_STEPS}, got {self.steps}")
+        if not 0 <= self.seed < 2**32:
+            raise UsageError(f"--seed must be in [0, 2^32), got {self.seed}")
         if not (self.minutes or self.steps):
             raise UsageError("give a budget: --minutes or --steps")
         if not 0 <= self.lbfgs_fraction <= 0.9:

@@ -1,0 +1,50 @@
+"""Asked vs heard: notes solved by `bowsynth.pitch` and rendered for 2 s, the pitch measured by interpolated zero
+crossings over the steady second half.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/pitch_accuracy.py
+
+Rows with a fixed F_B: the x100 FDM (the truth) and the audio-rate FDM (its dispersion raises high notes). Rows with
+F_B / w = 100 / (2 pi 100) and v_B 0.2 (F_B = that times 2 pi f0): the shipped paper-fb100 operator plays them too.
+The last column is f0 = the asked pitch (no solve): how flat the friction makes the note.
+"""
+
+import math
+import time
+
+from bowsynth import Scene, render_fdm
+from bowsynth.engines import render
+from bowsynth.metrics import cents, f0_estimate
+from bowsynth.pitch import note_name, parse_pitch, sounding_pitch, tune
+
+FIXED = [("C2", 40.0, 0.1), ("A2", 1000.0, 0.2), ("E3", 100.0, 0.25), ("A4", 100.0, 0.2), ("E5", 300.0, 0.25),
+         ("A5", 1000.0, 0.15)]
+PAPER_BETA = 100 / (2 * math.pi * 100)
+BETA = ["C2", "G2", "D3", "A3", "A4", "E5", "A5"]
+
+
+def heard(sc, engine="fdm", oversample=1):
+    r = render(sc, engine=engine, oversample=oversample) if engine == "fdm" else render(sc, engine=engine)
+    return f0_estimate(r.q, sc.sample_rate, tail=0.5)
+
+
+def main():
+    print("| note | asked (Hz) | F_B | F_B / w | v_B | solved f0 (Hz) | solve (s) | FDM x100 (cents) | FDM x1 (cents) "
+          "| operator (cents) | f0 = pitch, unsolved (cents) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    rows = [(n, fb, vb, None) for n, fb, vb in FIXED] + [(n, None, 0.2, PAPER_BETA) for n in BETA]
+    for name, fb, vb, beta in rows:
+        p = parse_pitch(name)
+        t0 = time.perf_counter()
+        t = tune(p, fb, vb, beta=beta)
+        solve = time.perf_counter() - t0
+        sc = Scene(f0=t.f0, fb=t.fb, vb=vb, duration=2.0)
+        truth = cents(heard(sc, oversample=100), p)
+        x1 = cents(heard(sc), p)
+        op = f"{cents(heard(sc, 'operator'), p):+.3f}" if beta is not None else "-"
+        flat = cents(sounding_pitch(p, t.fb if beta is None else beta * 2 * math.pi * p, vb), p)
+        print(f"| {note_name(p)} | {p:.2f} | {t.fb:.4g} | {t.beta:.4f} | {vb:g} | {t.f0:.3f} | {solve:.2f} | "
+              f"{truth:+.4f} | {x1:+.3f} | {op} | {flat:+.1f} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,192 @@
+"""Standard MIDI files (read with mido) as notes with a bow: the mapping from velocity and controllers to the bow.
+
+Types 0 and 1 (tempo changes and running status are the reader's business: mido's); type 2 is refused. Each
+channel is a voice. A note-on with velocity 0 is a note-off; a note-on of a note that already sounds on its channel
+ends the sounding one there (a retrigger); a note with no note-off ends at the end of the file; a note of zero length
+is dropped. Sustain (CC64), pitch bend and program changes are ignored.
+
+The bow of a note (docs/score.md, "MIDI"):
+- velocity v (1..127) sets the dimensionless bow force and the bow speed:
+      F_B / w = 4^((v - 64) / 63) / (2 pi)     (0.040 at v 1, 0.159 at v 64, 0.637 at v 127)
+      v_B     = 0.2 * 1.25^((v - 64) / 63)     (0.16 m/s at v 1, 0.2 at v 64, 0.25 at v 127)
+  F_B / w rather than F_B keeps a note's timbre the same at every pitch (and v 64 is exactly the scene of the
+  shipped paper-fb100 model, F_B / w = 100 / (2 pi 100), v_B 0.2, a 100). F_B = (F_B / w) 2 pi f0.
+- CC2 (breath, read as bow pressure) c multiplies F_B / w by 4^((c - 64) / 63) (64 neutral, x1/4 .. x4);
+- CC11 (expression) c multiplies v_B by c / 127 (127 neutral; below about 45 the bow is slower than
+  1/sqrt(2a) and stops the note).
+  A controller holds its last value; a change is a 5 ms ramp (a step would click); before its first message a
+  controller is neutral.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import UsageError
+
+CC_PRESSURE, CC_EXPRESSION = 2, 11
+NEUTRAL = {CC_PRESSURE: 64, CC_EXPRESSION: 127}
+CC_RAMP = 0.005  # s: a controller step becomes a ramp this long
+MAX_POINTS = 16  # breakpoints a controller curve keeps per note (the WAV metadata holds the scene: ~2000 characters)
+BETA_AT_64 = 1.0 / (2.0 * math.pi)  # paper-fb100's F_B / w
+VB_AT_64 = 0.2
+
+
+@dataclass(frozen=True)
+class MidiNote:
+    channel: int  # 0..15
+    number: int  # MIDI note number, 69 = A4
+    velocity: int
+    start: float  # s
+    end: float  # s (the note-off)
+    track: int
+
+
+@dataclass
+class MidiPiece:
+    path: Path
+    type: int
+    notes: list[MidiNote]
+    controllers: dict = field(default_factory=dict)  # (channel, cc) -> [(t, value), ...] in time order
+    length: float = 0.0
+    remarks: list[str] = field(default_factory=list)  # what the reader changed or dropped, for the user
+
+
+def velocity_beta(velocity: int) -> float:
+    return BETA_AT_64 * 4.0 ** ((velocity - 64) / 63.0)
+
+
+def velocity_vb(velocity: int) -> float:
+    return VB_AT_64 * 1.25 ** ((velocity - 64) / 63.0)
+
+
+def pressure_factor(cc: float) -> float:
+    return 4.0 ** ((cc - 64) / 63.0)
+
+
+def expression_factor(cc: float) -> float:
+    return cc / 127.0
+
+
+def is_midi(path) -> bool:
+    """Does the file start like a standard MIDI file (or is it named like one)?"""
+    p = Path(path)
+    if p.suffix.lower() in (".mid", ".midi", ".smf"):
+        return True
+    try:
+        with p.open("rb") as fh:
+            return fh.read(4) == b"MThd"
+    except OSError:
+        return False
+
+
+def read_midi(path) -> MidiPiece:
+    """Notes (with their channels, velocities and times in seconds) and the CC2/CC11 controller changes of a MIDI
+    file. Raises UsageError (one line) for a file that is not a standard MIDI file, is empty or has no notes."""
+    import mido
+
+    p = Path(path)
+    if not p.is_file():
+        raise UsageError(f"MIDI file {p} not found")
+    try:
+        mid = mido.MidiFile(str(p))
+    except (OSError, EOFError, ValueError, KeyError, IndexError, TypeError) as e:
+        raise UsageError(f"{p} is not a standard MIDI file ({_why(e)})") from None
+    if mid.type == 2:
+        raise UsageError(f"{p} is a type 2 MIDI file (independent sequences); only types 0 and 1 are read")
+    if not any(len(t) for t in mid.tracks):
+        raise UsageError(f"{p} is an empty MIDI file (no events)")
+    piece = MidiPiece(p, mid.type, [])
+    sounding: dict = {}  # (channel, note) -> (start, velocity, track)
+    retriggered = unterminated = zero = 0
+    t = 0.0
+    try:
+        events = list(mid)  # merged tracks, times in seconds through every tempo change
+    except (ValueError, KeyError, IndexError, TypeError, EOFError) as e:
+        raise UsageError(f"{p} is not a readable MIDI file ({_why(e)})") from None
+
+    def close(key, at):
+        nonlocal zero
+        start, vel, track = sounding.pop(key)
+        if at > start:
+            piece.notes.append(MidiNote(key[0], key[1], vel, start, at, track))
+        else:
+            zero += 1
+
+    for msg in events:
+        t += msg.time
+        kind = msg.type
+        if kind == "note_on" and msg.velocity > 0:
+            key = (msg.channel, msg.note)
+            if key in sounding:
+                retriggered += 1
+                close(key, t)
+            sounding[key] = (t, msg.velocity, 0)
+        elif kind == "note_off" or (kind == "note_on" and msg.velocity == 0):
+            key = (msg.channel, msg.note)
+            if key in sounding:
+                close(key, t)
+        elif kind == "control_change" and msg.control in (CC_PRESSURE, CC_EXPRESSION):
+            piece.controllers.setdefault((msg.channel, msg.control), []).append((t, msg.value))
+    for key in list(sounding):
+        unterminated += 1
+        close(key, t)
+    piece.length = t
+    if not piece.notes:
+        raise UsageError(f"{p} has no notes (no note-on with a velocity above 0 and a length)")
+    piece.notes.sort(key=lambda n: (n.start, n.channel, n.number))
+    if retriggered:
+        piece.remarks.append(f"{retriggered} note(s) struck again while sounding: the first ends at the second")
+    if unterminated:
+        piece.remarks.append(f"{unterminated} note(s) without a note-off end at the end of the file ({t:.3f} s)")
+    if zero:
+        piece.remarks.append(f"{zero} note(s) of zero length dropped")
+    return piece
+
+
+def _why(e: Exception) -> str:
+    if isinstance(e, EOFError):
+        return "it ends early: truncated"
+    return str(e) or type(e).__name__
+
+
+def controller_curve(piece: MidiPiece, channel: int, cc: int, start: float, end: float) -> list[tuple[float, float]]:
+    """The controller's values over [start, end] as breakpoints in seconds from `start` (a step is a CC_RAMP ramp):
+    [(0, value)] when it does not change there."""
+    events = piece.controllers.get((channel, cc), [])
+    value = NEUTRAL[cc]
+    for t, v in events:
+        if t <= start:
+            value = v
+    pts = [(0.0, float(value))]
+    for t, v in events:
+        if start < t < end and v != pts[-1][1]:
+            rel = t - start
+            if rel > pts[-1][0]:
+                pts.append((rel, pts[-1][1]))
+            pts.append((rel + CC_RAMP, float(v)))
+    # times strictly increasing: a change within a ramp of the last one replaces it
+    out = [pts[0]]
+    for t, v in pts[1:]:
+        if t > out[-1][0]:
+            out.append((t, v))
+        else:
+            out[-1] = (out[-1][0], v)
+    return thin(out, MAX_POINTS)
+
+
+def thin(points: list, max_points: int) -> list:
+    """At most max_points breakpoints: repeatedly drop the inner point whose removal changes the curve least (a
+    dense controller stream keeps its shape: the points where it turns). Times rounded to 0.1 ms."""
+    pts = [(round(t, 4), float(v)) for t, v in points]
+    while len(pts) > max_points:
+        cost = [abs(pts[i][1] - (pts[i - 1][1] + (pts[i + 1][1] - pts[i - 1][1]) * (pts[i][0] - pts[i - 1][0])
+                                 / (pts[i + 1][0] - pts[i - 1][0]))) for i in range(1, len(pts) - 1)]
+        del pts[1 + cost.index(min(cost))]
+    return pts
+
+
+def channel_name(channel: int) -> str:
+    return f"ch{channel + 1}"

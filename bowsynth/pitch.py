@@ -1,0 +1,343 @@
+"""Notes and the pitch you hear: note names, equal temperament, and the f0 that makes a bowed note sound at a pitch.
+
+Friction lowers the pitch of the bowed mass: f0 100 Hz bowed with F_B 100, v_B 0.2 sounds at 91.33 Hz. In
+dimensionless time (tau = w t) the motion depends on (beta = F_B / w, v_B, a) only, so the sounding frequency is
+f0 * r(beta, v_B, a) with a ratio r that is the same at every pitch for the same beta. For a fixed bow force F_B,
+beta itself depends on f0, so playing a written pitch P means solving
+
+    f0 * r(F_B / (2 pi f0), v_B, a) = P
+
+for f0: a 1-D root find (Brent) over log f0, each step a measurement of r by a short FDM run in tau (the same
+scheme as `bowsynth.fdm`, at w = 1). With beta held fixed instead (a model trained for one F_B / w plays every
+pitch), f0 = P / r(beta) and F_B = beta w.
+
+r is the frequency of the limit cycle the bow settles into from rest (the steady state), measured on the
+displacement by interpolated zero crossings once amplitude and period have stopped moving, at two step sizes
+combined by Richardson extrapolation (the scheme is second order). A note that settles on no oscillation (the bow
+damps the mass: v_B below 1/sqrt(2a); or it grows too slowly: v_B near 0.3 at a = 100 and a weak bow) does not speak:
+`SilentNoteError`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import physics
+from .errors import SceneError, UsageError
+
+A4_HZ = 440.0
+A4_MIDI = 69
+A4_RANGE = (100.0, 1000.0)  # a reference outside this is a typo, not a tuning
+LOWEST, HIGHEST = "C0", "B8"  # the named range: 16.35 Hz to 7902 Hz at A4 = 440 (scientific pitch notation)
+LOWEST_MIDI, HIGHEST_MIDI = 12, 119
+
+_STEPS = {"C": 0, "D": 2, "E": 4, "F": 5, "G": 7, "A": 9, "B": 11}
+_ACCIDENTALS = {"": 0, "#": 1, "♯": 1, "b": -1, "♭": -1, "##": 2, "x": 2, "bb": -2}
+_NOTE_RE = re.compile(r"^([A-Ga-g])(##|bb|#|b|x|♯|♭|)(-?\d+)$")
+_NAMES = ["C", "C#", "D", "D#", "E", "F", "F#", "G", "G#", "A", "A#", "B"]
+
+
+class SilentNoteError(SceneError):
+    """A note that does not speak: from rest the bow settles on no oscillation (or takes too long to)."""
+
+
+def check_a4(a4: float) -> float:
+    if isinstance(a4, bool) or not isinstance(a4, (int, float)) or not math.isfinite(a4):
+        raise UsageError(f"--a4 must be a number of Hz, got {a4!r}")
+    if not A4_RANGE[0] <= a4 <= A4_RANGE[1]:
+        raise UsageError(f"--a4 must be in [{A4_RANGE[0]:g}, {A4_RANGE[1]:g}] Hz, got {a4:g}")
+    return float(a4)
+
+
+def midi_to_hz(note: float, a4: float = A4_HZ) -> float:
+    """Equal temperament: MIDI note 69 is A4 = a4 Hz, 12 notes an octave."""
+    return float(a4 * 2.0 ** ((note - A4_MIDI) / 12.0))
+
+
+def hz_to_midi(hz: float, a4: float = A4_HZ) -> float:
+    return float(A4_MIDI + 12.0 * math.log2(hz / a4))
+
+
+def note_number(name: str) -> int:
+    """MIDI note number of a note name in scientific pitch notation: A4 = 69, C4 = 60 (middle C), Bb2, C#3, F##5.
+
+    The octave number goes with the letter, as in the notation: Cb4 is B3, B#3 is C4. Names from C0 to B8 only."""
+    m = _NOTE_RE.match(name.strip()) if isinstance(name, str) else None
+    if not m and isinstance(name, str) and name.strip()[:1] in ("H", "h"):
+        raise UsageError(f"{name!r} is not a note name here: the German H is B (write B{name.strip()[1:]})")
+    if not m:
+        raise UsageError(f"{name!r} is not a note name: a letter A-G, an optional # or b, an octave number "
+                         f"(A4, C#3, Bb2), from {LOWEST} to {HIGHEST}")
+    letter, acc, octave = m.group(1).upper(), m.group(2), int(m.group(3))
+    n = 12 * (octave + 1) + _STEPS[letter] + _ACCIDENTALS[acc]
+    if not LOWEST_MIDI <= n <= HIGHEST_MIDI:
+        raise UsageError(f"note {name!r} is outside {LOWEST}..{HIGHEST} (16.35 Hz to 7902 Hz)")
+    return n
+
+
+def note_name(hz: float, a4: float = A4_HZ) -> str:
+    """The nearest note and the distance to it, e.g. 'F#2 -23.4 cents'."""
+    m = hz_to_midi(hz, a4)
+    n = int(round(m))
+    c = 100.0 * (m - n)
+    name = f"{_NAMES[n % 12]}{n // 12 - 1}"
+    return name if abs(c) < 0.05 else f"{name} {c:+.1f} cents"
+
+
+def parse_pitch(value, a4: float = A4_HZ) -> float:
+    """A pitch in Hz from a number (Hz), a numeric string ('440', '261.6') or a note name ('A4', 'C#3', 'Bb2')."""
+    a4 = check_a4(a4)
+    if isinstance(value, bool):
+        raise UsageError(f"pitch must be Hz or a note name, got {value!r}")
+    if isinstance(value, str):
+        s = value.strip()
+        try:
+            hz = float(s)
+        except ValueError:
+            return midi_to_hz(note_number(s), a4)
+    elif isinstance(value, (int, float)):
+        hz = float(value)
+    else:
+        raise UsageError(f"pitch must be Hz or a note name, got {value!r}")
+    lo, hi = midi_to_hz(LOWEST_MIDI, a4), midi_to_hz(HIGHEST_MIDI, a4)
+    if not math.isfinite(hz) or not lo * 0.999 <= hz <= hi * 1.001:
+        raise UsageError(f"pitch must be between {LOWEST} ({lo:.2f} Hz) and {HIGHEST} ({hi:.0f} Hz), got {value!r}")
+    return hz
+
+
+# --- the sounding ratio r(beta, v_B, a) ---------------------------------------------------------------------------
+
+SPP = 1000  # FDM steps per free period 2 pi at the coarse step (the fine one halves it): see `sounding_ratio`
+MAX_PERIODS = 2000  # a note still changing after this many free periods (1/f0) is reported as not speaking
+AMP_TOL = 1e-4  # relative change of the amplitude between chunks: settled
+FREQ_TOL = 2e-7  # relative change of the frequency between chunks: settled (3e-4 cents)
+MEASURE_CHUNKS = 2  # chunks measured once settled
+
+
+@dataclass(frozen=True)
+class Ratio:
+    """The steady state of a bowed note from rest, in dimensionless terms.
+
+    r: sounding frequency / f0. settle_periods: free periods (of 1/f0) until amplitude and period are steady.
+    amplitude: the limit cycle's half peak-to-peak of q = w u (m/s)."""
+
+    r: float
+    settle_periods: float
+    amplitude: float
+    beta: float
+    vb: float
+    a: float
+
+    def settle_seconds(self, f0: float) -> float:
+        return self.settle_periods / f0
+
+
+def _steps_per_period(beta: float, a: float) -> int:
+    # at least 20 steps inside the uniqueness step e / (beta sqrt(2a)); measured: the Richardson-combined r moves
+    # < 1e-3 cents between 1000 and 4000 steps a period up to beta 3 at a 100
+    kmax = physics.max_stable_step(beta, a)
+    return int(max(SPP, math.ceil(20 * 2 * math.pi / kmax))) if math.isfinite(kmax) else SPP
+
+
+class _Run:
+    """The w = 1 FDM (beta, v_B, a) from rest, continued period block by period block."""
+
+    def __init__(self, beta, vb, a, spp):
+        from .fdm import taylor_start
+
+        self.beta, self.vb, self.a, self.spp = beta, vb, a, spp
+        self.k = 2 * math.pi / spp
+        self.state = (taylor_start(0.0, 0.0, self.k, 1.0, beta, vb, a), 0.0, -vb)
+        self.u = []
+
+    def more(self, periods: int) -> np.ndarray:
+        from .fdm import run_fdm_raw
+
+        n = periods * self.spp
+        u, eta = run_fdm_raw(self.state[0], self.state[1], n + 1, 1, self.k, 1.0, self.beta, self.vb, self.a,
+                             eta0=self.state[2])
+        self.state = (u[n - 1], u[n], eta[n - 1])  # one step of overlap: the last two displacements seed the next
+        self.u.append(u[:n])
+        return u[:n]
+
+    def r(self, first_period: int, last_period: int) -> float:
+        """Sounding frequency / f0 over free periods [first, last), by interpolated zero crossings."""
+        from .metrics import f0_estimate
+
+        u = np.concatenate(self.u)[first_period * self.spp:last_period * self.spp]
+        return 2 * math.pi * f0_estimate(u, self.spp / (2 * math.pi), tail=1.0)
+
+
+def _why_silent(beta, vb, a, amp_end, grows) -> str:
+    sticky = 1.0 / math.sqrt(2.0 * a)
+    if vb <= sticky:
+        return (f"v_B = {vb:g} m/s is at or below 1/sqrt(2a) = {sticky:.3g} m/s, where the friction damps the mass "
+                f"(a bow stop): bow faster")
+    if grows:
+        return (f"the oscillation grows too slowly (still {amp_end:.2g} m/s after {MAX_PERIODS} periods at "
+                f"F_B / w = {beta:.4g}, v_B = {vb:g}): bow slower or press harder")
+    if amp_end > 1e-3 * vb:
+        return (f"no steady period within {MAX_PERIODS} periods at F_B / w = {beta:.4g}, v_B = {vb:g} (the motion "
+                f"does not settle): press less hard, or raise the pitch")
+    return f"the bow settles on no oscillation at F_B / w = {beta:.4g}, v_B = {vb:g}: bow slower or press harder"
+
+
+@functools.lru_cache(maxsize=4096)
+def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
+    """r = sounding frequency / f0 of the note bowed from rest at (beta, v_B, a), once steady (cached).
+
+    Raises SilentNoteError when the note does not speak (see the module docstring)."""
+    beta, vb, a = float(beta), float(vb), float(a)
+    for name, v in (("F_B / w", beta), ("v_B", vb), ("a", a)):
+        if not math.isfinite(v):
+            raise SceneError(f"{name} must be finite, got {v}")
+    if beta < 0 or a <= 0:
+        raise SceneError(f"need F_B / w >= 0 and a > 0, got {beta:g} and {a:g}")
+    if beta == 0:
+        raise SilentNoteError("the note does not speak: F_B = 0, no bow on the mass")
+    spp = _steps_per_period(beta, a)
+    run = _Run(beta, vb, a, spp)
+    # a chunk holds >= 10 sounding periods (the stick phase stretches a period to 6 free periods at beta 1.6)
+    done = 0
+    while done < MAX_PERIODS // 4:
+        run.more(50)
+        done += 50
+        r0 = run.r(done // 2, done)
+        if math.isfinite(r0) and r0 > 0:
+            break
+    chunk = int(max(20, math.ceil(10 / r0))) if math.isfinite(r0) and r0 > 0 else 20
+    floor = 1e-3 * max(vb, 1e-3)  # below this the "oscillation" is the start's decaying ripple
+    amps, freqs = [], []
+    settled = None
+    while done < MAX_PERIODS:
+        u = run.more(chunk)
+        amps.append(0.5 * (u.max() - u.min()))
+        freqs.append(run.r(done, done + chunk))
+        done += chunk
+        if len(amps) >= 2:
+            a0, a1, f0_, f1 = amps[-2], amps[-1], freqs[-2], freqs[-1]
+            if (a1 > floor and abs(a1 / a0 - 1) < AMP_TOL and math.isfinite(f0_) and math.isfinite(f1)
+                    and abs(f1 / f0_ - 1) < FREQ_TOL):
+                settled = done - chunk
+                break
+    if settled is None:
+        grows = len(amps) > 2 and amps[-1] > amps[-2] * (1 + AMP_TOL) and amps[-1] < 0.1 * vb
+        raise SilentNoteError(f"the note does not speak: {_why_silent(beta, vb, a, amps[-1] if amps else 0, grows)}")
+    end = settled + MEASURE_CHUNKS * chunk
+    run.more(end - done)
+    coarse = run.r(settled, end)
+    fine_run = _Run(beta, vb, a, 2 * spp)
+    fine_run.more(end)
+    fine = fine_run.r(settled, end)
+    r = fine + (fine - coarse) / 3.0  # Richardson: the scheme's error is O(k^2)
+    return Ratio(r=float(r), settle_periods=float(settled), amplitude=float(amps[-1]), beta=beta, vb=vb, a=a)
+
+
+# --- solving for f0 ----------------------------------------------------------------------------------------------
+
+PITCH_TOL_CENTS = 1e-3
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """The solved note: oscillator f0 and bow force fb that sound at `pitch` (Hz) with bow speed vb."""
+
+    pitch: float
+    f0: float
+    fb: float
+    vb: float
+    a: float
+    ratio: Ratio
+
+    @property
+    def beta(self) -> float:
+        return physics.beta(self.fb, self.f0)
+
+    @property
+    def cents(self) -> float:
+        """Solved residual: 1200 log2(f0 r / pitch)."""
+        return 1200.0 * math.log2(self.f0 * self.ratio.r / self.pitch)
+
+
+def held_value(control, duration: float | None = None) -> float:
+    """The value a bow control holds, to tune the note at: a number itself; a curve the median of its values over
+    the note's first `duration` seconds (time-weighted: the value it holds when it holds one, the middle of a ramp
+    that spans the note). See docs/score.md, "Pitch in gestures"."""
+    from .controls import Curve, as_control
+
+    c = as_control(control)
+    if not isinstance(c, Curve):
+        return float(c)
+    end = float(duration) if duration else float(c.times[-1])
+    if end <= 0:
+        return float(c.first)
+    return float(np.median(c.at(np.linspace(0.0, end, 4001))))
+
+
+def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, beta: float | None = None,
+         a4: float = A4_HZ) -> Tuning:
+    """Solve for the oscillator f0 that sounds at `pitch` (Hz or a note name) when bowed with force fb (held
+    fixed) or, with `beta` given instead, with the force that keeps F_B / w = beta (fb = beta 2 pi f0)."""
+    p = parse_pitch(pitch, a4)
+    vb, a = float(vb), float(a)
+    if beta is not None:
+        if fb is not None:
+            raise UsageError("give the bow force as fb or as beta (F_B / w), not both")
+        rat = sounding_ratio(float(beta), vb, a)
+        f0 = p / rat.r
+        return Tuning(p, f0, float(beta) * physics.omega(f0), vb, a, rat)
+    if fb is None:
+        raise UsageError("give the bow force as fb or as beta (F_B / w)")
+    fb = float(fb)
+    if fb == 0:
+        return Tuning(p, p, 0.0, vb, a, Ratio(1.0, 0.0, 0.0, 0.0, vb, a))  # the free oscillator: r = 1
+
+    def ratio(f0):
+        return sounding_ratio(physics.beta(fb, f0), vb, a)
+
+    def h(logf):  # cents from the asked pitch; increasing in f0 (a lighter beta sounds nearer f0)
+        f0 = math.exp(logf)
+        return 1200.0 * math.log2(f0 * ratio(f0).r / p)
+
+    # friction only lowers the pitch (r <= 1) and lowers it less at a smaller beta: [p, p / r(beta(p))] brackets
+    lo = math.log(p)
+    hi = lo - math.log(ratio(p).r)
+    h_lo, h_hi = h(lo), h(hi)
+    for _ in range(40):
+        if h_lo <= 0 <= h_hi:
+            break
+        if h_lo > 0:
+            lo -= 0.05
+            h_lo = h(lo)
+        if h_hi < 0:
+            hi += max(hi - lo, 0.05)
+            h_hi = h(hi)
+    else:
+        raise UsageError(f"found no f0 that sounds at {p:g} Hz with F_B = {fb:g}, v_B = {vb:g}, a = {a:g}")
+    from scipy.optimize import brentq
+
+    if abs(h_lo) < PITCH_TOL_CENTS or abs(h_hi) < PITCH_TOL_CENTS:
+        x = lo if abs(h_lo) < abs(h_hi) else hi
+    else:
+        x = brentq(h, lo, hi, xtol=1e-9, rtol=1e-12)
+    f0 = math.exp(x)
+    return Tuning(p, f0, fb, vb, a, ratio(f0))
+
+
+def f0_for_pitch(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *,
+                 beta: float | None = None, a4: float = A4_HZ) -> float:
+    """The oscillator f0 (Hz) that sounds at `pitch` (Hz or a note name) with bow force fb (m/s^2) and speed vb
+    (m/s); with `beta` instead of fb, the force scales with f0 (fb = beta 2 pi f0). See `tune`."""
+    return tune(pitch, fb, vb, a, beta=beta, a4=a4).f0
+
+
+def sounding_pitch(f0: float, fb: float, vb: float = 0.2, a: float = 100.0) -> float:
+    """The steady pitch (Hz) a note at oscillator f0 sounds at with this bow (raises SilentNoteError if none)."""
+    if fb == 0:
+        return float(f0)
+    return f0 * sounding_ratio(physics.beta(fb, f0), vb, a).r

@@ -1,0 +1,129 @@
+"""Sounding pitch: note names, and notes that sound at the asked pitch (checked against a x100 FDM render)."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bowsynth import Scene, UsageError, make_scene
+from bowsynth.fdm import render_fdm
+from bowsynth.metrics import cents, f0_estimate
+from bowsynth.pitch import (SilentNoteError, held_value, midi_to_hz, note_name, note_number, parse_pitch,
+                            sounding_pitch, sounding_ratio, tune)
+from conftest import run_main
+
+
+def et(semitones_from_a4, a4=440.0):
+    return a4 * 2 ** (semitones_from_a4 / 12)
+
+
+@pytest.mark.parametrize("name,hz", [("A4", 440.0), ("a4", 440.0), ("C4", et(-9)), ("C#3", et(-20)), ("Db3", et(-20)),
+                                     ("Bb2", et(-23)), ("A#2", et(-23)), ("Cb4", et(-10)), ("B#3", et(-9)),
+                                     ("F##5", et(-2 + 12)), ("C0", et(-57)), ("B8", et(50)), ("E♭4", et(-6))])
+def test_note_names_are_equal_tempered(name, hz):
+    assert math.isclose(parse_pitch(name), hz, rel_tol=1e-12)
+
+
+def test_a4_retunes_and_numbers_pass_through():
+    assert math.isclose(parse_pitch("A3", a4=415), 207.5, rel_tol=1e-12)
+    assert math.isclose(parse_pitch("C5", a4=432), 432 * 2 ** (3 / 12), rel_tol=1e-12)
+    assert parse_pitch("261.5") == 261.5 and parse_pitch(98) == 98.0
+
+
+@pytest.mark.parametrize("bad,match", [("H4", "German H is B"), ("A10", "outside C0..B8"), ("C-1", "outside C0..B8"),
+                                       ("B9", "outside"), ("", "not a note name"), ("A", "not a note name"),
+                                       ("4", "between C0"), ("Ax", "not a note name"), ("A#b4", "not a note name"),
+                                       ("nan", "between"), ("1e9", "between"), ("Cb0", "outside")])
+def test_bad_pitch_names_are_refused(bad, match):
+    with pytest.raises(UsageError, match=match):
+        parse_pitch(bad)
+
+
+@pytest.mark.parametrize("a4", [50.0, 5000.0, math.nan, math.inf])
+def test_bad_a4_is_refused(a4):
+    with pytest.raises(UsageError, match="a4"):
+        parse_pitch("A4", a4=a4)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(12, 119), st.floats(400, 480))
+def test_note_names_round_trip(n, a4):
+    name = note_name(midi_to_hz(n, a4), a4)
+    assert note_number(name) == n
+    assert math.isclose(parse_pitch(name, a4), midi_to_hz(n, a4), rel_tol=1e-12)
+
+
+def test_held_value_of_a_curve_is_its_median_over_the_note():
+    assert held_value(120.0) == 120.0
+    assert math.isclose(held_value([[0.0, 0.0], [0.05, 150.0]], 2.0), 150.0)  # an attack, then held
+    assert math.isclose(held_value([[0.0, 50.0], [1.0, 200.0]], 1.0), 125.0, rel_tol=1e-3)  # a ramp: its middle
+
+
+# several notes across 65-900 Hz at several bow forces and speeds, including stick-slip (F_B / w > 0.43)
+CASES = [("C2", 40.0, 0.1), ("A2", 1000.0, 0.2), ("A4", 100.0, 0.2), ("E5", 300.0, 0.25), ("A5", 1000.0, 0.15)]
+
+
+@pytest.mark.parametrize("pitch,fb,vb", CASES)
+def test_solved_note_sounds_at_the_asked_pitch(pitch, fb, vb):
+    """Over the steady second half of a 2 s note, rendered by a x100 FDM (the truth), within 0.2 cents."""
+    sc = make_scene(pitch=pitch, fb=fb, vb=vb, duration=2.0)
+    assert sc.fb == fb and sc.f0 > parse_pitch(pitch)  # the force is kept; friction lowers the pitch, f0 goes up
+    r = render_fdm(sc, oversample=100)
+    heard = f0_estimate(r.u, sc.sample_rate, tail=0.5)
+    assert abs(cents(heard, parse_pitch(pitch))) < 0.2
+    # and without the solve (f0 = pitch) the note is flat by far more than that
+    assert cents(sounding_pitch(parse_pitch(pitch), fb, vb), parse_pitch(pitch)) < -1.0
+
+
+def test_beta_mode_keeps_f_b_over_w():
+    t = tune("G3", None, beta=100 / (2 * math.pi * 100), vb=0.2)
+    assert math.isclose(t.beta, 100 / (2 * math.pi * 100), rel_tol=1e-12)
+    r = render_fdm(Scene(f0=t.f0, fb=t.fb, vb=0.2, duration=2.0), oversample=100)
+    assert abs(cents(f0_estimate(r.u, 44100, tail=0.5), parse_pitch("G3"))) < 0.2
+
+
+def test_ratio_does_not_depend_on_the_measuring_pitch():
+    """r is a function of (beta, v_B, a) only: two renders at f0 100 and 700 with the same F_B / w agree."""
+    beta = 0.3
+    r = sounding_ratio(beta, 0.2, 100.0).r
+    for f0 in (100.0, 700.0):
+        sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=0.2, duration=1.0)
+        heard = f0_estimate(render_fdm(sc, oversample=50).u, 44100, tail=0.5)
+        assert abs(cents(heard, f0 * r)) < 0.05
+
+
+@pytest.mark.parametrize("vb,why", [(0.05, "damps the mass"), (0.35, "grows too slowly")])
+def test_notes_that_do_not_speak_are_refused(vb, why):
+    with pytest.raises(SilentNoteError, match=why):
+        make_scene(pitch="A4", fb=100.0, vb=vb)
+
+
+def test_no_bow_no_note():
+    with pytest.raises(SilentNoteError, match="F_B = 0"):
+        sounding_ratio(0.0, 0.2, 100.0)
+    assert tune("A4", 0.0).f0 == 440.0  # a free oscillator sounds at f0
+
+
+@pytest.mark.parametrize("args,match", [
+    (["--pitch", "H4"], "German H"), (["--pitch", "A10"], "outside C0..B8"), (["--pitch", "C-1"], "outside"),
+    (["--pitch", "A4", "--f0", "100"], "pitch or as f0"), (["--a4", "415"], "give --pitch too"),
+    (["--pitch", "A4", "--vb", "0.05"], "does not speak"), (["--pitch", "A4", "--a4", "4000"], "--a4 must be in"),
+])
+def test_cli_render_bad_pitch_is_one_line_exit_2_nothing_written(tmp_path, capsys, monkeypatch, args, match):
+    out = tmp_path / "x.wav"
+    code, _, err = run_main(["render", str(out), "--method", "fdm", *args], capsys, monkeypatch)
+    assert code == 2 and match in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
+    from bowsynth.wav import read_wav
+
+    out = tmp_path / "a.wav"
+    code, so, err = run_main(["render", str(out), "--method", "fdm", "--pitch", "Bb3", "--fb", "200", "-d", "0.5"],
+                             capsys, monkeypatch)
+    assert code == 0, err
+    sc = read_wav(out).scene
+    assert sc.fb == 200 and math.isclose(sc.f0, tune("Bb3", 200.0).f0) and "233.08 Hz (A#3)" in so
