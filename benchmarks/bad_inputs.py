@@ -154,9 +154,14 @@ def main():
             p.send_signal(getattr(signal, sig))
             _, err = p.communicate()
             took = time.perf_counter() - t0
-            left = sorted(x.name for x in (d / "tmp").iterdir()) + sorted(x.name for x in d.glob(".*.tmp"))
+            # torch keeps its own compile cache (torchinductor_<user>) in TMPDIR: a cache, not a file of bowsynth's
+            left = sorted(x.name for x in (d / "tmp").iterdir() if not x.name.startswith("torchinductor"))
+            left += sorted(x.name for x in d.glob(".*.tmp"))
             print(f"| {what} | `bowsynth {cmd}`, {sig} after {wait} s | {p.returncode} | {_clean(err.decode(), d)} "
-                  f"(exit {took:.2f} s after the signal; temp files left: {len(left)}) |")
+                  f"(exit {took:.2f} s after the signal; temp files left: {', '.join(left) or 'none'}) |")
+            for name in left:
+                (d / "tmp" / name).unlink(missing_ok=True)
+                (d / name).unlink(missing_ok=True)
         print(f"\nFiles after the special-path rows: link.wav is still a symlink: {(d / 'link.wav').is_symlink()}; "
               f"fifo is still a FIFO: {stat.S_ISFIFO(os.stat(d / 'fifo').st_mode)}; ro.wav untouched: "
               f"{(d / 'ro.wav').read_bytes() == b'precious'}; ro2.wav mode after --force: "
