@@ -24,6 +24,9 @@ demo: $(STAMP)
 	$(BOW) render --preset paper-fb100 $(OUTDIR)/demo.wav
 	$(BOW) compare $(OUTDIR)/demo.wav --plot $(OUTDIR)/demo.png
 	$(BOW) render --method fdm --preset scratch-g2 $(OUTDIR)/scratch-g2-fdm.wav
+	$(BOW) render --preset violin-a4 $(OUTDIR)/violin-a4.flac
+	$(BOW) score --score examples/melody.mid --mix $(OUTDIR)/melody.wav --stems $(OUTDIR)/melody.stems --force
+	$(BOW) render --method fdm --fb 50@0,300@1,50@2 --pitch D4 -d 2.5 $(OUTDIR)/swell-fdm.wav
 
 test: $(STAMP)
 	$(PY) -m pytest
