@@ -122,7 +122,8 @@ def main():
             print(f"| `render --fb 100 --vb 0.2 -d {dur} x.wav` | {mo:.3f} | {mf:.3f} | {mo / mf:.2f} |")
         n = 20 if args.quick else 100
         for dur, extra in (("1", []), ("5", ["--mix"])):
-            a = ["score", "--score", str(score), "-d", dur, *extra, "mix.wav" if extra else "v"]
+            path = score_file(cwd / f"pitches-{dur}.toml", voices=n, duration=float(dur))
+            a = ["score", "--score", str(path), *extra, "mix.wav" if extra else "v", "--force"]
             mo, mf, _, _ = alternate(a, [*a, "--method", "fdm"], runs, cwd)
             print(f"| `score` {n} voices x {dur} s at {n} pitches{', --mix' if extra else ' (a WAV each)'} | "
                   f"{mo:.3f} | {mf:.3f} | {mo / mf:.2f} (fdm / operator {mf / mo:.1f}x) |")
