@@ -125,10 +125,10 @@ def render(
 ):
     """Render a scene to an audio file (WAV, FLAC, OGG, or - for stdout)."""
     from . import api
-    from .engines import Engine, Fallback, _choice
+    from .engines import Engine, Fallback, parse_choice
     from .wav import check_audio_output, check_dc, check_gain_db, check_meta_fits, render_meta, write_wav
 
-    method, fallback = _choice(Engine, method, "--method").value, _choice(Fallback, fallback, "--fallback").value
+    method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
 
     if signal not in ("u", "p"):
         raise UsageError(f"--signal must be u or p, got {signal!r}")
@@ -361,9 +361,9 @@ def score(
 
     if (score_file is None) == (presets_list is None):
         raise UsageError("give exactly one of --score FILE.toml|FILE.mid or --presets a,b,c")
-    from .engines import Engine, Fallback, _choice
+    from .engines import Engine, Fallback, parse_choice
 
-    method, fallback = _choice(Engine, method, "--method").value, _choice(Fallback, fallback, "--fallback").value
+    method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
     check_dc(dc)
     check_gain_db(gain)
     if stems is not None and not mix:

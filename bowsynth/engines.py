@@ -26,7 +26,8 @@ class Fallback(str, Enum):
     fdm = "fdm"
 
 
-def _choice(enum, value, flag: str):
+def parse_choice(enum, value, flag: str):
+    """A flag's value as a member of its Enum, or a UsageError naming the choices (the CLI, score and API share it)."""
     try:
         return enum(value)
     except ValueError:
@@ -48,8 +49,8 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     model: operator model (path, OperatorModel, or None to pick the covering one); fallback: 'fdm' finishes an
     operator voice that leaves its model's domain with the FDM; oversample: FDM only, a multiple of the sample rate.
     """
-    engine = _choice(Engine, engine, "--method")
-    fallback = _choice(Fallback, fallback, "--fallback")
+    engine = parse_choice(Engine, engine, "--method")
+    fallback = parse_choice(Fallback, fallback, "--fallback")
     many = isinstance(scene, (list, tuple))
     scenes = list(scene) if many else [scene]
     if engine is Engine.fdm:
@@ -63,4 +64,4 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     return render_operator(scenes if many else scene, model=model, fallback=fallback.value)
 
 
-__all__ = ["Engine", "Fallback", "Render", "render"]
+__all__ = ["Engine", "Fallback", "Render", "parse_choice", "render"]

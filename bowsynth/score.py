@@ -416,10 +416,10 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
     of the sustains, each release then by the FDM from the sustain's last state. Notes no model covers are
     refused before anything renders (fallback 'fdm': rendered by the FDM instead, noted in info['notes'])."""
-    from .engines import Engine, Fallback, _choice, render
+    from .engines import Engine, Fallback, parse_choice, render
 
-    engine = _choice(Engine, method, "--method")
-    fb_mode = _choice(Fallback, fallback, "--fallback")
+    engine = parse_choice(Engine, method, "--method")
+    fb_mode = parse_choice(Fallback, fallback, "--fallback")
     if engine is Engine.fdm:
         return render([n.scene for n in notes], engine="fdm")
     missing = {id(n): why for n, why in uncovered(notes, model)}
