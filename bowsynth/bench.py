@@ -239,7 +239,7 @@ def window_errors(model, x0: np.ndarray, scene: Scene) -> np.ndarray:
     """NMSE(p) of the operator's one-window prediction from each state against an FDM x100 over the same window."""
     from .rollout import rollout_states
 
-    dtau = scene.omega / scene.sample_rate
+    dtau = scene.dtau
     n = int(math.floor(model.domain.window / dtau)) + 1  # the window's samples and the next window's first
     _, p, _ = rollout_states(model, x0, n, dtau, check_domain=False)
     out = []
@@ -269,7 +269,7 @@ def bench_windows(model, n_states: int = 64, seed: int = 1) -> list[dict]:
     band: training draws its states near the band, while the domain's mask, which a render is allowed to visit,
     reaches farther."""
     sc = Scene(**model.meta.scene)
-    n_win = int(math.floor(model.domain.window / (sc.omega / sc.sample_rate)))
+    n_win = int(math.floor(model.domain.window / sc.dtau))
     path = render_fdm(sc.replace(duration=1.0), oversample=REF_OVERSAMPLE)
     starts = np.stack([path.q[::n_win], path.p[::n_win]], 1)[:n_states]
     held = band_states(model, n_states, np.random.default_rng(seed), away=0.0)

@@ -74,7 +74,7 @@ class Domain:
         if not self.contains(scene.q0, scene.p0):
             out.append(f"initial state (q0, p0) = ({scene.q0:g}, {scene.p0:g}) is outside the trained states "
                        f"(q in [{self.q_lo:.3g}, {self.q_hi:.3g}], p in [{self.p_lo:.3g}, {self.p_hi:.3g}], on its band)")
-        if self.window / (scene.omega / scene.sample_rate) < 1:
+        if self.window / scene.dtau < 1:
             out.append(f"the window ({self.window:.3g} in tau) holds no sample at {scene.sample_rate} Hz, f0 {scene.f0:g}")
         return out
 

@@ -452,7 +452,7 @@ def render_operator(scene, model=None, fallback: str = "none"):
     t_setup = time.perf_counter()
     m = _resolve(scene, model)
     checked = _physics_notes(m)
-    dtau = scene.omega / scene.sample_rate
+    dtau = scene.dtau
     x0 = np.array([[scene.q0, scene.p0]])
     # warm-up: converts the weights, computes the trunk features at this render's sample offsets and loads the
     # compiled loop if it is used, so that `seconds` measures the rollout itself (start-up: info["setup_seconds"])
@@ -486,7 +486,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         checked = _physics_notes(m)
         n = max(scenes[i].n_samples for i in idx)
         x0 = np.array([[scenes[i].q0, scenes[i].p0] for i in idx])
-        dtau = np.array([scenes[i].omega / scenes[i].sample_rate for i in idx])
+        dtau = np.array([scenes[i].dtau for i in idx])
         loop = choose_loop(m, n, dtau)
         rollout_states(m, x0, 1, dtau, loop=loop)  # warm-up, as in render_operator
         t0 = time.perf_counter()
