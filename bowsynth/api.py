@@ -52,8 +52,12 @@ def load_model(path):
     return _l(path)
 
 
-def train(scene: Scene, config=None, out=None, force=False, resume=False, progress=False, console=None, **settings):
+def train(scene: Scene, config=None, out=None, force=False, resume=False, progress=False, console=None, box=None,
+          **settings):
     """Train an operator for `scene`, save it to `out` (default ./models/<name>.safetensors) and validate it.
+
+    box: a `bowsynth.training.ParamBox` of bows (beta, v_B) to train a range model for (see `range_scene`); the
+    scene then gives the pitch, sample rate and a at which the training renders are made.
 
     config: a `bowsynth.training.TrainConfig`; or settings as keywords (minutes=, steps=, seed=, optimizer=, ...:
     its fields; `window_ms` gives the window in ms at the scene's pitch; `width`/`depth` the network's). Its
@@ -65,7 +69,9 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
 
     config = config or make_train_config(scene, **settings)
     config.validate()
-    name = default_model_name(scene)
+    if box is not None and box.is_point:
+        box = None
+    name = default_model_name(scene) if box is None else range_model_name(scene, box)
     out = Path(out) if out else Path("models") / f"{name}.safetensors"
     if out.suffix != ".safetensors":
         raise UsageError(f"model files end in .safetensors, got {out}")
@@ -79,7 +85,7 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
         from .training import TrainResult, Trainer, validate
 
         out.parent.mkdir(parents=True, exist_ok=True)
-        tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f))
+        tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f), box=box)
         if resume:
             tr.load_checkpoint(ckpt)
         def on_step(rec):
@@ -91,9 +97,15 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
             rep.update("training", tr.progress(), f"step {tr.step}, {config.optimizer}")
             tr.run(ckpt=ckpt, on_step=on_step)
             model = tr.model()
-            rep.update("validating: 1 s rollout against a x100 FDM", 0.0)
-            model.meta.validation = validate(model, scene)
-            rep.update("validating: 1 s rollout against a x100 FDM", 1.0)
+            if box is None:
+                rep.update("validating: 1 s rollout against a x100 FDM", 0.0)
+                model.meta.validation = validate(model, scene)
+            else:
+                from .training import validate_range
+
+                rep.update("validating: 1 s rollouts on a 3 x 3 grid of the box against a x100 FDM", 0.0)
+                model.meta.validation = validate_range(model, scene, box)
+            rep.update("validated", 1.0)
         except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM raised as errors.Terminated by the CLI
             tr.save_checkpoint(ckpt)
             code = interrupt_exit_code(e)
@@ -102,6 +114,19 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     model.save(out, force=True)
     ckpt.unlink(missing_ok=True)
     return TrainResult(model, out, tr.history)
+
+
+def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: float = 1.0) -> Scene:
+    """The scene a range model trains at: the box's centre bow (geometric in beta) at this pitch and rate."""
+    beta = math.sqrt(max(box.beta_lo, 1e-12) * max(box.beta_hi, 1e-12))
+    return Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=(box.vb_lo + box.vb_hi) / 2, a=box.a, duration=duration,
+                 sample_rate=sample_rate)
+
+
+def range_model_name(scene: Scene, box) -> str:
+    w = scene.omega
+    return (f"range_fb{box.beta_lo * w:.4g}-{box.beta_hi * w:.4g}_f0{scene.f0:g}_vb{box.vb_lo:g}-{box.vb_hi:g}"
+            f"_a{box.a:g}")
 
 
 def make_train_config(scene: Scene, window_ms=None, width=None, depth=None, **fields):

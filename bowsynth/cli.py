@@ -181,17 +181,35 @@ def train(
     force: bool = typer.Option(False, "--force", help="Overwrite an existing model file."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint beside --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress (a bar in a terminal, a line every 10 s elsewhere)."),
+    score: Optional[Path] = typer.Option(None, "--score", help="Train a range model for the bows this score (.toml) or MIDI file (.mid) plays."),
+    a4: Optional[float] = typer.Option(None, "--a4", help="With --score: the pitch of A4 in Hz (default 440)."),
 ):
-    """Train a PI-DeepONet for a scene (its F_B / w, v_B, a and the states a render from its initial state visits)."""
+    """Train a PI-DeepONet for a scene (its F_B / w, v_B, a and the states a render from its initial state visits),
+    or for a playing range: --fb LO:HI and/or --vb LO:HI (at --f0), or --score FILE (the bows a score or MIDI file
+    plays). A range model plays any bow inside its box and follows gestures through it."""
     from . import api
 
-    scene = _scene(preset, f0, fb, vb, a, None, None, q0, p0)
-    if scene.varying:
-        raise UsageError("train takes one value each for --fb and --vb (a model of one scene), not a curve")
+    box = None
+    if score is not None:
+        if fb is not None or vb is not None or preset is not None:
+            raise UsageError("--score trains for the bows the score plays: drop --fb, --vb and --preset")
+        scene, box = _score_box(score, a4)
+    elif (fb is not None and ":" in fb) or (vb is not None and ":" in vb):
+        scene, box = _range_box(preset, f0, fb, vb, a)
+    else:
+        scene = _scene(preset, f0, fb, vb, a, None, None, q0, p0)
+        if scene.varying:
+            raise UsageError("train takes a number or a range LO:HI for --fb and --vb, not a curve (a range model "
+                             "follows curves inside its range): e.g. --fb 50:200")
     cfg = api.make_train_config(scene, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer,
                                 lbfgs_fraction=lbfgs, hybrid=hybrid, window_ms=window_ms, width=width, depth=depth,
-                                n_data=n_data, checkpoint_seconds=checkpoint_every)
-    res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err)
+                                n_data=n_data if box is None else None,
+                                range_n_data=n_data if box is not None else None,
+                                checkpoint_seconds=checkpoint_every)
+    if box is not None:
+        _say(False, f"training a range model: {box.describe()} at f0 {scene.f0:g} Hz", err)
+    res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err,
+                    box=box)
     v = res.model.meta.validation
     _say(False, f"model written to {res.path} ({res.model.id})")
     if res.model.failure:
@@ -199,9 +217,46 @@ def train(
                   f"longer (--minutes) before rendering with it", soft_wrap=True)
     if v.get("error"):
         return
+    if box is not None:
+        _say(False, f"validation (1 s from rest on a {v.get('grid')} x {v.get('grid')} grid of the box vs FDM "
+                    f"x{v.get('ref_oversample')}, where the note speaks): median NMSE(p) {_num(v.get('nmse'), '.3g')}, "
+                    f"worst {_num(v.get('nmse_max'), '.3g')}")
+        return
     _say(False, f"validation (1 s from the scene's initial state vs FDM x{v.get('ref_oversample')}): "
                 f"NMSE(p) {_num(v.get('nmse'), '.3g')}, NCC {_num(v.get('ncc_percent'), '.3f')} %, "
                 f"pitch error {_num(v.get('cents'), '+.3f')} cents")
+
+
+def _range_box(preset, f0, fb, vb, a):
+    """--fb / --vb as ranges: the ParamBox (beta = F_B / w at --f0) and the scene its band is rendered at."""
+    from . import api
+    from .training.ranges import ParamBox, parse_range
+
+    base = _scene(preset, f0, None, None, a, None, None, None, None)
+    fbr = parse_range(fb, "fb") if fb is not None else (float(base.fb),) * 2
+    vbr = parse_range(vb, "vb") if vb is not None else (float(base.vb),) * 2
+    for (lo, hi), name in ((fbr, "fb"), (vbr, "vb")):
+        if lo < 0:
+            raise UsageError(f"--{name} range must be >= 0, got {lo:g}:{hi:g}")
+    box = ParamBox.from_forces(fbr, vbr, base.f0, base.a)
+    return api.range_scene(box, base.f0, base.sample_rate), box
+
+
+def _score_box(path, a4):
+    """--score: the box of bows a score or MIDI file plays (its notes' sustains), at its lowest pitch's f0 (the
+    dynamics in tau depend on the bow only; the pitch sets where the windows fall)."""
+    from . import api
+    from .errors import UsageError as _U
+    from .score import load_score as load_notes, score_box
+    from .training.ranges import ParamBox
+
+    notes = load_notes(path, a4=a4)
+    b = score_box(notes)
+    if b["a"][0] != b["a"][1]:
+        raise _U(f"{path}: its notes use several friction shapes a ({b['a'][0]:g}..{b['a'][1]:g}); one model "
+                 f"covers one a: split the score")
+    box = ParamBox(b["beta"][0], b["beta"][1], b["vb"][0], b["vb"][1], b["a"][0])
+    return api.range_scene(box, b["f0"][0]), box
 
 
 def _num(v, fmt: str) -> str:

@@ -113,6 +113,15 @@ def bounds(value) -> tuple[float, float]:
     return float(value), float(value)
 
 
+def after(value, t0: float):
+    """A control as seen from t0 on (time t0 becomes 0): how a render continued from the middle of a note (the
+    operator's FDM fallback) keeps following the same curve."""
+    if not isinstance(value, Curve) or t0 <= 0:
+        return value
+    pts = [(t - t0, v) for t, v in value.points if t > t0]
+    return as_control([(0.0, float(value.at(t0)))] + pts)
+
+
 def parse_control(text: str, name: str):
     """A CLI value: a number (`100`) or a curve as VALUE@TIME pairs (`50@0,200@1.5`: 50 at 0 s rising to 200 at
     1.5 s)."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-from .errors import DomainError, UsageError
+from .errors import UsageError
 from .render import Render
 from .scene import Scene
 
@@ -34,15 +34,6 @@ def parse_choice(enum, value, flag: str):
         raise UsageError(f"{flag} must be {' or '.join(e.value for e in enum)}, got {value!r}") from None
 
 
-def _refuse_gestures(scenes: list[Scene]) -> None:
-    for i, sc in enumerate(scenes):
-        if sc.varying:
-            who = f"voice {i + 1}: " if len(scenes) > 1 else ""
-            raise DomainError(f"{who}the bow changes during this scene ({sc.describe()}) and no operator model "
-                              f"follows bow gestures yet (the shipped models each hold one F_B / w and v_B); "
-                              f"render it with --method fdm")
-
-
 def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1):
     """Render a Scene (or a list of Scenes) with the FDM or the operator.
 
@@ -58,7 +49,6 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
 
         out = [render_fdm(s, oversample=oversample) for s in scenes]
         return out if many else out[0]
-    _refuse_gestures(scenes)
     from .rollout import render_operator
 
     return render_operator(scenes if many else scene, model=model, fallback=fallback.value)

@@ -64,13 +64,17 @@ def cos_sin(z):
 
 
 @numba.njit(**_JIT)
-def _features(q, p, center, halfrange, ff, h):
-    """The branch's Fourier features of the state (q, p) into h: cos then sin."""
+def _features(q, p, center, halfrange, ff, pin, h):
+    """The branch's Fourier features of the state (q, p) and, for a range model, the window's bow inputs pin
+    (npnet.param_inputs; empty for a point model) into h: cos then sin."""
     a0 = (q - center[0]) / halfrange[0]
     a1 = (p - center[1]) / halfrange[1]
     m = ff.shape[1]
     for i in range(m):
-        c, s = cos_sin(a0 * ff[0, i] + a1 * ff[1, i])
+        z = a0 * ff[0, i] + a1 * ff[1, i]
+        for j in range(pin.shape[0]):
+            z += pin[j] * ff[2 + j, i]
+        c, s = cos_sin(z)
         h[i] = c
         h[m + i] = s
 
@@ -103,10 +107,11 @@ def window_end(w, spw):
 
 
 @numba.njit(**_JIT)
-def _end_state(q0, p0, oq, op, endb, endlin):
-    """The window's end state in float64: the linear flow plus the correction at the last offset."""
-    nq = q0 * endlin[0] + p0 * endlin[1] + endlin[2]
-    np_ = p0 * endlin[0] - q0 * endlin[1] + endlin[3]
+def _end_state(q0, p0, oq, op, g, endb, endlin):
+    """The window's end state in float64: the linear flow plus the correction at the last offset (oq, op already
+    times the range model's gain g, which the bias term takes here)."""
+    nq = q0 * endlin[0] + p0 * endlin[1] + g * endlin[2]
+    np_ = p0 * endlin[0] - q0 * endlin[1] + g * endlin[3]
     for kk in range(endb.shape[1]):
         nq += oq[kk] * endb[0, kk]
         np_ += op[kk] * endb[1, kk]
@@ -127,8 +132,8 @@ def _check(b, start, n, n_samples, nq, np_, check, box, mask, fail):
 
 
 @numba.njit(**_JIT)
-def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
-                Ow, Ob, box, mask, check, q_out, p_out, fail):
+def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, pin, gain, Gw, Gb, Hw,
+                Hb, Ow, Ob, box, mask, check, q_out, p_out, fail):
     """One voice after another, matrix-vector products.
 
     Gw, Gb: the weights of the modified MLP's gates U, V and first layer side by side; Hw, Hb: the other hidden
@@ -138,6 +143,8 @@ def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     cos, sin and bias (zero-padded past each spacing's n_hi), so that a window's samples are [o_q, q0, p0, 1] @ Bq
     and [o_p, p0, -q0, 1] @ Bp. A window holds n_lo = floor(spw) or n_hi = ceil(spw) samples (see window_end);
     endb (P, 2, 2, k) and endlin (P, 2, 4) give the end state after each of the two lengths.
+    pin (B, W, n_par) float64: each window's bow inputs (n_par 0 for a point model), gain (B, W): the correction's
+    factor per window (rollout.window_inputs); a voice's windows past W reuse its last.
     """
     k = endb.shape[3]
     width = Hw.shape[1]
@@ -156,7 +163,8 @@ def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
         win = 0
         while start < n_samples:
             n = window_end(win, spw[P]) - start
-            _features(q0, p0, center, halfrange, ff, h)
+            wi = min(win, pin.shape[1] - 1)
+            _features(q0, p0, center, halfrange, ff, pin[b, wi], h)
             _dense(h, Gw, Gb, g)
             for j in range(width):  # modified MLP: h = v + tanh(z) (u - v); u is kept as u - v
                 vv = tanh32(g[width + j])
@@ -168,9 +176,12 @@ def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
                 for j in range(width):
                     hh[j] = v[j] + tanh32(z[j]) * u[j]
             _dense(hh, Ow, Ob, o)
+            gw = gain[b, wi]
+            for j in range(2 * k):
+                o[j] *= gw
             m = min(n, n_samples - start)
-            _samples(q0, p0, o, Bq[P], Bp[P], m, q_out[b, start:start + m], p_out[b, start:start + m])
-            q0, p0 = _end_state(q0, p0, o[:k], o[k:], endb[P, n - n_lo[P]], endlin[P, n - n_lo[P]])
+            _samples(q0, p0, o, gw, Bq[P], Bp[P], m, q_out[b, start:start + m], p_out[b, start:start + m])
+            q0, p0 = _end_state(q0, p0, o[:k], o[k:], gw, endb[P, n - n_lo[P]], endlin[P, n - n_lo[P]])
             if not _check(b, start, n, n_samples, q0, p0, check, box, mask, fail):
                 break
             start += n
@@ -178,17 +189,19 @@ def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
 
 
 @numba.njit(**_JIT)
-def _samples(q0, p0, o, Bq, Bp, m, qrow, prow):
-    """A window's m samples: the linear flow, the bias and the correction o (2k) over the basis rows."""
+def _samples(q0, p0, o, g, Bq, Bp, m, qrow, prow):
+    """A window's m samples: the linear flow, the bias (times the gain g) and the correction o (2k) over the basis
+    rows."""
     k = o.shape[0] // 2
     qf = np.float32(q0)
     pf = np.float32(p0)
+    gf = np.float32(g)
     c, s = Bq[k], Bq[k + 1]
     biasq, biasp = Bq[k + 2], Bp[k + 2]
     for j in range(m):
-        qrow[j] = qf * c[j] + pf * s[j] + biasq[j]
+        qrow[j] = qf * c[j] + pf * s[j] + gf * biasq[j]
     for j in range(m):
-        prow[j] = pf * c[j] - qf * s[j] + biasp[j]
+        prow[j] = pf * c[j] - qf * s[j] + gf * biasp[j]
     for kk in range(k):
         w = o[kk]
         row = Bq[kk]
@@ -205,8 +218,8 @@ BLOCK = 64  # windows per pass of roll_batch
 
 
 @numba.njit(**_JIT)
-def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
-               Ow, Ob, box, mask, check, q_out, p_out, fail):
+def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, pin, gain, Gw, Gb, Hw,
+               Hb, Ow, Ob, box, mask, check, q_out, p_out, fail):
     """All voices one window at a time, the branch as matrix-matrix products (BLAS) over the voices. Same arguments
     as `roll_voices`; voices may play at different pitches.
 
@@ -224,6 +237,8 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
     h = np.empty((B, width), np.float32)
     O_blk = np.empty((B, BLOCK, 2 * k), np.float32)
     X_blk = np.empty((B, BLOCK, 2), np.float64)
+    G_blk = np.empty((B, BLOCK), np.float64)
+    last_w = pin.shape[1] - 1
     S_blk = np.empty((B, BLOCK), np.int64)  # each window's first sample, -1 where the voice computed none
     alive = np.ones(B, np.bool_)
     start = np.zeros(B, np.int64)
@@ -233,8 +248,9 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
         nb = 0
         S_blk[:] = -1
         while nb < BLOCK and running > 0:
+            wi = min(win, last_w)
             for b in range(B):
-                _features(x[b, 0], x[b, 1], center, halfrange, ff, H[b])
+                _features(x[b, 0], x[b, 1], center, halfrange, ff, pin[b, wi], H[b])
             G = np.dot(H, Gw)
             for b in range(B):  # modified MLP: h = v + tanh(z) (u - v); U is kept as u - v
                 for j in range(width):
@@ -256,12 +272,15 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
                 P = vidx[b]
                 n = window_end(win, spw[P]) - start[b]
                 o = O_blk[b, nb]
+                g = gain[b, wi]
                 for kk in range(2 * k):
-                    o[kk] = O[b, kk] + Ob[kk]
+                    o[kk] = (O[b, kk] + Ob[kk]) * g
                 X_blk[b, nb, 0] = x[b, 0]
                 X_blk[b, nb, 1] = x[b, 1]
+                G_blk[b, nb] = g
                 S_blk[b, nb] = start[b]
-                nq, np_ = _end_state(x[b, 0], x[b, 1], o[:k], o[k:], endb[P, n - n_lo[P]], endlin[P, n - n_lo[P]])
+                nq, np_ = _end_state(x[b, 0], x[b, 1], o[:k], o[k:], g, endb[P, n - n_lo[P]],
+                                     endlin[P, n - n_lo[P]])
                 if _check(b, start[b], n, n_samples, nq, np_, check, box, mask, fail):
                     x[b, 0] = nq
                     x[b, 1] = np_
@@ -281,8 +300,8 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
                 if s0 < 0:
                     continue
                 m = min(window_end(win - nb + i, spw[P]) - s0, n_samples - s0)
-                _samples(X_blk[b, i, 0], X_blk[b, i, 1], O_blk[b, i], Bq[P], Bp[P], m, q_out[b, s0:s0 + m],
-                         p_out[b, s0:s0 + m])
+                _samples(X_blk[b, i, 0], X_blk[b, i, 1], O_blk[b, i], G_blk[b, i], Bq[P], Bp[P], m,
+                         q_out[b, s0:s0 + m], p_out[b, s0:s0 + m])
 
 
 def warm() -> None:

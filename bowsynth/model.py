@@ -22,7 +22,8 @@ from .scene import Scene
 
 FORMAT = "bowsynth-operator"
 FORMAT_VERSION = 2  # 2: a digest binds the metadata to the weights
-READ_VERSIONS = (1, 2)
+RANGE_VERSION = 3  # 3: a range model (its domain has a box of bows, its branch takes them); point models stay 2
+READ_VERSIONS = (1, 2, 3)
 META_KEY = "bowsynth"
 REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the network does not take them as input
 # A model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above this is
@@ -43,6 +44,29 @@ class Domain:
     p_lo: float
     p_hi: float
     mask: np.ndarray = field(repr=False, default=None)  # (G, G) bool over the box: cells near training states
+    # a range model: [beta_lo, beta_hi, vb_lo, vb_hi], the bows it plays (beta, vb above: the box's centre, where the
+    # render-time physics check runs); None: a point model, which plays (beta, vb) only
+    box: list | None = None
+
+    @property
+    def is_range(self) -> bool:
+        return self.box is not None
+
+    def box_contains(self, beta, vb) -> np.ndarray:
+        """Elementwise: is the bow (beta, v_B) inside this model's box (a point model: equal to its point)?"""
+        beta, vb = np.asarray(beta, float), np.asarray(vb, float)
+        if self.box is None:
+            return (np.isclose(beta, self.beta, rtol=REL_TOL, atol=1e-12)
+                    & np.isclose(vb, self.vb, rtol=REL_TOL, atol=1e-12))
+        b0, b1, v0, v1 = self.box
+        tb, tv = REL_TOL * max(b1, 1e-12), REL_TOL * max(abs(v1), 1e-12)
+        return (beta >= b0 - tb) & (beta <= b1 + tb) & (vb >= v0 - tv) & (vb <= v1 + tv)
+
+    def describe_bows(self) -> str:
+        if self.box is None:
+            return f"F_B / w {self.beta:.4g}, v_B {self.vb:g}"
+        b0, b1, v0, v1 = self.box
+        return f"F_B / w {b0:.4g}..{b1:.4g}, v_B {v0:g}..{v1:g}"
 
     def contains(self, q, p) -> np.ndarray:
         """Elementwise: is the state (q, p) inside the box and on a cell of the mask?"""
@@ -61,11 +85,26 @@ class Domain:
         return np.clip(i, 0, grid - 1), np.clip(j, 0, grid - 1)
 
     def physics_mismatch(self, scene: Scene) -> list[str]:
-        """Reasons the scene's dimensionless physics differs from the model's (empty when it matches)."""
+        """Reasons the scene's dimensionless physics differs from the model's (empty when it matches). A range model
+        covers a scene whose bow stays in its box all the time (the curves are linear between breakpoints, so their
+        extremes are breakpoint values)."""
         out = []
-        for name, have, want in (("F_B / w", scene.beta, self.beta), ("v_B", scene.vb, self.vb), ("a", scene.a, self.a)):
-            if not math.isclose(have, want, rel_tol=REL_TOL, abs_tol=1e-12):
-                out.append(f"{name} = {have:.6g}, model has {want:.6g}")
+        if not math.isclose(scene.a, self.a, rel_tol=REL_TOL, abs_tol=1e-12):
+            out.append(f"a = {scene.a:.6g}, model has {self.a:.6g}")
+        if self.box is None:
+            if scene.varying:
+                out.append(f"the bow changes during the scene; this model plays one bow ({self.describe_bows()})")
+                return out
+            for name, have, want in (("F_B / w", scene.beta, self.beta), ("v_B", scene.vb, self.vb)):
+                if not math.isclose(have, want, rel_tol=REL_TOL, abs_tol=1e-12):
+                    out.insert(0, f"{name} = {have:.6g}, model has {want:.6g}")
+            return out
+        b0, b1, v0, v1 = self.box
+        (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
+        if not (self.box_contains(blo, v0) and self.box_contains(bhi, v0)):
+            out.append(f"F_B / w {_span(blo, bhi)} leaves the model's {b0:.4g}..{b1:.4g}")
+        if not (self.box_contains(b0, vlo) and self.box_contains(b0, vhi)):
+            out.append(f"v_B {_span(vlo, vhi, '.4g')} leaves the model's {v0:g}..{v1:g}")
         return out
 
     def mismatch(self, scene: Scene) -> list[str]:
@@ -82,6 +121,10 @@ class Domain:
         d = asdict(self)
         d.pop("mask")
         return d
+
+
+def _span(lo: float, hi: float, fmt: str = ".4g") -> str:
+    return f"{lo:{fmt}}" if lo == hi else f"{lo:{fmt}}..{hi:{fmt}}"
 
 
 @dataclass
@@ -210,7 +253,7 @@ class OperatorModel:
         tensors = dict(self.weights)
         tensors["domain.mask"] = np.ascontiguousarray(self.domain.mask, dtype=np.uint8)
         self.meta.id = model_id(self.meta.name, tensors)
-        self.meta.format_version = FORMAT_VERSION
+        self.meta.format_version = RANGE_VERSION if self.domain.is_range else FORMAT_VERSION
         self.meta.digest = ""
         self.meta.digest = digest(json.loads(self.meta.to_json()), tensors)
         atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: self.meta.to_json()}))

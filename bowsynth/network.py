@@ -13,7 +13,7 @@ import math
 import torch
 from torch import nn
 
-from .npnet import NetConfig  # noqa: F401  (torch-free: model files are read without torch)
+from .npnet import PARAM_SPAN, NetConfig  # noqa: F401  (torch-free: model files are read without torch)
 
 
 class FourierFeatures(nn.Module):
@@ -54,13 +54,16 @@ class DeepONet(nn.Module):
         gen = torch.Generator().manual_seed(seed)
         torch.manual_seed(seed)
         self.cfg = cfg
-        self.branch = ModifiedMLP(2, cfg.width, cfg.depth, 2 * cfg.k, cfg.ff_branch, cfg.sigma_branch, gen)
+        self.branch = ModifiedMLP(2 + cfg.params, cfg.width, cfg.depth, 2 * cfg.k, cfg.ff_branch, cfg.sigma_branch, gen)
         self.trunk = ModifiedMLP(1, cfg.width, cfg.depth, 2 * cfg.k, cfg.ff_trunk, cfg.sigma_trunk, gen)
         self.bias = nn.Parameter(torch.zeros(2))
         self.register_buffer("center", torch.zeros(2))  # state centre and half-range: branch input scaling
         self.register_buffer("halfrange", torch.ones(2))
         self.register_buffer("corr_scale", torch.ones(2))  # c: size of the friction correction per variable
         self.register_buffer("window", torch.tensor(2 * math.pi))  # T, in tau
+        if cfg.params:  # range models: (log beta, v_B) -> (u - pcenter) / pscale, the box within +-PARAM_SPAN
+            self.register_buffer("pcenter", torch.zeros(cfg.params))
+            self.register_buffer("pscale", torch.ones(cfg.params))
 
     def set_scales(self, center, halfrange, corr_scale, window: float):
         self.center.copy_(torch.as_tensor(center))
@@ -68,9 +71,32 @@ class DeepONet(nn.Module):
         self.corr_scale.copy_(torch.as_tensor(corr_scale))
         self.window.fill_(float(window))
 
-    def branch_features(self, x0):
-        """(B, 2) states -> (B, 2, k)."""
-        return self.branch((x0 - self.center) / self.halfrange).view(-1, 2, self.cfg.k)
+    def set_box(self, box):
+        """Scale the parameter inputs to a ParamBox (log beta, v_B): its edges at +-PARAM_SPAN (a side of zero
+        width gives input 0)."""
+        lo = torch.tensor([math.log(max(box.beta_lo, 1e-12)), box.vb_lo], dtype=torch.float64)
+        hi = torch.tensor([math.log(max(box.beta_hi, 1e-12)), box.vb_hi], dtype=torch.float64)
+        half = (hi - lo) / 2
+        self.pcenter.copy_((lo + hi) / 2)
+        self.pscale.copy_(torch.where(half > 0, half / PARAM_SPAN, torch.ones_like(half)))
+
+    def param_inputs(self, par):
+        """(B, 2) bows (beta, v_B) -> (B, 2) branch inputs (npnet.param_inputs)."""
+        u = torch.stack([par[:, 0].clamp_min(1e-12).log(), par[:, 1]], dim=1)
+        return (u - self.pcenter) / self.pscale
+
+    def gain(self, par):
+        """(B,) correction factors beta / beta_ref, or None (npnet.gain)."""
+        if not self.cfg.corr_beta:
+            return None
+        return par[:, 0] / self.pcenter[0].exp()
+
+    def branch_features(self, x0, par=None):
+        """(B, 2) states (and (B, 2) bows (beta, v_B) for a range model) -> (B, 2, k)."""
+        x = (x0 - self.center) / self.halfrange
+        if self.cfg.params:
+            x = torch.cat([x, self.param_inputs(par)], dim=1)
+        return self.branch(x).view(-1, 2, self.cfg.k)
 
     def trunk_features(self, s):
         """(M,) window fractions -> (M, 2, k)."""
@@ -81,10 +107,12 @@ class DeepONet(nn.Module):
         f, df = torch.func.jvp(self.trunk_features, (s,), (torch.ones_like(s),))
         return f, df
 
-    def assemble(self, x0, tau, bf, tf, dtf=None):
+    def assemble(self, x0, tau, bf, tf, dtf=None, gain=None):
         """Trajectories (B, M, 2) from branch features bf (B, 2, k) and trunk features tf (M, 2, k) at times tau;
-        with the trunk's s-derivative dtf, also their tau-derivatives."""
+        with the trunk's s-derivative dtf, also their tau-derivatives. gain (B,): the correction's factor
+        beta / beta_ref of a range model (None: 1)."""
         s = (tau / self.window)[None, :, None]
+        scale = self.corr_scale if gain is None else self.corr_scale * gain[:, None, None]
         n = torch.einsum("bjk,mjk->bmj", bf, tf) + self.bias  # (B, M, 2)
         q0, p0 = x0[:, 0:1], x0[:, 1:2]
         c, sn = torch.cos(tau)[None, :], torch.sin(tau)[None, :]
@@ -94,18 +122,22 @@ class DeepONet(nn.Module):
         else:
             lq, lp = q0 * torch.ones_like(c), p0 * torch.ones_like(c)
             dlin = torch.zeros(*lq.shape, 2)
-        x = torch.stack([lq, lp], dim=-1) + s * self.corr_scale * n
+        x = torch.stack([lq, lp], dim=-1) + s * scale * n
         if dtf is None:
             return x
         dn = torch.einsum("bjk,mjk->bmj", bf, dtf)  # dN/ds
-        dx = dlin + self.corr_scale / self.window * (n + s * dn)
+        dx = dlin + scale / self.window * (n + s * dn)
         return x, dx
 
-    def forward(self, x0, tau):
-        """States x0 (B, 2) and times tau (M,) in [0, T] -> trajectories (B, M, 2)."""
-        return self.assemble(x0, tau, self.branch_features(x0), self.trunk_features(tau / self.window))
+    def forward(self, x0, tau, par=None):
+        """States x0 (B, 2) (and bows par (B, 2) for a range model) and times tau (M,) in [0, T] -> trajectories
+        (B, M, 2)."""
+        gain = None if par is None else self.gain(par)
+        return self.assemble(x0, tau, self.branch_features(x0, par), self.trunk_features(tau / self.window),
+                             gain=gain)
 
-    def forward_with_dt(self, x0, tau):
+    def forward_with_dt(self, x0, tau, par=None):
         """Trajectories and their tau-derivatives, both (B, M, 2)."""
         tf, dtf = self.trunk_features_jvp(tau / self.window)
-        return self.assemble(x0, tau, self.branch_features(x0), tf, dtf)
+        gain = None if par is None else self.gain(par)
+        return self.assemble(x0, tau, self.branch_features(x0, par), tf, dtf, gain=gain)

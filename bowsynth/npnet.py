@@ -24,15 +24,28 @@ class NetConfig:
     sigma_branch: float = 1.0
     sigma_trunk: float = 2.0
     linear_flow: bool = True  # carry the exact frictionless flow R(tau) x0 in the output (False: x0, for ablation)
+    # Range models: the branch also takes the window's bow (log beta, v_B), scaled by the buffers pcenter/pscale so
+    # that the box spans [-PARAM_SPAN, PARAM_SPAN] before the Fourier features (0 inputs: a point model)
+    params: int = 0
+    # the correction scaled by beta / beta_ref (range models): what friction adds over a window is first order in
+    # beta, so the net's output stays O(1) across a box whose beta spans a factor 27
+    corr_beta: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
+# Parameter inputs normalised to [-1, 1] like the state made rollouts diverge (median NMSE(p) 32 over a 4 x 4 grid);
+# scaled to [-0.3, 0.3] the branch is smoother in the bow: median 0.15 after the same 15 minutes (shared/GUIDE.md 8)
+PARAM_SPAN = 0.3
+
+
 def weight_shapes(cfg: NetConfig) -> dict[str, tuple]:
     """Name -> shape of every tensor of a DeepONet with this configuration (torch's state_dict layout)."""
     out: dict[str, tuple] = {"bias": (2,), "center": (2,), "halfrange": (2,), "corr_scale": (2,), "window": ()}
-    for part, in_dim, m in (("branch", 2, cfg.ff_branch), ("trunk", 1, cfg.ff_trunk)):
+    if cfg.params:
+        out.update({"pcenter": (cfg.params,), "pscale": (cfg.params,)})
+    for part, in_dim, m in (("branch", 2 + cfg.params, cfg.ff_branch), ("trunk", 1, cfg.ff_trunk)):
         out[f"{part}.ff.B"] = (in_dim, m)
         for gate in ("U", "V"):
             out[f"{part}.{gate}.weight"] = (cfg.width, 2 * m)
@@ -63,7 +76,24 @@ def trunk_features(w: dict, cfg: NetConfig, s: np.ndarray) -> np.ndarray:
     return modified_mlp(w, "trunk", cfg.depth, np.asarray(s, float)[:, None]).reshape(-1, 2, cfg.k) / math.sqrt(cfg.k)
 
 
-def branch_features(w: dict, cfg: NetConfig, x0: np.ndarray) -> np.ndarray:
-    """DeepONet.branch_features: (B, 2) states -> (B, 2, k)."""
-    x = (np.asarray(x0, float) - w["center"].astype(float)) / w["halfrange"].astype(float)
+def param_inputs(w: dict, par) -> np.ndarray:
+    """(B, 2) bows (beta, v_B) -> the branch's parameter inputs (B, 2): (log beta, v_B) scaled by pcenter, pscale."""
+    par = np.asarray(par, float).reshape(-1, 2)
+    u = np.stack([np.log(np.maximum(par[:, 0], 1e-12)), par[:, 1]], axis=1)
+    return (u - w["pcenter"].astype(float)) / w["pscale"].astype(float)
+
+
+def gain(w: dict, cfg: NetConfig, beta) -> np.ndarray:
+    """The correction's factor beta / beta_ref (1 unless cfg.corr_beta); beta_ref is the box's centre."""
+    beta = np.asarray(beta, float)
+    if not cfg.corr_beta:
+        return np.ones_like(beta)
+    return beta / math.exp(float(w["pcenter"][0]))
+
+
+def branch_features(w: dict, cfg: NetConfig, x0: np.ndarray, par=None) -> np.ndarray:
+    """DeepONet.branch_features: (B, 2) states (and (B, 2) bows for a range model) -> (B, 2, k)."""
+    x = (np.asarray(x0, float).reshape(-1, 2) - w["center"].astype(float)) / w["halfrange"].astype(float)
+    if cfg.params:
+        x = np.concatenate([x, param_inputs(w, par)], axis=1)
     return modified_mlp(w, "branch", cfg.depth, x).reshape(-1, 2, cfg.k)

@@ -22,8 +22,10 @@ from .scene import Scene
 
 SHIPPED_DIR = Path(__file__).resolve().parent / "models"  # inside the package: a wheel carries them
 FAIL_NONFINITE, FAIL_DOMAIN = 1, 2  # why a voice stopped (the compiled loops in `kernels` write the same codes)
+FAIL_BOW = 3  # the bow left the model's range (found before the rollout, from the scene's curves)
 FAILURES = {FAIL_NONFINITE: "the rollout turned non-finite",
-            FAIL_DOMAIN: "the rollout left the model's trained states"}
+            FAIL_DOMAIN: "the rollout left the model's trained states",
+            FAIL_BOW: "the bow left the model's range"}
 
 
 def model_dirs() -> list[Path]:
@@ -71,8 +73,38 @@ def available_models() -> list[OperatorModel]:
 
 
 def train_hint(scene: Scene) -> str:
-    return (f"bowsynth train --fb {scene.fb:g} --f0 {scene.f0:g} --vb {scene.vb:g} --a {scene.a:g}"
+    """The `bowsynth train` command whose model would cover the scene (a range for a scene whose bow moves)."""
+    from .controls import bounds
+
+    def arg(v):
+        lo, hi = bounds(v)
+        return f"{lo:g}" if lo == hi else f"{lo:g}:{hi:g}"
+    return (f"bowsynth train --fb {arg(scene.fb)} --f0 {scene.f0:g} --vb {arg(scene.vb)} --a {scene.a:g}"
             + (f" --q0 {scene.q0:g} --p0 {scene.p0:g}" if scene.q0 or scene.p0 else ""))
+
+
+def first_bow_outside(model: OperatorModel, scene: Scene) -> tuple[float, str] | None:
+    """Where the scene's bow first leaves the model's range, in the windows the operator would play it: (time in s,
+    'F_B = ... at t = ...' naming the parameter and value), or None if it never does."""
+    spw = _operator(model).samples_per_window(scene.dtau)
+    bows = scene_bows(scene, spw)
+    d = model.domain
+    bad = np.flatnonzero(~d.box_contains(bows[:, 0], bows[:, 1]))
+    if not bad.size:
+        return None
+    w = int(bad[0])
+    t = window_bounds(spw, scene.n_samples)[0][w] / scene.sample_rate
+    beta, vb = bows[w]
+    if d.box is None:
+        lo_b = hi_b = d.beta
+        lo_v = hi_v = d.vb
+    else:
+        lo_b, hi_b, lo_v, hi_v = d.box
+    if not (lo_b * (1 - 1e-6) <= beta <= hi_b * (1 + 1e-6)):
+        what = f"F_B = {beta * scene.omega:.4g} (F_B / w {beta:.4g}) at t = {t:.3f} s"
+    else:
+        what = f"v_B = {vb:.4g} at t = {t:.3f} s"
+    return t, what
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
@@ -92,14 +124,47 @@ def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> Opera
                           f"to use it anyway, train longer with `{train_hint(scene)} --minutes 10`, or render with "
                           f"--method fdm")
 
+    (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
+
     def dist(m):
         d = m.domain
-        return abs(math.log(max(scene.beta, 1e-9) / max(d.beta, 1e-9))) + abs(scene.vb - d.vb) + abs(math.log(scene.a / d.a))
+        b0, b1, v0, v1 = d.box if d.box else (d.beta, d.beta, d.vb, d.vb)
+        db = max(0.0, math.log(max(b0, 1e-9) / max(blo, 1e-9)), math.log(max(bhi, 1e-9) / max(b1, 1e-9)))
+        return db + max(0.0, v0 - vlo, vhi - v1) + abs(math.log(scene.a / d.a))
     near = sorted(models, key=dist)[:3]
-    lines = "; ".join(f"{m.path.name if m.path else m.meta.name} ({', '.join(m.domain.mismatch(scene))})"
-                      for m in near) or "none found"
-    raise DomainError(f"no model covers this scene (F_B / w = {scene.beta:.4g}, v_B = {scene.vb:g}, a = {scene.a:g}); "
-                      f"nearest: {lines}. Train one with `{train_hint(scene)}`, or render with --method fdm")
+
+    def why(m):
+        out = m.domain.mismatch(scene)
+        where = first_bow_outside(m, scene) if m.domain.is_range else None
+        if where:
+            out = [f"{where[1]} leaves its {m.domain.describe_bows()}"] + [
+                o for o in out if not o.startswith(("F_B", "v_B"))]
+        return ", ".join(out)
+    lines = "; ".join(f"{m.path.name if m.path else m.meta.name} ({why(m)})" for m in near) or "none found"
+    bow = (f"F_B / w = {_span(blo, bhi)}, v_B = {_span(vlo, vhi)}")
+    raise DomainError(f"no model covers this scene ({bow}, a = {scene.a:g}); nearest: {lines}. Train one with "
+                      f"`{train_hint(scene)}`, or render with --method fdm (or --fallback fdm)")
+
+
+def _span(lo: float, hi: float) -> str:
+    return f"{lo:.4g}" if lo == hi else f"{lo:.4g}..{hi:.4g}"
+
+
+def partial_model(scene: Scene, models: list[OperatorModel] | None = None):
+    """For --fallback fdm when no model covers the whole scene: the validated model that plays its opening longest
+    (the start state and first bow inside, the bow leaving later), and the time it leaves; or None."""
+    if models is None:
+        models = available_models()
+    best = None
+    for m in models:
+        if m.failure is not None or not m.domain.is_range or not m.domain.contains(scene.q0, scene.p0):
+            continue
+        if not math.isclose(scene.a, m.domain.a, rel_tol=1e-6):
+            continue
+        where = first_bow_outside(m, scene)
+        if where and where[0] > 0 and (best is None or where[0] > best[1]):
+            best = (m, where[0])
+    return best
 
 
 class NumpyOperator:
@@ -122,6 +187,15 @@ class NumpyOperator:
         d64 = lambda name: w[name].astype(np.float64)  # noqa: E731
         self.center, self.halfrange = d64("center"), d64("halfrange")
         self.corr_scale, self.window, self.bias = d64("corr_scale"), float(w["window"]), d64("bias")
+
+    def window_inputs(self, par: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bows (B, W, 2) (beta, v_B) per window -> the loops' pin (B, W, n_par) and gain (B, W), float64."""
+        B, W = par.shape[:2]
+        if not self.cfg.params:
+            return np.zeros((B, W, 0)), np.ones((B, W))
+        flat = par.reshape(-1, 2)
+        pin = npnet.param_inputs(self._w, flat).reshape(B, W, -1)
+        return np.ascontiguousarray(pin), np.ascontiguousarray(npnet.gain(self._w, self.cfg, flat[:, 0]).reshape(B, W))
 
     def trunk_features(self, s_list: list) -> list:
         """The trunk features (M, 2, k) at each array of window fractions in s_list, float64.
@@ -250,8 +324,52 @@ def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
     return "numba" if slow > NUMBA_PAYS_FROM else "numpy"
 
 
+def window_bounds(spw: float, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) in samples of the windows that cover n_samples at spw samples per window (kernels.window_end)."""
+    W = int(np.ceil((n_samples + 0.5) / spw)) + 1
+    ends = np.floor(np.arange(1, W + 1) * spw + 0.5).astype(np.int64)
+    keep = int(np.searchsorted(ends, n_samples)) + 1  # the first window that reaches n_samples is the last
+    ends = ends[:keep]
+    return np.concatenate([[0], ends[:-1]]).astype(np.int64), ends
+
+
+def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
+    """The bow (beta, v_B) the operator applies in each window of a render of the scene: the controls at the
+    window's middle (held over the window: second order in the window length; held at its start the error of a
+    crescendo is 200x larger, shared/GUIDE.md 8). (W, 2)."""
+    starts, ends = window_bounds(spw, scene.n_samples if n_samples is None else n_samples)
+    t = 0.5 * (starts + ends) / scene.sample_rate
+    return np.stack([scene.fb_at(t) / scene.omega, scene.vb_at(t)], axis=1)
+
+
+def applied_controls(scene: Scene, spw: float, bows: np.ndarray) -> dict:
+    """Per output sample, the controls the operator applied (Render.controls): fb (m/s^2) and vb, piecewise constant
+    per window."""
+    n = scene.n_samples
+    starts, ends = window_bounds(spw, n)
+    lens = np.minimum(ends, n) - starts
+    rep = lambda v: np.repeat(v[:len(lens)], lens)[:n]  # noqa: E731
+    return {"fb": rep(bows[:, 0] * scene.omega), "vb": rep(bows[:, 1])}
+
+
+def _window_bows(model: OperatorModel, B: int, W: int, params) -> np.ndarray:
+    """params as (B, W, 2) bows per window: None (a range model's own centre; ignored by a point model), one bow for
+    all, one per voice (B, 2), or per voice and window (B, W', 2), padded with each voice's last."""
+    d = model.domain
+    if params is None:
+        params = [d.beta, d.vb]
+    par = np.asarray(params, float)
+    if par.ndim == 1:
+        par = np.broadcast_to(par, (B, 2))
+    if par.ndim == 2:
+        par = np.broadcast_to(par[:, None, :], (B, W, 2))
+    if par.shape[1] < W:
+        par = np.concatenate([par, np.repeat(par[:, -1:], W - par.shape[1], axis=1)], axis=1)
+    return par[:, :W]
+
+
 def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, check_domain: bool = True,
-                   loop: str = "auto"):
+                   loop: str = "auto", params=None):
     """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau (one spacing for all voices,
     or one per voice: voices at different pitches roll in one batch).
 
@@ -260,6 +378,8 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     Returns q, p (B, n_samples) float32 and fail (B, 2) int: per voice the first sample of the window where the
     rollout left the model's domain or went non-finite, and the reason (a key of FAILURES), or (-1, 0). A failed
     voice stops there (its later samples are NaN); the other voices go on.
+    params: a range model's bows (beta, v_B): one (2,), per voice (B, 2) or per voice and window (B, W, 2) (see
+    scene_bows); None plays the model's own (centre) bow. They are not checked against the model's box here.
     """
     x = np.array(x0, dtype=float).reshape(-1, 2)
     B = len(x)
@@ -272,7 +392,9 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     p = np.empty((B, n_samples), np.float32)
     fail = np.tile(np.array([-1, 0], np.int64), (B, 1))  # the loops write only the voices that fail
     d = model.domain
-    args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, *op.weights,
+    W = int(np.ceil((n_samples + 0.5) / spw.min())) + 1  # as many windows as the loops may start
+    pin, gain = op.window_inputs(_window_bows(model, B, W, params))
+    args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
     if loop == "auto":
         loop = choose_loop(model, n_samples, dt)
@@ -293,8 +415,8 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
 BLOCK = 256  # windows per pass of the two-pass loops: bounds the stored branch outputs (B x BLOCK x 2k floats)
 
 
-def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, Gw, Gb, Hw, Hb,
-                Ow, Ob, box, mask, check, q_out, p_out, fail):
+def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, pin, gain, Gw, Gb, Hw,
+                Hb, Ow, Ob, box, mask, check, q_out, p_out, fail):
     """kernels.roll_batch in numpy (same arguments, same float32 arithmetic up to rounding), in two passes per block
     of BLOCK windows.
 
@@ -316,7 +438,9 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     n_run = (starts < n_samples).sum(axis=1)  # windows each voice needs
     # per window as few numpy calls as possible (each costs microseconds): the features' scaling folded into ff,
     # and the end state as one product of [o_q, o_p, q0, p0, 1] with E[pitch, length] (float64, kernels._end_state)
-    ffs, off = ff / halfrange[:, None], (center / halfrange) @ ff
+    ffs, off = ff[:2] / halfrange[:, None], (center / halfrange) @ ff[:2]
+    ffp = ff[2:]  # a range model's bow inputs (pin) enter the same features
+    last_w = pin.shape[1] - 1
     E = np.zeros((len(spw), 2, 2 * k + 3, 2))
     E[:, :, :k, 0], E[:, :, k:2 * k, 1] = endb[:, :, 0], endb[:, :, 1]
     E[:, :, 2 * k, 0], E[:, :, 2 * k + 1, 0], E[:, :, 2 * k + 2, 0] = endlin[..., 0], endlin[..., 1], endlin[..., 2]
@@ -332,6 +456,7 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
         w1 = min(w0 + BLOCK, W)
         O_blk = np.empty((B, w1 - w0, 2 * k), np.float32)
         X_blk = np.empty((B, w1 - w0, 2), np.float64)
+        G_blk = np.empty((B, w1 - w0), np.float64)
         act = rows
         for win in range(w0, w1):
             if win >= n_run.min() or not alive.all():
@@ -340,7 +465,11 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
                     break
             xa = x[act]
             X_blk[act, win - w0] = xa
+            wi = min(win, last_w)
             z = xa @ ffs - off
+            if ffp.shape[0]:
+                z += pin[act, wi] @ ffp
+            ga = gain[act, wi]
             h = np.concatenate([np.cos(z), np.sin(z)], axis=1).astype(np.float32)
             T = np.tanh(h @ Gw + Gb)
             V = T[:, width:2 * width]
@@ -348,10 +477,11 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
             hh = V + T[:, 2 * width:] * U
             for layer in range(Hw.shape[0]):
                 hh = V + np.tanh(hh @ Hw[layer] + Hb[layer]) * U
-            O = hh @ Ow + Ob  # (A, 2k)
+            O = (hh @ Ow + Ob) * ga[:, None].astype(np.float32)  # (A, 2k)
             O_blk[act, win - w0] = O
+            G_blk[act, win - w0] = ga
             done[act] = win + 1
-            nx = np.einsum("ai,aij->aj", np.concatenate([O, xa, np.ones((len(act), 1))], axis=1),
+            nx = np.einsum("ai,aij->aj", np.concatenate([O, xa, ga[:, None]], axis=1),
                            E[vidx[act], jlen[act, win]])
             ok = np.isfinite(nx).all(axis=1)
             if check:
@@ -375,7 +505,7 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
                 continue
             nw, nh = wb - w0, n_hi[vidx[b]]
             xf = X_blk[b, :nw].astype(np.float32)
-            ones = np.ones((nw, 1), np.float32)
+            ones = G_blk[b, :nw, None].astype(np.float32)  # the bias rows take the gain
             # (nw, n_hi): one row per window, this pitch's columns only (the stack is padded to the longest window)
             Tq = np.concatenate([O_blk[b, :nw, :k], xf, ones], axis=1) @ Bq[vidx[b], :, :nh]
             Tp = np.concatenate([O_blk[b, :nw, k:], xf[:, ::-1] * pm, ones], axis=1) @ Bp[vidx[b], :, :nh]
@@ -387,12 +517,22 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
             p_out[b, first:last] = Tp.ravel()[flat]
 
 
-def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None) -> OperatorModel:
+def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fallback: str = "none"):
     if model is None:
-        return find_model(scene, models)
+        try:
+            return find_model(scene, models)
+        except DomainError:
+            part = partial_model(scene, models) if fallback == "fdm" else None
+            if part is None:
+                raise
+            return part[0]
     if not isinstance(model, OperatorModel):
         model = load_model(model)
     why = model.domain.mismatch(scene)
+    if why and fallback == "fdm" and model.domain.is_range and model.domain.contains(scene.q0, scene.p0):
+        where = first_bow_outside(model, scene)
+        if where and where[0] > 0:
+            return model
     if why:
         raise DomainError(f"model {model.path or model.meta.name} does not cover this scene: {'; '.join(why)}. "
                           f"Train one with `{train_hint(scene)}`, or render with --method fdm")
@@ -406,6 +546,8 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
     if at < 0 or at >= scene.n_samples:  # a shorter voice of a batch may fail after its own end
         return []
     why = FAILURES[code]
+    if code == FAIL_BOW and len(fail) > 2:
+        why += f" ({fail[2]})"
     if fallback != "fdm":
         raise DomainError(f"{voice}{why} at t = {at / scene.sample_rate:.4f} s; the render was stopped (use --fallback "
                           f"fdm to finish with the FDM, or --method fdm)")
@@ -413,7 +555,9 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
 
     start = max(at - 1, 0)
     q0, p0 = (float(q[start]), float(p[start])) if at else (scene.q0, scene.p0)
-    rest = render_fdm(scene.replace(duration=(scene.n_samples - start) / scene.sample_rate, q0=q0, p0=p0))
+    # the FDM goes on from sample `start` with the curves as they stand there
+    rest = render_fdm(scene.after(start / scene.sample_rate, duration=(scene.n_samples - start) / scene.sample_rate,
+                                  q0=q0, p0=p0))
     q[start:], p[start:] = rest.q[:scene.n_samples - start], rest.p[:scene.n_samples - start]
     return [f"note: {voice}{why} at t = {at / scene.sample_rate:.4f} s; finished with the FDM from there"]
 
@@ -440,70 +584,100 @@ def render_operator(scene, model=None, fallback: str = "none"):
     """Render one scene (or a list of scenes, batched in one rollout) with a trained operator.
 
     model: an OperatorModel, a path, or None to pick the best validated model that covers the scene (see
-    find_model). fallback='fdm' finishes a rollout that leaves the model's domain with the FDM (and says so in
-    info['notes']); 'none' raises DomainError. Every render first checks the model's physics (check_physics) and
-    raises ModelFileError if the model does not do what its metadata claims.
-    The arrays of an operator render are float32, the network's precision.
+    find_model). A range model follows the scene's bow curves window by window (scene_bows); a point model plays
+    scenes of its one bow. fallback='fdm' finishes a rollout that leaves the model's domain, or a bow that leaves
+    every model's range, with the FDM (and says so in info['notes']); 'none' raises DomainError. Every render first
+    checks the model's physics (check_physics) and raises ModelFileError if the model does not do what its metadata
+    claims. The arrays of an operator render are float32, the network's precision.
     """
     if fallback not in ("none", "fdm"):
         raise UsageError(f"fallback must be none or fdm, got {fallback!r}")
     if isinstance(scene, (list, tuple)):
         return render_operator_batch(list(scene), model=model, fallback=fallback)
+    return render_operator_batch([scene], model=model, fallback=fallback, _single=True)[0]
+
+
+def _voice_bows(m: OperatorModel, scenes: list[Scene]):
+    """Per voice: the bows of its windows (padded to a common length) and where the bow first leaves the model's
+    range ((sample, what) or None: only a --fallback fdm render gets here with one)."""
+    op = _operator(m)
+    rows, leave = [], []
+    for sc in scenes:
+        spw = op.samples_per_window(sc.dtau)
+        bows = scene_bows(sc, spw)
+        out = None
+        if m.domain.is_range:
+            bad = np.flatnonzero(~m.domain.box_contains(bows[:, 0], bows[:, 1]))
+            if bad.size:
+                where = first_bow_outside(m, sc)
+                out = (int(window_bounds(spw, sc.n_samples)[0][bad[0]]), where[1] if where else "")
+                lo_b, hi_b, lo_v, hi_v = m.domain.box
+                bows = np.stack([np.clip(bows[:, 0], lo_b, hi_b), np.clip(bows[:, 1], lo_v, hi_v)], axis=1)
+        rows.append(bows)
+        leave.append(out)
+    W = max(len(r) for r in rows)
+    par = np.stack([np.concatenate([r, np.repeat(r[-1:], W - len(r), axis=0)]) for r in rows])
+    return par, rows, leave
+
+
+def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none", _single: bool = False) -> list[Render]:
+    """Many voices in one batched rollout. Voices sharing a model roll together, at any mix of pitches, sample
+    rates and bow curves; a voice that leaves its model's domain (or its bow the model's range) is finished with the
+    FDM (fallback 'fdm') or stops the render (DomainError)."""
     t_setup = time.perf_counter()
-    m = _resolve(scene, model)
-    checked = _physics_notes(m)
-    dtau = scene.dtau
-    x0 = np.array([[scene.q0, scene.p0]])
-    # warm-up: converts the weights, computes the trunk features at this render's sample offsets and loads the
-    # compiled loop if it is used, so that `seconds` measures the rollout itself (start-up: info["setup_seconds"])
-    loop = choose_loop(m, scene.n_samples, dtau)
-    rollout_states(m, x0, 1, dtau, loop=loop)
-    t0 = time.perf_counter()
-    q, p, fail = rollout_states(m, x0, scene.n_samples, dtau, loop=loop)
-    q, p = q[0], p[0]
-    notes = _finish(scene, q, p, fail[0], fallback) + checked
-    secs = time.perf_counter() - t0
-    t = np.arange(scene.n_samples) / scene.sample_rate
-    return Render(scene, t, q, p, method="operator" + ("+fdm" if len(notes) > len(checked) else ""), seconds=secs,
-                  info={"model_id": m.id, "model_path": str(m.path) if m.path else None, "notes": notes,
-                        "setup_seconds": t0 - t_setup, "loop": loop})
-
-
-def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none") -> list[Render]:
-    """Many voices in one batched rollout. Voices sharing a model roll together, at any mix of pitches and sample
-    rates; a voice that leaves its model's domain is finished with the FDM (fallback 'fdm') or stops the render
-    (DomainError)."""
     # load each model file once: the voices must share model objects to be grouped into one rollout
     if model is not None and not isinstance(model, OperatorModel):
         model = load_model(model)
     models = available_models() if model is None else None
     groups: dict = {}
     for i, sc in enumerate(scenes):
-        m = _resolve(sc, model, models)
+        m = _resolve(sc, model, models, fallback)
         groups.setdefault(id(m), (m, []))[1].append(i)
     out: list = [None] * len(scenes)
     for m, idx in groups.values():
         checked = _physics_notes(m)
-        n = max(scenes[i].n_samples for i in idx)
-        x0 = np.array([[scenes[i].q0, scenes[i].p0] for i in idx])
-        dtau = np.array([scenes[i].dtau for i in idx])
+        group = [scenes[i] for i in idx]
+        n = max(sc.n_samples for sc in group)
+        x0 = np.array([[sc.q0, sc.p0] for sc in group])
+        dtau = np.array([sc.dtau for sc in group])
+        par, bows, leave = _voice_bows(m, group)
         loop = choose_loop(m, n, dtau)
-        rollout_states(m, x0, 1, dtau, loop=loop)  # warm-up, as in render_operator
+        # warm-up: converts the weights, computes the trunk features at these sample offsets and loads the compiled
+        # loop if it is used, so that `seconds` measures the rollout itself (start-up: info["setup_seconds"])
+        rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
         t0 = time.perf_counter()
-        q, p, fail = rollout_states(m, x0, n, dtau, loop=loop)
-        notes = {i: _finish(scenes[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], fail[row],
-                            fallback, voice=f"voice {i + 1}: ") + checked for row, i in enumerate(idx)}
+        q, p, fail = rollout_states(m, x0, n, dtau, loop=loop, params=par)
+        fails = [list(f) for f in fail]
+        for row, lv in enumerate(leave):
+            if lv is not None and (fails[row][0] < 0 or lv[0] < fails[row][0]):
+                fails[row] = [lv[0], FAIL_BOW, lv[1]]
+                q[row, lv[0]:] = np.nan
+                p[row, lv[0]:] = np.nan
+        notes = {i: _finish(scenes[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], fails[row],
+                            fallback, voice="" if _single else f"voice {i + 1}: ") + checked
+                 for row, i in enumerate(idx)}
         secs = (time.perf_counter() - t0) / len(idx)
+        op = _operator(m)
         t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
         for row, i in enumerate(idx):
             sc = scenes[i]
             ns = sc.n_samples
             if sc.sample_rate not in t_all:
                 t_all[sc.sample_rate] = np.arange(n) / sc.sample_rate
+            info = {"model_id": m.id, "model_path": str(m.path) if m.path else None, "notes": notes[i], "loop": loop,
+                    "setup_seconds": t0 - t_setup}
+            if not _single:
+                info["batched"] = len(idx)
+            ctrl = None
+            if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
+                ctrl = applied_controls(sc, op.samples_per_window(sc.dtau), bows[row])
+                if leave[row] is not None:  # the FDM played the rest: its controls are the curves themselves
+                    at = leave[row][0]
+                    tt = np.arange(at, ns) / sc.sample_rate
+                    ctrl["fb"][at:], ctrl["vb"][at:] = sc.fb_at(tt), sc.vb_at(tt)
             out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns],
                             method="operator" + ("+fdm" if len(notes[i]) > len(checked) else ""), seconds=secs,
-                            info={"model_id": m.id, "model_path": str(m.path) if m.path else None,
-                                  "batched": len(idx), "notes": notes[i], "loop": loop})
+                            info=info, **({"controls": ctrl} if ctrl is not None else {}))
     return out
 
 

@@ -137,6 +137,10 @@ class Scene:
     def replace(self, **changes) -> "Scene":
         return dataclasses.replace(self, **changes)
 
+    def after(self, t0: float, **changes) -> "Scene":
+        """The rest of the scene from t0 s on (its curves shifted so that t0 is 0), with `changes` applied."""
+        return self.replace(fb=controls.after(self.fb, t0), vb=controls.after(self.vb, t0), **changes)
+
     def to_dict(self) -> dict:
         """Plain data (curves as lists of [t, value]): for JSON, TOML and WAV metadata."""
         return {f.name: (v.to_list() if isinstance(v, Curve) else v)

@@ -11,7 +11,9 @@ _WHERE = {
     "GRID": "data", "StateSampler": "data", "fdm_windows": "data", "make_domain": "data", "scene_band": "data",
     "default_weights": "losses", "loss_terms": "losses", "residuals": "losses", "stiffness": "losses",
     "weighted": "losses", "validate": "selection", "TrainResult": "trainer", "Trainer": "trainer",
-    "default_model_name": "config",
+    "default_model_name": "config", "build_range": "data", "RangeSampler": "data", "validate_range": "selection",
+    "RangeSelector": "selection", "ParamBox": "ranges", "parse_range": "ranges", "range_band": "ranges",
+    "speaks": "ranges",
 }
 
 __all__ = sorted(_WHERE)

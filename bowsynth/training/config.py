@@ -38,6 +38,14 @@ class TrainConfig:
     # keep the weights that roll out best: from this share of the budget on, every select_every seconds (0: off)
     select_every: float = 15.0
     select_from: float = 0.5
+    # range models (train --fb lo:hi / --vb lo:hi / --score): renders from rest at range_points bows (Latin
+    # hypercube) and range_gestures straight-line gestures make the band; range_n_data FDM windows from it
+    range_points: int = 256
+    range_gestures: int = 64
+    range_band_stride: int = 4
+    range_n_data: int = 16384
+    range_corr_beta: bool = True  # the correction scaled by beta / beta_ref (npnet.NetConfig.corr_beta)
+    range_select_points: int = 4  # held-out bows the weight selection rolls out from rest
     net: NetConfig = field(default_factory=NetConfig)
 
     def to_dict(self) -> dict:
@@ -68,6 +76,11 @@ class TrainConfig:
             raise UsageError(f"--seed must be in [0, 2^32), got {self.seed}")
         if not 16 <= self.n_data <= 1_000_000:
             raise UsageError(f"--n-data must be in [16, 1000000], got {self.n_data}")
+        if not 16 <= self.range_n_data <= 1_000_000:
+            raise UsageError(f"--n-data must be in [16, 1000000], got {self.range_n_data}")
+        if not (1 <= self.range_points <= 100_000 and 0 <= self.range_gestures <= 100_000):
+            raise UsageError(f"range points must be in [1, 100000], gestures in [0, 100000], got "
+                             f"{self.range_points}, {self.range_gestures}")
         if not (math.isfinite(self.checkpoint_seconds) and self.checkpoint_seconds > 0):
             raise UsageError(f"--checkpoint-every must be > 0 s, got {self.checkpoint_seconds:g}")
         return self

@@ -66,16 +66,19 @@ class StateSampler:
         return out[:n]
 
 
-def fdm_windows(scene: Scene, x0: np.ndarray, window: float, n_times: int, oversample: int, on_progress=None):
-    """High-rate FDM trajectories over one window from each state: (tau (M+1,), x (B, M+1, 2))."""
+def fdm_windows(scene: Scene, x0: np.ndarray, window: float, n_times: int, oversample: int, on_progress=None,
+                par: np.ndarray | None = None):
+    """High-rate FDM trajectories over one window from each state: (tau (M+1,), x (B, M+1, 2)). par (B, 2): each
+    state's own bow (beta, v_B) (range data); None: the scene's."""
     w = scene.omega
+    fb, vb = (scene.fb, scene.vb) if par is None else (par[:, 0] * w, par[:, 1])
+    fb_max = float(np.max(fb))
     stride = max(1, math.ceil(window / n_times / (scene.dtau / oversample)))
     k = window / (n_times * stride) / w  # seconds
-    if k >= physics.max_stable_step(scene.fb, scene.a):
-        stride = math.ceil(window / n_times / (0.9 * physics.max_stable_step(scene.fb, scene.a) * w))
+    if k >= physics.max_stable_step(fb_max, scene.a):
+        stride = math.ceil(window / n_times / (0.9 * physics.max_stable_step(fb_max, scene.a) * w))
         k = window / (n_times * stride) / w
-    q, p = fdm_batch(x0[:, 0], x0[:, 1], n_times + 1, stride, k, w, scene.fb, scene.vb, scene.a,
-                     on_progress=on_progress)
+    q, p = fdm_batch(x0[:, 0], x0[:, 1], n_times + 1, stride, k, w, fb, vb, scene.a, on_progress=on_progress)
     tau = np.arange(n_times + 1) * window / n_times
     return tau, np.stack([q, p], axis=-1)
 
@@ -95,6 +98,8 @@ class TrainingData:
     tau: np.ndarray  # (M + 1,) times in the window
     x: np.ndarray  # (B, M + 1, 2) FDM trajectories
     corr_scale: np.ndarray  # (2,) RMS size of the friction correction per variable
+    par: np.ndarray | None = None  # range data: (B, 2) each trajectory's bow (beta, v_B)
+    box: object = None  # range data: the ParamBox
 
 
 def build(scene: Scene, cfg: TrainConfig, window: float, rng: np.random.Generator, on_progress=None) -> TrainingData:
@@ -119,10 +124,79 @@ def build(scene: Scene, cfg: TrainConfig, window: float, rng: np.random.Generato
         x0[:m] = pick + jitter
     tau, x = fdm_windows(scene, x0, window, cfg.data_times, cfg.data_oversample,
                          on_progress=lambda f: report(f"FDM data: {len(x0)} windows at x{cfg.data_oversample}", f))
-    if cfg.net.linear_flow:
+    return TrainingData(band, domain, sampler, x0, tau, x, correction_scale(x0, tau, x, window, cfg.net.linear_flow))
+
+
+def correction_scale(x0, tau, x, window: float, linear_flow: bool, gain=None) -> np.ndarray:
+    """c (2,): the RMS of what friction adds to the linear flow over a window, per s (and per unit of a range
+    model's gain (B,))."""
+    if linear_flow:
         lq, lp = physics.linear_flow(x0[:, 0:1], x0[:, 1:2], tau[None, :])
     else:
         lq, lp = np.broadcast_arrays(x0[:, 0:1], x0[:, 1:2], tau[None, :])[:2]
     corr = (x - np.stack([lq, lp], -1))[:, 1:] / (tau[1:] / window)[None, :, None]
-    c = np.sqrt(np.mean(corr ** 2, axis=(0, 1))).clip(1e-6)
-    return TrainingData(band, domain, sampler, x0, tau, x, c)
+    if gain is not None:
+        corr = corr / np.asarray(gain, float)[:, None, None]
+    return np.sqrt(np.mean(corr ** 2, axis=(0, 1))).clip(1e-6)
+
+
+class RangeSampler:
+    """Draws (state, bow) pairs near the band of a range: a band state with the bow it was visited under (each
+    render's onset as likely as its limit cycle, see ranges.range_band), the state jittered like StateSampler's and
+    the bow by PARAM_JITTER of the box (log beta), kept inside the box and the state domain."""
+
+    PARAM_JITTER = 0.02
+
+    def __init__(self, band, domain: Domain, margin: float, box, rng: np.random.Generator):
+        self.band, self.domain, self.box, self.rng = band, domain, box, rng
+        self.sd = margin * (band.states.max(0) - band.states.min(0)).clip(1e-3) / 2
+        self.cdf = np.cumsum(band.weights) / band.weights.sum()
+        lo = np.array([math.log(max(box.beta_lo, 1e-12)), box.vb_lo])
+        hi = np.array([math.log(max(box.beta_hi, 1e-12)), box.vb_hi])
+        self.lo, self.hi = lo, hi
+
+    def __call__(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        xs, ps, have = [], [], 0
+        while have < n:
+            idx = np.minimum(np.searchsorted(self.cdf, self.rng.random(2 * n)), len(self.cdf) - 1)
+            x = self.band.states[idx] + self.rng.normal(0, 1, (2 * n, 2)) * self.sd
+            u = np.stack([np.log(np.maximum(self.band.params[idx, 0], 1e-12)), self.band.params[idx, 1]], 1)
+            u = np.clip(u + self.rng.normal(0, 1, u.shape) * self.PARAM_JITTER * (self.hi - self.lo), self.lo, self.hi)
+            keep = self.domain.contains(x[:, 0], x[:, 1])
+            xs.append(x[keep])
+            ps.append(np.stack([np.exp(u[keep, 0]), u[keep, 1]], 1))
+            have += int(keep.sum())
+        return np.concatenate(xs)[:n], np.concatenate(ps)[:n]
+
+
+def build_range(scene: Scene, box, cfg: TrainConfig, window: float, rng: np.random.Generator,
+                on_progress=None) -> TrainingData:
+    """The data of a range model: renders from rest at cfg.range_points bows of the box and cfg.range_gestures
+    straight-line gestures through it (ranges.range_band, at the scene's pitch and rate), the state domain around
+    all of them, and FDM windows from (state, bow) pairs near that band, a share of them where the renders start
+    their windows."""
+    from .ranges import range_band
+
+    report = on_progress or (lambda phase, frac: None)
+    report(f"range band: {cfg.range_points} renders from rest, {cfg.range_gestures} gestures", 0.0)
+    band = range_band(box, box.sample(cfg.range_points, rng), scene.f0, scene.sample_rate, cfg.band_seconds, window,
+                      gestures=cfg.range_gestures, rng=rng, stride=cfg.range_band_stride)
+    domain = make_domain(scene, band.states, window, cfg.margin, box_only=cfg.sampling == "box")
+    lb = (math.log(max(box.beta_lo, 1e-12)) + math.log(max(box.beta_hi, 1e-12))) / 2
+    domain.beta, domain.vb = math.exp(lb), (box.vb_lo + box.vb_hi) / 2
+    domain.box = [box.beta_lo, box.beta_hi, box.vb_lo, box.vb_hi]
+    sampler = RangeSampler(band, domain, cfg.margin, box, rng)
+    n = cfg.range_n_data
+    x0, par = sampler(n)
+    if cfg.start_share > 0:  # where renders from rest start their windows (see build), with their bows
+        m = min(n, int(cfg.start_share * n))
+        pick = band.starts[rng.integers(0, len(band.starts), m)]
+        x0[:m] = pick[:, :2] + rng.normal(0, 1, (m, 2)) * sampler.sd * 0.2
+        par[:m] = pick[:, 2:]
+        ok = domain.contains(x0[:m, 0], x0[:m, 1])
+        x0[:m][~ok] = pick[~ok, :2]
+    tau, x = fdm_windows(scene, x0, window, cfg.data_times, cfg.data_oversample, par=par,
+                         on_progress=lambda f: report(f"FDM data: {n} windows at x{cfg.data_oversample}", f))
+    gain = par[:, 0] / domain.beta if cfg.range_corr_beta else None
+    c = correction_scale(x0, tau, x, window, cfg.net.linear_flow, gain)
+    return TrainingData(band.states, domain, sampler, x0, tau, x, c, par=par, box=box)

@@ -20,16 +20,16 @@ STIFF = 10.0  # beta sqrt(2a) e^1/2 above this: the friction residual is dropped
 FRIC_WEIGHT = 0.03  # hybrid, non-stiff: fb 100, 3 min SOAP: 0.3 -> 2.3e-3, 0.1 -> 3.8e-4, 0.03 -> 3.5e-5 NMSE(p) 1 s
 
 
-def stiffness(scene: Scene) -> float:
-    """Friction slope at rest in dimensionless time: beta sqrt(2a) e^{1/2}."""
-    return scene.beta * math.sqrt(2 * scene.a) * physics.E_HALF
+def stiffness(scene: Scene, beta: float | None = None) -> float:
+    """Friction slope at rest in dimensionless time: beta sqrt(2a) e^{1/2} (beta: the scene's, or a range's top)."""
+    return (scene.beta if beta is None else beta) * math.sqrt(2 * scene.a) * physics.E_HALF
 
 
-def default_weights(scene: Scene, hybrid: bool) -> dict:
+def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None) -> dict:
     if not hybrid:
         return {"kin": 1.0, "fric": 1.0}
     w = {"data": 1.0, "end": 1.0, "kin": 1.0}
-    if stiffness(scene) < STIFF:
+    if stiffness(scene, beta_max) < STIFF:
         w["fric"] = FRIC_WEIGHT
     return w
 
@@ -39,22 +39,28 @@ def weighted(terms: dict, weights: dict):
     return sum(weights[k] * v for k, v in terms.items())
 
 
-def residuals(net: DeepONet, x, dx, b: float, vb: float, a: float):
-    """Dimensionless ODE residuals (kinematic, friction) of trajectories x with derivatives dx, scaled by c / T."""
+def residuals(net: DeepONet, x, dx, b, vb, a: float, gain=None):
+    """Dimensionless ODE residuals (kinematic, friction) of trajectories x (B, M, 2) with derivatives dx, scaled by
+    c / T (times a range model's gain (B,)). b, vb: floats, or (B, 1) tensors of each trajectory's bow."""
     q, p = x[..., 0], x[..., 1]
     dq_ref, dp_ref = physics.rhs_tau(q, p, b, vb, a)
     scale = net.corr_scale / net.window
-    return (dx[..., 0] - dq_ref) / scale[0], (dx[..., 1] - dp_ref) / scale[1]
+    g = 1.0 if gain is None else gain[:, None]
+    return (dx[..., 0] - dq_ref) / (scale[0] * g), (dx[..., 1] - dp_ref) / (scale[1] * g)
 
 
 def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
     """The named loss terms. Branch and trunk run once each on the data and physics points together: on a CPU
-    these small networks cost mostly per-call overhead."""
+    these small networks cost mostly per-call overhead. A range model's batch carries each state's bow (beta, v_B)
+    in data_par and phys_par."""
     use_data = "data" in weights or "end" in weights
     use_phys = "kin" in weights or "fric" in weights
+    ranged = "phys_par" in batch
     x0s = [batch["data_x0"]] * use_data + [batch["phys_x0"]] * use_phys
     taus = [batch["data_tau"]] * use_data + [batch["phys_tau"]] * use_phys
-    bf = net.branch_features(torch.cat(x0s))
+    par = torch.cat([batch["data_par"]] * use_data + [batch["phys_par"]] * use_phys) if ranged else None
+    gain = net.gain(par) if ranged else None
+    bf = net.branch_features(torch.cat(x0s), par)
     tau_all = torch.cat(taus)
     if use_phys:
         tf, dtf = net.trunk_features_jvp(tau_all / net.window)
@@ -63,15 +69,21 @@ def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
     terms = {}
     nb, nm = (len(batch["data_x0"]), len(batch["data_tau"])) if use_data else (0, 0)
     if use_data:
-        pred = net.assemble(batch["data_x0"], batch["data_tau"], bf[:nb], tf[:nm])
-        err = (pred - batch["data_x"]) / net.corr_scale
+        g = None if gain is None else gain[:nb]
+        pred = net.assemble(batch["data_x0"], batch["data_tau"], bf[:nb], tf[:nm], gain=g)
+        err = (pred - batch["data_x"]) / (net.corr_scale if g is None else net.corr_scale * g[:, None, None])
         if "data" in weights:
             terms["data"] = err.square().mean()
         if "end" in weights:
             terms["end"] = err[:, -1].square().mean()
     if use_phys:
-        x, dx = net.assemble(batch["phys_x0"], batch["phys_tau"], bf[nb:], tf[nm:], dtf[nm:])
-        rk, rf = residuals(net, x, dx, scene.beta, scene.vb, scene.a)
+        g = None if gain is None else gain[nb:]
+        x, dx = net.assemble(batch["phys_x0"], batch["phys_tau"], bf[nb:], tf[nm:], dtf[nm:], gain=g)
+        if ranged:
+            b, vb = batch["phys_par"][:, 0:1], batch["phys_par"][:, 1:2]
+        else:
+            b, vb = scene.beta, scene.vb
+        rk, rf = residuals(net, x, dx, b, vb, scene.a, gain=g)
         if "kin" in weights:
             terms["kin"] = rk.square().mean()
         if "fric" in weights:

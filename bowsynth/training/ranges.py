@@ -130,10 +130,11 @@ def _balanced(states: np.ndarray, grid: int = 64) -> np.ndarray:
 
 
 def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, seconds: float, window: float,
-               gestures: int = 0, rng: np.random.Generator | None = None) -> RangeBand:
+               gestures: int = 0, rng: np.random.Generator | None = None, stride: int = 1) -> RangeBand:
     """Audio-rate FDM renders from rest at each parameter point, plus `gestures` renders whose bow moves in a
     straight line between two random points of the box over `seconds` (the states a crescendo or a bow change
-    visits). Every point gets the same total sampling weight."""
+    visits). Every point gets the same total sampling weight. stride: keep every stride-th state (neighbouring
+    samples are nearly the same state; the window starts are kept whatever the stride)."""
     from ..fdm import render_fdm
     from ..scene import Scene
 
@@ -151,9 +152,10 @@ def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, s
         r = render_fdm(Scene(f0=f0, fb=fb, vb=vb, a=box.a, duration=seconds, sample_rate=sample_rate))
         x = np.stack([r.q, r.p], axis=1)
         par = np.stack([r.controls["fb"] / w, r.controls["vb"]], axis=1)
+        starts.append(np.hstack([x, par])[::per_window])
+        x, par = x[::stride], par[::stride]
         states.append(x)
         params.append(par)
         weights.append(_balanced(x))
-        starts.append(np.hstack([x, par])[::per_window])
     wts = np.concatenate(weights)
     return RangeBand(np.concatenate(states), np.concatenate(params), wts / wts.sum(), np.concatenate(starts))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -15,9 +16,9 @@ from ..network import DeepONet
 from ..scene import Scene
 from . import checkpoint
 from .config import TrainConfig, default_model_name  # noqa: F401
-from .data import build
+from .data import build, build_range
 from .losses import default_weights, loss_terms, weighted
-from .selection import Selector, json_number, selection_scene
+from .selection import RangeSelector, Selector, json_number, selection_scene
 
 
 @dataclass
@@ -28,27 +29,43 @@ class TrainResult:
 
 
 class Trainer:
-    def __init__(self, scene: Scene, cfg: TrainConfig, name: str, on_progress=None):
+    """Trains a point model for `scene`, or a range model for the bows of `box` (a ParamBox that is not a point; the
+    scene then gives the pitch, rate and a at which the band is rendered, its bow the box's centre)."""
+
+    def __init__(self, scene: Scene, cfg: TrainConfig, name: str, on_progress=None, box=None):
         cfg.validate()
+        self.box = box if box is not None and not box.is_point else None
+        if self.box is not None:
+            cfg.net = dataclasses.replace(cfg.net, params=2, corr_beta=cfg.range_corr_beta)
         self.scene, self.cfg, self.name = scene, cfg, name
-        self.weights = cfg.weights or default_weights(scene, cfg.hybrid)
+        self.weights = cfg.weights or default_weights(scene, cfg.hybrid,
+                                                      beta_max=None if self.box is None else self.box.beta_hi)
         self.window = cfg.window or 2 * math.pi
         self.rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
-        self.data = build(scene, cfg, self.window, self.rng, on_progress=on_progress)
+        if self.box is None:
+            self.data = build(scene, cfg, self.window, self.rng, on_progress=on_progress)
+        else:
+            self.data = build_range(scene, self.box, cfg, self.window, self.rng, on_progress=on_progress)
         self.domain, self.sampler = self.data.domain, self.data.sampler
         d = self.domain
         self.net = DeepONet(cfg.net, seed=cfg.seed)
         self.net.set_scales([(d.q_lo + d.q_hi) / 2, (d.p_lo + d.p_hi) / 2],
                             [(d.q_hi - d.q_lo) / 2, (d.p_hi - d.p_lo) / 2], self.data.corr_scale, self.window)
+        if self.box is not None:
+            self.net.set_box(self.box)
         self.data_x0 = torch.tensor(self.data.x0, dtype=torch.float32)
         self.data_x = torch.tensor(self.data.x, dtype=torch.float32)
         self.data_tau = torch.tensor(self.data.tau, dtype=torch.float32)
+        self.data_par = None if self.data.par is None else torch.tensor(self.data.par, dtype=torch.float32)
         self.opt = self._make_optimizer()
         self.step = 0
         self.elapsed = 0.0
         self.history: list[dict] = []
-        self.selector = Selector(selection_scene(scene, self.data.band, self.window, d.contains))
+        if self.box is None:
+            self.selector = Selector(selection_scene(scene, self.data.band, self.window, d.contains))
+        else:
+            self.selector = RangeSelector(scene, self.box, cfg.range_select_points, seed=cfg.seed + 1)
 
     @property
     def best(self) -> dict:
@@ -66,11 +83,15 @@ class Trainer:
         cfg = self.cfg
         n = n_states or cfg.batch_states
         idx = torch.from_numpy(self.rng.integers(0, len(self.data_x0), n))
-        return {
-            "data_x0": self.data_x0[idx], "data_x": self.data_x[idx], "data_tau": self.data_tau,
-            "phys_x0": torch.tensor(self.sampler(n), dtype=torch.float32),
-            "phys_tau": torch.tensor(self.rng.uniform(0, self.window, cfg.batch_times), dtype=torch.float32),
-        }
+        out = {"data_x0": self.data_x0[idx], "data_x": self.data_x[idx], "data_tau": self.data_tau,
+               "phys_tau": torch.tensor(self.rng.uniform(0, self.window, cfg.batch_times), dtype=torch.float32)}
+        if self.box is None:
+            out["phys_x0"] = torch.tensor(self.sampler(n), dtype=torch.float32)
+        else:
+            x0, par = self.sampler(n)
+            out.update(phys_x0=torch.tensor(x0, dtype=torch.float32), phys_par=torch.tensor(par, dtype=torch.float32),
+                       data_par=self.data_par[idx])
+        return out
 
     def progress(self) -> float:
         cfg = self.cfg
@@ -120,7 +141,8 @@ class Trainer:
         if self.best["state"] is not None:
             tensors.update({f"best.{k}": v.contiguous() for k, v in self.best["state"].items()})
         meta = {"step": self.step, "elapsed": self.elapsed, "rng": self.rng.bit_generator.state,
-                "scene": self.scene.to_dict(), "config": self.cfg.to_dict(), "history": self.history[-200:],
+                "scene": self.scene.to_dict(), "box": self._box_json(), "config": self.cfg.to_dict(),
+                "history": self.history[-200:],
                 "best": {"score": json_number(self.best["score"]), "step": self.best["step"],
                          "scored": self.best["scored"]}}
         checkpoint.save(path, {"tensors": tensors, "optimizer": self.opt.state_dict(), "meta": meta})
@@ -129,7 +151,7 @@ class Trainer:
         from ..errors import UsageError
 
         tensors, opt_state, meta = checkpoint.load(path)
-        if meta["scene"] != self.scene.to_dict():
+        if meta["scene"] != self.scene.to_dict() or meta.get("box") != self._box_json():
             raise UsageError(f"checkpoint {path} is for another scene; delete it or pick another --out")
         self.net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
         best = meta.get("best") or {}
@@ -139,6 +161,9 @@ class Trainer:
         self.opt.load_state_dict(opt_state)
         self.rng.bit_generator.state = meta["rng"]
         self.step, self.elapsed, self.history = meta["step"], meta["elapsed"], meta["history"]
+
+    def _box_json(self):
+        return None if self.box is None else self.box.to_json()
 
     def done(self) -> bool:
         return self.progress() >= 1.0 - self.cfg.lbfgs_fraction if self.cfg.lbfgs_fraction else self.progress() >= 1.0
@@ -186,6 +211,6 @@ class Trainer:
                                    "weights": self.weights, "steps_done": self.step,
                                    "seconds": round(self.elapsed, 1),
                                    "final_loss": self.history[-1]["loss"] if self.history else None,
-                                   "selected": self.selector.record()},
+                                   "selected": self.selector.record(), "box": self._box_json()},
                          validation={}, scene=self.scene.to_dict())
         return OperatorModel(self.net, meta)
