@@ -533,6 +533,10 @@ def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fal
         where = first_bow_outside(model, scene)
         if where and where[0] > 0:
             return model
+    where = first_bow_outside(model, scene) if why and model.domain.is_range else None
+    if where:  # name the parameter, its value and the time it leaves the range
+        why = [f"{where[1]} leaves its {model.domain.describe_bows()}"] + [
+            w for w in why if not w.startswith(("F_B", "v_B"))]
     if why:
         raise DomainError(f"model {model.path or model.meta.name} does not cover this scene: {'; '.join(why)}. "
                           f"Train one with `{train_hint(scene)}`, or render with --method fdm")

@@ -388,13 +388,13 @@ def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
     out = []
     for n in notes:
         sc = n.sustain_scene(1)
-        if sc.varying:
-            out.append((n, "the bow changes during the note and no model follows gestures yet"))
-            continue
         try:
             _resolve(sc, model, models)
         except DomainError:
-            out.append((n, f"F_B / w = {sc.beta:.4g}, v_B = {sc.vb:g}, a = {sc.a:g}"))
+            (blo, bhi), (vlo, vhi) = sc.beta_range, sc.vb_range
+            b = f"{blo:.4g}" if blo == bhi else f"{blo:.4g}..{bhi:.4g}"
+            v = f"{vlo:g}" if vlo == vhi else f"{vlo:g}..{vhi:g}"
+            out.append((n, f"F_B / w = {b}, v_B = {v}, a = {sc.a:g}"))
     return out
 
 

@@ -1,0 +1,165 @@
+"""Range models (issue 10): a tiny one trained in seconds, its file, its three evaluations (torch, numpy, compiled)
+agreeing with per-window bows, gestures followed and reported, the box checked per window, the CLI's ranges."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bowsynth import Scene
+from bowsynth.errors import DomainError
+from bowsynth.model import RANGE_VERSION, load_model
+from bowsynth.rollout import render_operator, rollout_states, scene_bows, window_bounds, _operator
+from bowsynth.training.ranges import ParamBox
+
+from conftest import run_main, tiny_config
+
+BOX = ParamBox(0.1, 0.3, 0.15, 0.25, 100.0)
+
+
+@pytest.fixture(scope="module")
+def range_model(tmp_path_factory):
+    from bowsynth import api
+
+    sc = api.range_scene(BOX)
+    cfg = tiny_config(steps=150, sampling="box", range_points=12, range_gestures=4, range_n_data=256)
+    res = api.train(sc, config=cfg, out=tmp_path_factory.mktemp("rm") / "r.safetensors", box=BOX)
+    return res.path
+
+
+def test_range_model_file_records_its_box_and_version(range_model):
+    m = load_model(range_model)
+    assert m.meta.format_version == RANGE_VERSION
+    assert m.domain.box == [BOX.beta_lo, BOX.beta_hi, BOX.vb_lo, BOX.vb_hi]
+    assert m.cfg.params == 2 and m.cfg.corr_beta
+    # the physics check and the render-time coverage use the box's centre and edges
+    assert math.isclose(m.domain.beta, math.sqrt(0.1 * 0.3)) and math.isclose(m.domain.vb, 0.2)
+    assert m.domain.box_contains(0.2, 0.2) and not m.domain.box_contains(0.31, 0.2)
+    assert not m.domain.box_contains(0.2, 0.26)
+    v = m.meta.validation
+    assert v["grid"] == 3 and len(v["points"]) == 9
+
+
+def test_the_three_evaluations_agree_with_per_window_bows(range_model):
+    """torch (training), numpy and compiled rollouts of one window give the same trajectory for each bow; a bow
+    changes the output (the branch does take it)."""
+    m = load_model(range_model)
+    x0 = np.array([[0.02, 0.01], [-0.05, 0.1], [0.0, 0.0]])
+    bows = np.array([[0.1, 0.15], [0.3, 0.25], [0.2, 0.2]])
+    n = 9
+    dtau = m.domain.window / (n - 1)
+    with torch.no_grad():
+        ref = m.net(torch.tensor(x0, dtype=torch.float32), torch.arange(n, dtype=torch.float32) * dtau,
+                    torch.tensor(bows, dtype=torch.float32)).numpy()
+    for loop in ("numpy", "numba"):
+        q, p, fail = rollout_states(m, x0, n, [dtau] * 3, check_domain=False, loop=loop, params=bows)
+        assert (fail[:, 0] < 0).all()
+        np.testing.assert_allclose(q, ref[:, :, 0], atol=2e-6)
+        np.testing.assert_allclose(p, ref[:, :, 1], atol=2e-6)
+    q2, p2, _ = rollout_states(m, x0, n, [dtau] * 3, check_domain=False, loop="numpy", params=bows[::-1])
+    assert np.abs(p2[0] - ref[0, :, 1]).max() > 1e-4
+
+
+def test_batched_and_single_voice_loops_agree_on_gestures(range_model):
+    """Eight voices at different pitches with bows that change per window: the window-at-a-time loop (BLAS), the
+    voice-at-a-time loop and numpy give the same samples."""
+    m = load_model(range_model)
+    B, n = 8, 2000
+    dt = np.linspace(0.01, 0.03, B)
+    W = int(n / (m.domain.window / dt.max())) + 3
+    rng = np.random.default_rng(1)
+    par = np.stack([rng.uniform(0.1, 0.3, (B, W)), rng.uniform(0.15, 0.25, (B, W))], axis=-1)
+    x0 = np.zeros((B, 2))
+    a = rollout_states(m, x0, n, dt, check_domain=False, loop="numpy", params=par)
+    b = rollout_states(m, x0, n, dt, check_domain=False, loop="numba", params=par)  # roll_batch (B >= 8)
+    from bowsynth import kernels
+
+    c = [rollout_states(m, x0[i:i + 1], n, dt[i], check_domain=False, loop="numba", params=par[i:i + 1])
+         for i in range(2)]  # roll_voices
+    np.testing.assert_allclose(a[1], b[1], atol=1e-5, equal_nan=True)
+    for i in range(2):
+        np.testing.assert_allclose(a[1][i], c[i][1][0], atol=1e-5, equal_nan=True)
+    assert kernels.BLOCK > 0
+
+
+def test_a_gesture_render_reports_the_controls_it_applied(range_model):
+    """The operator holds each window's bow at the window's middle: r.controls says so, per output sample, and
+    differs from the curve between windows by at most half a window's change."""
+    m = load_model(range_model)
+    f0 = 100.0
+    w = 2 * math.pi * f0
+    sc = Scene(f0=f0, fb=[[0.0, 0.12 * w], [0.2, 0.28 * w]], vb=[[0.0, 0.16], [0.2, 0.24]], duration=0.2)
+    r = render_operator(sc, model=m, fallback="fdm")
+    fb, vb = r.controls["fb"], r.controls["vb"]
+    assert fb.shape == vb.shape == (sc.n_samples,)
+    spw = _operator(m).samples_per_window(sc.dtau)
+    starts, ends = window_bounds(spw, sc.n_samples)
+    for s, e in zip(starts[:-1], ends[:-1]):
+        assert np.all(fb[s:e] == fb[s]) and np.all(vb[s:e] == vb[s])  # held over the window
+        mid = 0.5 * (s + e) / sc.sample_rate
+        assert math.isclose(fb[s], float(sc.fb_at(mid)), rel_tol=1e-9)
+    curve = sc.fb_at(r.t)
+    slope = (0.28 - 0.12) * w / 0.2
+    assert np.max(np.abs(fb - curve)) <= slope * (spw / 2 + 1) / sc.sample_rate
+    assert fb[0] > 0.12 * w and fb[-1] < 0.28 * w
+
+
+def test_scene_bows_follow_the_curve_at_window_middles():
+    sc = Scene(f0=100, fb=[[0.0, 50.0], [1.0, 150.0]], vb=0.2, duration=1.0)
+    spw = 441.0
+    bows = scene_bows(sc, spw)
+    starts, ends = window_bounds(spw, sc.n_samples)
+    assert len(bows) == len(starts) and ends[-1] >= sc.n_samples and ends[-2] < sc.n_samples
+    t = 0.5 * (starts + ends) / sc.sample_rate
+    np.testing.assert_allclose(bows[:, 0] * sc.omega, np.minimum(50 + 100 * t, 150.0))
+    np.testing.assert_allclose(bows[:, 1], 0.2)
+
+
+def test_a_bow_that_leaves_the_range_is_named_with_its_time(range_model):
+    m = load_model(range_model)
+    w = 2 * math.pi * 100
+    sc = Scene(f0=100, fb=[[0.0, 0.2 * w], [0.1, 0.2 * w], [0.2, 0.5 * w]], vb=0.2, duration=0.2)
+    with pytest.raises(DomainError) as e:
+        render_operator(sc, model=m)
+    msg = str(e.value)
+    assert "F_B" in msg and "t = 0.1" in msg and "bowsynth train --fb" in msg and ":" in msg.split("--fb")[1][:20]
+    # --fallback fdm: the operator plays until the bow leaves, the FDM from there, following the same curve
+    r = render_operator(sc, model=m, fallback="fdm")
+    assert r.method == "operator+fdm" and np.isfinite(r.p).all()
+    assert any("bow left the model's range" in n for n in r.info["notes"])
+    from bowsynth.fdm import render_fdm
+
+    ref = render_fdm(sc)
+    leave = int(np.argmax(~m.domain.box_contains(r.controls["fb"] / w, r.controls["vb"])))
+    assert 0.1 * sc.sample_rate < leave < 0.15 * sc.sample_rate
+    np.testing.assert_allclose(r.controls["fb"][leave + 5:], ref.controls["fb"][leave + 5:])
+
+
+def test_point_models_refuse_gestures_with_a_pointer(tiny_model):
+    sc = Scene(fb=[[0.0, 90.0], [0.1, 110.0]], duration=0.1)
+    with pytest.raises(DomainError, match="bow changes"):
+        render_operator(sc, model=tiny_model)
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--fb", "200:50"], "inverted"),
+    (["--fb", "50:x"], "--fb"),
+    (["--fb", "-5:50"], ">= 0"),
+    (["--vb", "0.3:0.1"], "inverted"),
+    (["--fb", "50:100:200"], "--fb"),
+    (["--fb", "nan:100"], "finite"),
+])
+def test_train_refuses_bad_ranges(args, needle, capsys, monkeypatch, tmp_path):
+    code, out, err = run_main(["train", *args, "--steps", "1", "--out", str(tmp_path / "m.safetensors")], capsys,
+                              monkeypatch)
+    assert code == 2 and needle in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "m.safetensors").exists()
+
+
+def test_train_score_refuses_flags_it_replaces(capsys, monkeypatch, tmp_path):
+    score = tmp_path / "s.toml"
+    score.write_text('[[note]]\nstart = 0\nduration = 0.5\nf0 = 100\nfb = 100\nvb = 0.2\n')
+    code, out, err = run_main(["train", "--score", str(score), "--fb", "100", "--steps", "1"], capsys, monkeypatch)
+    assert code == 2 and "--score" in err
