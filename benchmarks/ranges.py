@@ -27,38 +27,18 @@ from pathlib import Path
 import numpy as np
 
 from bowsynth import Scene, render_fdm
+from bowsynth.bench import bench_parameter_points, parameter_summary
 from bowsynth.controls import Curve
-from bowsynth.metrics import cents, f0_estimate, nmse
+from bowsynth.metrics import nmse
 from bowsynth.model import load_model
 from bowsynth.rollout import SHIPPED_DIR, render_operator, rollout_states, scene_bows
-from bowsynth.training.ranges import ParamBox, speaks
 
 PITCHES = (65.0, 100.0, 220.0, 440.0)
 REF = 100
 
 
-def box_of(m) -> ParamBox:
-    b0, b1, v0, v1 = m.domain.box
-    return ParamBox(b0, b1, v0, v1, m.domain.a)
-
-
 def held_out(m, pitches, n=4):
-    box = box_of(m)
-    rows = []
-    for f0 in pitches:
-        for beta, vb in box.grid(n):
-            sc = Scene(f0=f0, fb=float(beta) * 2 * math.pi * f0, vb=float(vb), a=box.a, duration=1.0)
-            ref = render_fdm(sc, oversample=REF)
-            r = render_operator(sc, model=m, fallback="fdm")
-            spk = bool(speaks(beta, vb, box.a, f0))
-            row = {"f0": f0, "beta": float(beta), "vb": float(vb), "speaks": spk, "method": r.method,
-                   "finite": bool(np.isfinite(r.p).all()), "max_abs_p": float(np.max(np.abs(r.p))),
-                   "ref_max_abs_p": float(np.max(np.abs(ref.p)))}
-            if spk:
-                row["nmse"] = float(nmse(r.p, ref.p))
-                row["cents"] = float(cents(f0_estimate(r.q, sc.sample_rate), f0_estimate(ref.q, sc.sample_rate)))
-            rows.append(row)
-    return rows
+    return bench_parameter_points(m, pitches, n)
 
 
 def step_curve(bows_per_window, starts, ends, sample_rate, scale=1.0):
@@ -133,16 +113,6 @@ def speed(m, seconds=5.0, repeats=5):
     return {"seconds_audio": seconds, "rollout_s": best, "realtime_x": seconds / best}
 
 
-def summary(rows):
-    spk = [r for r in rows if r["speaks"]]
-    vals = np.array([r["nmse"] for r in spk])
-    quiet = [r for r in rows if not r["speaks"]]
-    return {"points": len(rows), "speaking": len(spk), "median_nmse": float(np.median(vals)) if len(vals) else None,
-            "worst_nmse": float(np.max(vals)) if len(vals) else None,
-            "worst_cents": float(np.max(np.abs([r["cents"] for r in spk]))) if spk else None,
-            "quiet_all_finite": all(r["finite"] for r in quiet), "fdm_fallbacks": sum(r["method"] != "operator" for r in rows)}
-
-
 def main(argv):
     quick = "--quick" in argv
     out_json = None
@@ -155,7 +125,7 @@ def main(argv):
         print(f"\n## {path}  ({m.id}, {m.domain.describe_bows()}, a {m.domain.a:g}; trained "
               f"{m.meta.training.get('seconds')} s, {m.meta.training.get('steps_done')} steps)")
         rows = held_out(m, PITCHES[:2] if quick else PITCHES)
-        s = summary(rows)
+        s = parameter_summary(rows)
         print(f"held-out 4 x 4 grid x {len(PITCHES[:2] if quick else PITCHES)} pitches, 1 s from rest vs FDM x{REF}: "
               f"{s}")
         print("| f0 | F_B / w | v_B | speaks | NMSE(p) | cents | max abs p (op / ref) | engine |")

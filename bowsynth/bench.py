@@ -285,13 +285,45 @@ def bench_windows(model, n_states: int = 64, seed: int = 1) -> list[dict]:
     return rows
 
 
-def bench_parameter_points(model) -> list[dict] | None:
-    """Held-out parameter points for a range model (one model over a range of F_B / w, v_B or a): None for a point
-    model, which covers one (F_B / w, v_B, a) and has no parameter to hold out. No range model exists yet; when one
-    does, this scores renders at parameter points between its training points against the FDM x100."""
-    if not getattr(model.domain, "ranges", None):
+def bench_parameter_points(model, pitches=(100.0,), n: int = 4, duration: float = 1.0) -> list[dict] | None:
+    """Held-out bows of a range model: the n x n grid of cell centres of its box (log beta; its training bows are a
+    Latin hypercube of another seed) at each pitch, `duration` s from rest, operator against the FDM x100: NMSE(p) and
+    the pitch error where the note speaks (training.ranges.speaks), quiet and finite where it does not. None for a
+    point model (one bow: nothing to hold out)."""
+    if not model.domain.is_range:
         return None
-    raise NotImplementedError("range models: score held-out parameter points")
+    from .metrics import cents, f0_estimate
+    from .rollout import render_operator
+    from .training.ranges import ParamBox, speaks
+
+    b0, b1, v0, v1 = model.domain.box
+    box = ParamBox(b0, b1, v0, v1, model.domain.a)
+    rows = []
+    for f0 in pitches:
+        for beta, vb in box.grid(n):
+            sc = Scene(f0=f0, fb=float(beta) * 2 * math.pi * f0, vb=float(vb), a=box.a, duration=duration)
+            ref = render_fdm(sc, oversample=REF_OVERSAMPLE)
+            r = render_operator(sc, model=model, fallback="fdm")
+            row = {"f0": f0, "beta": float(beta), "vb": float(vb), "speaks": bool(speaks(beta, vb, box.a, f0, duration)),
+                   "method": r.method, "finite": bool(np.isfinite(r.p).all()),
+                   "max_abs_p": float(np.max(np.abs(r.p))), "ref_max_abs_p": float(np.max(np.abs(ref.p)))}
+            if row["speaks"]:
+                row["nmse"] = float(nmse(r.p, ref.p))
+                row["cents"] = float(cents(f0_estimate(r.q, sc.sample_rate), f0_estimate(ref.q, sc.sample_rate)))
+            rows.append(row)
+    return rows
+
+
+def parameter_summary(rows: list[dict]) -> dict:
+    """Median and worst NMSE(p) and worst |cents| over the speaking bows; the silent ones all finite?"""
+    spk = [r for r in rows if r["speaks"]]
+    vals = np.array([r["nmse"] for r in spk])
+    return {"points": len(rows), "speaking": len(spk),
+            "median_nmse": float(np.median(vals)) if len(vals) else None,
+            "worst_nmse": float(np.max(vals)) if len(vals) else None,
+            "worst_cents": float(np.max(np.abs([r["cents"] for r in spk]))) if spk else None,
+            "quiet_all_finite": all(r["finite"] for r in rows if not r["speaks"]),
+            "fdm_fallbacks": sum(r["method"] != "operator" for r in rows)}
 
 
 def plot_pareto(rows, path) -> None:
@@ -383,9 +415,19 @@ def out_of_sample_tables(oos: list[dict]) -> str:
             parts.append(f"| {o['model'].removesuffix('.safetensors')} | {w['states']} | {w['n']} | "
                          f"{w['nmse_p_median']:.2e} | {w['nmse_p_worst']:.2e} |")
     points = [o for o in oos if o["parameter_points"] is not None]
-    parts += ["", "Held-out parameter points: " + ("see JSON" if points else
-              "none (every model is a point model: one F_B / w, v_B and a; range models would be scored here).")]
+    if not points:
+        parts += ["", "Held-out parameter points: none (every model is a point model: one F_B / w, v_B and a)."]
+    for o in points:
+        sm = parameter_summary(o["parameter_points"])
+        parts += ["", f"Held-out bows of {o['model']} (4 x 4 grid of its box, f0 100, from rest vs FDM x100): "
+                      f"{sm['speaking']} of {sm['points']} speak, median NMSE(p) {_fmt(sm['median_nmse'])}, worst "
+                      f"{_fmt(sm['worst_nmse'])}, worst pitch error {_fmt(sm['worst_cents'], '.3f')} cents; silent "
+                      f"ones finite: {sm['quiet_all_finite']}; FDM fallbacks: {sm['fdm_fallbacks']}"]
     return "\n".join(parts)
+
+
+def _fmt(v, fmt: str = ".2e") -> str:
+    return "n/a" if v is None else format(v, fmt)
 
 
 def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:

@@ -69,7 +69,7 @@ def presets():
     """List the preset scenes, the pitch each sounds at, and the model that plays it (or how to get one)."""
     from .errors import DomainError
     from .pitch import note_name, sounding_pitch
-    from .rollout import available_models, find_model
+    from .rollout import available_models, find_model, train_hint
     from .scene import list_presets, load_preset, make_scene, preset_description
     from rich.markup import escape
 
@@ -79,16 +79,15 @@ def presets():
                           for k, v in load_preset(name).items())
         sc = make_scene(name)
         if sc.varying:
-            heard, who = "its pitch when the bow holds its median values", (
-                f"none: FDM only (a bow gesture; no model follows one yet): `bowsynth render --preset {name} "
-                f"--method fdm`")
+            heard = "its pitch when the bow holds its median values"
         else:
             hz = sounding_pitch(sc.f0, sc.fb, sc.vb, sc.a)
             heard = f"{hz:.2f} Hz ({note_name(hz)})"
-            try:
-                who = find_model(sc, models).path.name
-            except DomainError:
-                who = f"none: FDM only, train with `bowsynth train --preset {name}`"
+        try:
+            m = find_model(sc, models)
+            who = m.path.name if m.path else m.meta.name
+        except DomainError:
+            who = f"none: FDM only, train with `{train_hint(sc)}`"
         out.print(f"[bold]{name}[/bold]  {escape(fields)}\n    {escape(preset_description(name))}\n    f0 {sc.f0:.4g} Hz "
                   f"sounds at {heard}; model: {escape(who)}", soft_wrap=True)
 
@@ -281,9 +280,17 @@ def models():
         sc = m.meta.scene
         mark = f"  FAILED ({escape(m.failure)}): not picked by default" if m.failure else ""
         fmt = "" if m.meta.format_version >= 2 else " (format 1: no digest; checked by its physics at render time)"
-        out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    trained for fb={sc['fb']:g} "
-                  f"f0={sc['f0']:g} vb={d.vb:g} a={d.a:g} (F_B/w={d.beta:.4g}), window {d.window:.3g} tau; validation "
-                  f"NMSE(p) {_num(v.get('nmse'), '.3g')}, {m.meta.training.get('seconds')} s of training", soft_wrap=True)
+        if d.is_range:
+            b0, b1, v0, v1 = d.box
+            w = 2 * 3.141592653589793 * sc["f0"]
+            what = (f"range model: F_B/w {b0:.4g}..{b1:.4g} (F_B {b0 * w:.4g}..{b1 * w:.4g} at f0 {sc['f0']:g}), "
+                    f"vb {v0:g}..{v1:g}, a={d.a:g}, any pitch, follows gestures; window {d.window:.3g} tau; validation "
+                    f"median NMSE(p) {_num(v.get('nmse'), '.3g')}, worst {_num(v.get('nmse_max'), '.3g')}")
+        else:
+            what = (f"trained for fb={sc['fb']:g} f0={sc['f0']:g} vb={d.vb:g} a={d.a:g} (F_B/w={d.beta:.4g}), window "
+                    f"{d.window:.3g} tau; validation NMSE(p) {_num(v.get('nmse'), '.3g')}")
+        out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    {escape(what)}, "
+                  f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
 
 
 @app.command()

@@ -160,6 +160,30 @@ def test_train_refuses_bad_ranges(args, needle, capsys, monkeypatch, tmp_path):
 
 def test_train_score_refuses_flags_it_replaces(capsys, monkeypatch, tmp_path):
     score = tmp_path / "s.toml"
-    score.write_text('[[note]]\nstart = 0\nduration = 0.5\nf0 = 100\nfb = 100\nvb = 0.2\n')
+    score.write_text('[[voice]]\n[[voice.note]]\nstart = 0\nduration = 0.5\nf0 = 100\nfb = 100\nvb = 0.2\n')
     code, out, err = run_main(["train", "--score", str(score), "--fb", "100", "--steps", "1"], capsys, monkeypatch)
     assert code == 2 and "--score" in err
+
+
+def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_path):
+    """`train --score`: the model's box is the bows the notes' sustains visit (a gesture's whole curve included), and
+    the model then covers every note of the score (the coverage check before rendering finds nothing missing)."""
+    from bowsynth.score import load_score, uncovered
+
+    score = tmp_path / "s.toml"
+    score.write_text('[[voice]]\n[[voice.note]]\nstart = 0\nduration = 0.4\nf0 = 100\nfb = [[0.0, 80.0], [0.3, 160.0]]\n'
+                     'vb = 0.2\n[[voice]]\n[[voice.note]]\nstart = 0.1\nduration = 0.3\nf0 = 100\nfb = 150\n'
+                     'vb = 0.25\n')
+    out = tmp_path / "models" / "m.safetensors"  # ./models: where `bowsynth models` and renders look
+    monkeypatch.chdir(tmp_path)
+    code, so, err = run_main(["train", "--score", str(score), "--steps", "2", "--n-data", "64", "--quiet",
+                              "--out", str(out)], capsys, monkeypatch)
+    assert code == 0, err
+    m = load_model(out)
+    b0, b1, v0, v1 = m.domain.box
+    assert math.isclose(b0, 80 / (2 * math.pi * 100)) and math.isclose(b1, 160 / (2 * math.pi * 100))
+    assert (v0, v1) == (0.2, 0.25)
+    notes = load_score(score)
+    assert uncovered(notes, model=m) == []
+    code, so, err = run_main(["models"], capsys, monkeypatch)
+    assert "range model" in so

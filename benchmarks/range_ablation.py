@@ -1,0 +1,53 @@
+"""Ablations of the range model's choices, one config per row: each row trains a range model on the same box for
+the same minutes (one at a time: they share the 2 cores) and scores the 4 x 4 held-out grid at f0 100, 1 s from rest
+against the FDM x100 (bench.bench_parameter_points).
+
+    PYTHONPATH=. .venv/bin/python benchmarks/range_ablation.py [--minutes 10] [--rows base,no_corr_beta]
+
+Rows (TrainConfig fields changed from the defaults):
+    base           the shipped recipe
+    no_corr_beta   the correction not scaled by beta / beta_ref (range_corr_beta False)
+    no_gestures    band from renders at fixed bows only (range_gestures 0)
+    no_starts      no window-start data (start_share 0)
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from bowsynth import api
+from bowsynth.bench import bench_parameter_points, parameter_summary
+from bowsynth.training.ranges import ParamBox
+
+BOX = ParamBox(0.08, 0.32, 0.1, 0.28, 100.0)  # the box of the first range measurement (shared/GUIDE.md 8)
+ROWS = {
+    "base": {},
+    "no_corr_beta": {"range_corr_beta": False},
+    "no_gestures": {"range_gestures": 0},
+    "no_starts": {"start_share": 0.0},
+}
+
+
+def main(argv):
+    minutes = float(argv[argv.index("--minutes") + 1]) if "--minutes" in argv else 10.0
+    names = argv[argv.index("--rows") + 1].split(",") if "--rows" in argv else list(ROWS)
+    out_dir = Path("/tmp/bowsynth-range-ablation")
+    out_dir.mkdir(exist_ok=True)
+    print(f"box {BOX.describe()}, {minutes:g} min each, held-out 4 x 4 grid at f0 100, 1 s from rest vs FDM x100")
+    print("| row | config change | steps | median NMSE(p) | worst NMSE(p) | worst cents | FDM fallbacks |")
+    print("|---|---|---|---|---|---|---|")
+    for name in names:
+        sc = api.range_scene(BOX)
+        cfg = api.make_train_config(sc, minutes=minutes, **ROWS[name])
+        t0 = time.time()
+        res = api.train(sc, config=cfg, out=out_dir / f"{name}.safetensors", force=True, box=BOX)
+        s = parameter_summary(bench_parameter_points(res.model))
+        print(f"| {name} | {ROWS[name] or 'none'} | {res.model.meta.training['steps_done']} | {s['median_nmse']:.2e} | "
+              f"{s['worst_nmse']:.2e} | {s['worst_cents']:.3f} | {s['fdm_fallbacks']} |  ({time.time() - t0:.0f} s)",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
