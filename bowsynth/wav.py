@@ -109,18 +109,24 @@ class WavInfo:
         return self.format in LOSSY
 
 
+# The filter's impulse response decays with time constant 1 / (2 pi 5 Hz / sqrt 2) = 45 ms: 0.5 s is 11 of them
+# (e^-11 ~ 2e-5 of what wraps round), and the odd reflection keeps the padded signal continuous at the ends. A whole
+# second, as before, made each transform 1.5x longer for a 1 s note: DC removal was half a 100-note score's time.
+DC_PAD_S = 0.5
+
+
 def remove_dc(x: np.ndarray, sample_rate: float) -> np.ndarray:
     """The DC and the infrasonic drift of the onset removed (see the module docstring); a new float64 array.
 
     The zero-phase response |H|^2 of a 2nd-order Butterworth high-pass at DC_HZ, (f/fc)^4 / (1 + (f/fc)^4) -- what
     a forward-backward run of the filter gives -- applied in the frequency domain with numpy, so that writing a file
     loads no scipy (0.3-0.9 s of start-up; the operator's render path keeps off scipy, torch and numba). The signal
-    is padded by odd reflection (a second at each end) so the circular wrap rings out before it reaches the signal.
+    is padded by odd reflection (DC_PAD_S at each end) so the circular wrap rings out before it reaches the signal.
     """
     x = np.asarray(x, dtype=np.float64)
     if x.size < 2:
         return x - x.mean() if x.size else x.copy()
-    pad = int(sample_rate)
+    pad = int(DC_PAD_S * sample_rate)
     padded = np.pad(x, pad, mode="reflect", reflect_type="odd")
     f = np.fft.rfftfreq(padded.size, 1.0 / sample_rate) / DC_HZ
     f4 = f ** 4

@@ -51,7 +51,14 @@ def test_presets_sound_at_their_names_and_name_their_model(capsys, monkeypatch):
         if name in ("viola-a3", "violin-a4"):  # F_B / w of paper-fb100: the shipped model plays them
             assert "model: paper-fb100.safetensors" in line
             assert f"({name[-2:].upper()})" in line  # sounds at the named note
-    assert "model: none: FDM only, train with `bowsynth train --preset scratch-g2`" in text
+        # the model named is the one a render picks; none only where no model covers the preset (curves included)
+        from bowsynth.errors import DomainError
+        from bowsynth.rollout import find_model, train_hint
+
+        try:
+            assert f"model: {find_model(make_scene(name)).path.name}" in line
+        except DomainError:
+            assert f"model: none: FDM only, train with `{train_hint(make_scene(name))}`" in line
 
 
 def test_make_scene_with_pitch_and_beta():
