@@ -158,6 +158,13 @@ def render(
                   f"({r.realtime_factor:.0f}x real time){setup_note}", soft_wrap=True)
         for note in r.info.get("notes", []):
             say.print(note, soft_wrap=True)
+        rv = r.info.get("range_validation")
+        if rv and rv.get("nmse") is not None:
+            say.print(f"note: a range model; its validation (1 s from rest on a {rv.get('grid')} x {rv.get('grid')} "
+                      f"grid of its box vs FDM x100): median NMSE(p) {rv['nmse']:.2g}, worst "
+                      f"{_num(rv.get('nmse_max'), '.2g')}; `bowsynth compare "
+                      f"{output if str(output) != '-' else 'FILE'}` measures this render",
+                      soft_wrap=True)
 
 
 @app.command()
@@ -205,8 +212,6 @@ def train(
                                 n_data=n_data if box is None else None,
                                 range_n_data=n_data if box is not None else None,
                                 checkpoint_seconds=checkpoint_every)
-    if box is not None:
-        _say(False, f"training a range model: {box.describe()} at f0 {scene.f0:g} Hz", err)
     res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err,
                     box=box)
     v = res.model.meta.validation
@@ -238,6 +243,8 @@ def _range_box(preset, f0, fb, vb, a):
         if lo < 0:
             raise UsageError(f"--{name} range must be >= 0, got {lo:g}:{hi:g}")
     box = ParamBox.from_forces(fbr, vbr, base.f0, base.a)
+    if box.is_point:  # `--fb 100:100` is the point 100
+        return base.replace(fb=fbr[0], vb=vbr[0]), None
     return api.range_scene(box, base.f0, base.sample_rate), box
 
 

@@ -672,6 +672,9 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                     "setup_seconds": t0 - t_setup}
             if not _single:
                 info["batched"] = len(idx)
+            if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
+                v = m.meta.validation or {}
+                info["range_validation"] = {k: v.get(k) for k in ("nmse", "nmse_max", "grid")}
             ctrl = None
             if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
                 ctrl = applied_controls(sc, op.samples_per_window(sc.dtau), bows[row])

@@ -119,3 +119,20 @@ def test_cli_refuses_bad_gestures_in_one_line(flag, needle, tmp_path, monkeypatc
 def test_operator_refuses_a_gesture_it_cannot_follow(tmp_path, monkeypatch, capsys):
     code, _, err = run_main(["render", "--fb", "50@0,200@0.2", str(tmp_path / "x.wav")], capsys, monkeypatch)
     assert code == 1 and "--method fdm" in err and err.count("\n") == 1
+
+
+def test_after_shifts_a_curve_to_start_at_t0():
+    """Scene.after(t0): the rest of a note seen from t0 (how the FDM fallback continues an operator render)."""
+    from bowsynth import Scene
+    from bowsynth.controls import Curve, after
+
+    c = Curve(((0.0, 50.0), (1.0, 150.0), (2.0, 100.0)))
+    d = after(c, 0.5)
+    t = np.linspace(0, 2, 41)
+    np.testing.assert_allclose(d.at(t), c.at(t + 0.5))
+    assert after(c, 3.0) == 100.0  # past the last breakpoint: held
+    assert after(7.0, 1.0) == 7.0 and after(c, 0.0) is c
+    sc = Scene(fb=c, vb=[[0.0, 0.1], [1.0, 0.3]], duration=2.0)
+    rest = sc.after(1.0, duration=1.0)
+    np.testing.assert_allclose(rest.fb_at(t / 2), sc.fb_at(t / 2 + 1.0))
+    assert rest.vb == 0.3 and rest.duration == 1.0

@@ -134,6 +134,7 @@ def fake_train(monkeypatch):
         assert config.window is None or math.isfinite(config.window) and config.window > 0
         assert math.isfinite(config.checkpoint_seconds)
         seen["called"] = True
+        seen["box"] = kw.get("box")
         raise Stop("stopped by the test")
 
     monkeypatch.setattr("bowsynth.api.train", train)
@@ -147,6 +148,37 @@ def test_train_flags(flag, fval, ival, fake_train, tmp_path, monkeypatch, capsys
     code, _, err = run_main(["train", "--out", str(tmp_path / "m.safetensors"), flag, value], capsys, monkeypatch)
     _one_line_or_ok(code, err)
     assert code == 2 or "stopped by the test" in err
+
+
+@SETTINGS
+@given(flag=st.sampled_from(["--fb", "--vb"]), lo=FLOATS, hi=FLOATS)
+def test_train_range_flags(flag, lo, hi, fake_train, tmp_path, monkeypatch, capsys):
+    """`train --fb LO:HI` / `--vb LO:HI` with extreme numbers: one line and exit 2, or a box that is finite, not
+    inverted and inside the scene's bounds reaches the trainer."""
+    fake_train.clear()
+    code, _, err = run_main(["train", "--out", str(tmp_path / "m.safetensors"), flag, f"{lo!r}:{hi!r}"], capsys,
+                            monkeypatch)
+    _one_line_or_ok(code, err)
+    assert code == 2 or "stopped by the test" in err
+    box = fake_train.get("box")
+    if box is not None:
+        assert all(math.isfinite(v) for v in (box.beta_lo, box.beta_hi, box.vb_lo, box.vb_hi))
+        assert 0 <= box.beta_lo <= box.beta_hi and box.vb_lo <= box.vb_hi
+
+
+@SETTINGS
+@given(flag=st.sampled_from(["--fb", "--vb"]), v0=FLOATS, v1=FLOATS, t1=FLOATS)
+def test_render_curve_flags(flag, v0, v1, t1, no_shipped_models, tmp_path, monkeypatch, capsys):
+    """Curves with extreme values and times on render: one line and exit 2, or a finite, clean file."""
+    out = tmp_path / "x.wav"
+    out.unlink(missing_ok=True)  # hypothesis runs every example in the same directory
+    code, _, err = run_main(["render", "--method", "fdm", "-d", "0.05", flag, f"{v0!r}@0,{v1!r}@{t1!r}", str(out)],
+                            capsys, monkeypatch)
+    _one_line_or_ok(code, err)
+    if code == 0:
+        _check_written(out)
+    else:
+        assert not out.exists()
 
 
 @pytest.mark.parametrize("minutes", ["inf", "1e308", "1e300", "-0.0", "1e-300"])
