@@ -187,3 +187,23 @@ def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_pat
     assert uncovered(notes, model=m) == []
     code, so, err = run_main(["models"], capsys, monkeypatch)
     assert "range model" in so
+
+
+def test_bench_scores_held_out_bows_of_a_range_model(range_model):
+    """bench: a range model's held-out bows are the grid of cell centres of its box, each scored against the FDM
+    x100 where the note speaks (nmse is the metrics' NMSE of p), reported finite where it does not."""
+    from bowsynth.bench import bench_parameter_points, parameter_summary
+    from bowsynth.fdm import render_fdm
+    from bowsynth.metrics import nmse
+
+    m = load_model(range_model)
+    rows = bench_parameter_points(m, n=2, duration=0.1)
+    assert [(round(r["beta"], 6), round(r["vb"], 6)) for r in rows] == [
+        (round(b, 6), round(v, 6)) for b, v in BOX.grid(2)]
+    r0 = next(r for r in rows if r["speaks"])
+    sc = Scene(f0=100, fb=r0["beta"] * 2 * math.pi * 100, vb=r0["vb"], duration=0.1)
+    want = nmse(render_operator(sc, model=m, fallback="fdm").p, render_fdm(sc, oversample=100).p)
+    assert r0["nmse"] == pytest.approx(want, rel=1e-6)
+    s = parameter_summary(rows)
+    assert s["points"] == 4 and s["speaking"] == sum(r["speaks"] for r in rows)
+    assert s["worst_nmse"] >= s["median_nmse"]
