@@ -32,13 +32,13 @@ test: $(STAMP)
 	$(PY) -m pytest
 
 # The shipped operators: one command each, on a 2-core CPU at most 15 minutes for each point model and 60 for each
-# range model (F_B / w at f0 100: soft 0.015-0.4 x v_B 0.05-0.3, stick-slip 0.6-2.0 x v_B 0.1-0.3).
+# range model (F_B / w at f0 100: soft 0.015-0.4 x v_B 0.05-0.3). The stick-slip range (0.6-2.0 x 0.1-0.3,
+# `train --fb 376.9:1256.7 --vb 0.1:0.3 --minutes 40`) failed its validation and is not shipped (BENCHMARKS.md).
 models: $(STAMP)
 	$(BOW) train --preset paper-fb10 --minutes 8 --out bowsynth/models/paper-fb10.safetensors --force
 	$(BOW) train --preset paper-fb100 --minutes 10 --out bowsynth/models/paper-fb100.safetensors --force
 	$(BOW) train --preset paper-fb1000 --minutes 12 --out bowsynth/models/paper-fb1000.safetensors --force
-	$(BOW) train --f0 100 --fb 9.42:251.4 --vb 0.05:0.3 --minutes 40 --out bowsynth/models/soft-range.safetensors --force
-	$(BOW) train --f0 100 --fb 376.9:1256.7 --vb 0.1:0.3 --minutes 40 --out bowsynth/models/stick-slip-range.safetensors --force
+	$(BOW) train --f0 100 --fb 9.42:251.4 --vb 0.05:0.3 --minutes 30 --out bowsynth/models/soft-range.safetensors --force
 
 bench: $(STAMP)
 	$(BOW) bench --out docs/bench
