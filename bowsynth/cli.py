@@ -17,8 +17,8 @@ from .errors import BowsynthError, Terminated, UsageError, interrupt_exit_code
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="bowsynth: a bowed mass-spring synthesizer driven by a physics-informed DeepONet.")
-err = Console(stderr=True, highlight=False)
-out = Console(highlight=False)
+err = Console(stderr=True, highlight=False, emoji=False)  # ":100:" in a message is text, not an emoji
+out = Console(highlight=False, emoji=False)
 _state = {"debug": False, "signal": None}
 
 # Scene flags shared by render / train / compare. None means "take the preset's value, else the default".

@@ -549,11 +549,11 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
     at, code = int(fail[0]), int(fail[1])
     if at < 0 or at >= scene.n_samples:  # a shorter voice of a batch may fail after its own end
         return []
-    why = FAILURES[code]
-    if code == FAIL_BOW and len(fail) > 2:
-        why += f" ({fail[2]})"
+    why = f"{FAILURES[code]} at t = {at / scene.sample_rate:.4f} s"
+    if code == FAIL_BOW and len(fail) > 2 and fail[2]:
+        why = f"{FAILURES[code]}: {fail[2]}"
     if fallback != "fdm":
-        raise DomainError(f"{voice}{why} at t = {at / scene.sample_rate:.4f} s; the render was stopped (use --fallback "
+        raise DomainError(f"{voice}{why}; the render was stopped (use --fallback "
                           f"fdm to finish with the FDM, or --method fdm)")
     from .fdm import render_fdm
 
@@ -563,7 +563,7 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
     rest = render_fdm(scene.after(start / scene.sample_rate, duration=(scene.n_samples - start) / scene.sample_rate,
                                   q0=q0, p0=p0))
     q[start:], p[start:] = rest.q[:scene.n_samples - start], rest.p[:scene.n_samples - start]
-    return [f"note: {voice}{why} at t = {at / scene.sample_rate:.4f} s; finished with the FDM from there"]
+    return [f"note: {voice}{why}; finished with the FDM from there"]
 
 
 def _physics_notes(m: OperatorModel) -> list[str]:
