@@ -27,6 +27,8 @@ demo: $(STAMP)
 	$(BOW) render --preset violin-a4 $(OUTDIR)/violin-a4.flac
 	$(BOW) score --score examples/melody.mid --mix $(OUTDIR)/melody.wav --stems $(OUTDIR)/melody.stems --force
 	$(BOW) render --method fdm --fb 50@0,300@1,50@2 --pitch D4 -d 2.5 $(OUTDIR)/swell-fdm.wav
+	$(BOW) render --fb 50@0,200@2 --vb 0.15 -d 2 $(OUTDIR)/crescendo.wav
+	$(BOW) compare $(OUTDIR)/crescendo.wav
 
 test: $(STAMP)
 	$(PY) -m pytest
