@@ -87,24 +87,25 @@ def first_bow_outside(model: OperatorModel, scene: Scene) -> tuple[float, str] |
     """Where the scene's bow first leaves the model's range, in the windows the operator would play it: (time in s,
     'F_B = ... at t = ...' naming the parameter and value), or None if it never does."""
     spw = _operator(model).samples_per_window(scene.dtau)
-    bows = scene_bows(scene, spw)
+    out = _bow_exit(model, scene, spw, scene_bows(scene, spw))
+    return None if out is None else (out[1] / scene.sample_rate, out[2])
+
+
+def _bow_exit(model: OperatorModel, scene: Scene, spw: float, bows: np.ndarray) -> tuple[int, int, str] | None:
+    """The first window whose bow (of `bows`, scene_bows) is outside the model's range: (window, its first sample,
+    what left and when), or None."""
     d = model.domain
     bad = np.flatnonzero(~d.box_contains(bows[:, 0], bows[:, 1]))
     if not bad.size:
         return None
     w = int(bad[0])
-    t = window_bounds(spw, scene.n_samples)[0][w] / scene.sample_rate
+    start = int(window_bounds(spw, scene.n_samples)[0][w])
+    t = start / scene.sample_rate
     beta, vb = bows[w]
-    if d.box is None:
-        lo_b = hi_b = d.beta
-        lo_v = hi_v = d.vb
-    else:
-        lo_b, hi_b, lo_v, hi_v = d.box
-    if not (lo_b * (1 - 1e-6) <= beta <= hi_b * (1 + 1e-6)):
-        what = f"F_B = {beta * scene.omega:.4g} (F_B / w {beta:.4g}) at t = {t:.3f} s"
-    else:
-        what = f"v_B = {vb:.4g} at t = {t:.3f} s"
-    return t, what
+    v_in = d.vb if d.box is None else min(max(vb, d.box[2]), d.box[3])  # v_B moved inside: does beta alone leave?
+    if not d.box_contains(beta, v_in):
+        return w, start, f"F_B = {beta * scene.omega:.4g} (F_B / w {beta:.4g}) at t = {t:.3f} s"
+    return w, start, f"v_B = {vb:.4g} at t = {t:.3f} s"
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
@@ -324,9 +325,14 @@ def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
     return "numba" if slow > NUMBA_PAYS_FROM else "numpy"
 
 
+def max_windows(n_samples: int, spw) -> int:
+    """Enough windows of spw samples (kernels.window_end) to pass n_samples, at the shortest spacing given."""
+    return int(np.ceil((n_samples + 0.5) / np.min(spw))) + 1
+
+
 def window_bounds(spw: float, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
     """(starts, ends) in samples of the windows that cover n_samples at spw samples per window (kernels.window_end)."""
-    W = int(np.ceil((n_samples + 0.5) / spw)) + 1
+    W = max_windows(n_samples, spw)
     ends = np.floor(np.arange(1, W + 1) * spw + 0.5).astype(np.int64)
     keep = int(np.searchsorted(ends, n_samples)) + 1  # the first window that reaches n_samples is the last
     ends = ends[:keep]
@@ -392,7 +398,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     p = np.empty((B, n_samples), np.float32)
     fail = np.tile(np.array([-1, 0], np.int64), (B, 1))  # the loops write only the voices that fail
     d = model.domain
-    W = int(np.ceil((n_samples + 0.5) / spw.min())) + 1  # as many windows as the loops may start
+    W = max_windows(n_samples, spw)  # as many windows as the loops may start
     pin, gain = op.window_inputs(_window_bows(model, B, W, params))
     args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
@@ -431,7 +437,7 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     width = Hw.shape[-1]
     n_hi = np.ceil(spw).astype(np.int64)
     sp, nl = spw[vidx], n_lo[vidx]
-    W = int(np.ceil((n_samples + 0.5) / sp.min())) + 1  # enough windows to pass n_samples
+    W = max_windows(n_samples, sp)
     ends = np.floor(np.arange(1, W + 1)[None, :] * sp[:, None] + 0.5).astype(np.int64)  # kernels.window_end
     starts = np.concatenate([np.zeros((B, 1), np.int64), ends[:, :-1]], axis=1)
     jlen = ends - starts - nl[:, None]  # 0: a window of n_lo samples, 1: of n_hi
@@ -529,11 +535,9 @@ def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fal
     if not isinstance(model, OperatorModel):
         model = load_model(model)
     why = model.domain.mismatch(scene)
-    if why and fallback == "fdm" and model.domain.is_range and model.domain.contains(scene.q0, scene.p0):
-        where = first_bow_outside(model, scene)
-        if where and where[0] > 0:
-            return model
     where = first_bow_outside(model, scene) if why and model.domain.is_range else None
+    if where and where[0] > 0 and fallback == "fdm" and model.domain.contains(scene.q0, scene.p0):
+        return model  # it plays the opening; the FDM the rest
     if where:  # name the parameter, its value and the time it leaves the range
         why = [f"{where[1]} leaves its {model.domain.describe_bows()}"] + [
             w for w in why if not w.startswith(("F_B", "v_B"))]
@@ -611,10 +615,9 @@ def _voice_bows(m: OperatorModel, scenes: list[Scene]):
         bows = scene_bows(sc, spw)
         out = None
         if m.domain.is_range:
-            bad = np.flatnonzero(~m.domain.box_contains(bows[:, 0], bows[:, 1]))
-            if bad.size:
-                where = first_bow_outside(m, sc)
-                out = (int(window_bounds(spw, sc.n_samples)[0][bad[0]]), where[1] if where else "")
+            exit_ = _bow_exit(m, sc, spw, bows)
+            if exit_ is not None:
+                out = exit_[1:]
                 lo_b, hi_b, lo_v, hi_v = m.domain.box
                 bows = np.stack([np.clip(bows[:, 0], lo_b, hi_b), np.clip(bows[:, 1], lo_v, hi_v)], axis=1)
         rows.append(bows)
