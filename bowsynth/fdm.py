@@ -10,7 +10,7 @@ u^{+-1} = u^0 +- k p0 - k^2/2 (w^2 u^0 + F_B phi(p0 - v_B)) -- the second-order 
 p[0] = p0, and the render converges at second order to the initial-value problem. The paper's own file instead uses
 u^{-1} = u^0 = 0 (see `run_fdm_raw`).
 
-Two paths: `render_fdm` (one voice, a numba-compiled loop) and `fdm_batch` (numpy, vectorised across initial
+Two paths: `render_fdm` (one voice, a numba-compiled loop in `fdm_kernel`, imported on first use) and `fdm_batch` (numpy, vectorised across initial
 states, for training data). They run the same iteration and agree to rounding.
 """
 
@@ -20,9 +20,7 @@ import math
 import time
 import warnings
 
-import numba
 import numpy as np
-from numba.extending import overload
 
 from . import physics
 from .render import Render
@@ -35,75 +33,8 @@ MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: re
 CHUNK_STEPS = 2_000_000  # scheme steps per compiled call (see run_fdm_raw)
 
 
-@overload(physics._exp)
-def _exp_numba(x):  # lets numba compile physics.phi / dphi unchanged
-    return lambda x: np.exp(x)
-
-
-_phi = numba.njit(physics.phi, inline="always")
-_dphi = numba.njit(physics.dphi, inline="always")
-
-
 class OversampleWarning(UserWarning):
     """The FDM raised its oversampling to respect the uniqueness bound."""
-
-
-@numba.njit(cache=True)
-def _solve_eta(guess, b, c, fb, a):
-    """Root of c*x + fb*phi(x) + b (increasing in x under the uniqueness bound), Newton kept inside a bracket."""
-    lo = (-b - fb) / c
-    hi = (-b + fb) / c
-    x = min(max(guess, lo), hi)
-    for _ in range(NEWTON_MAXIT):
-        fx = c * x + fb * _phi(x, a) + b
-        if fx > 0.0:
-            hi = x
-        else:
-            lo = x
-        d = c + fb * _dphi(x, a)
-        xn = x - fx / d if d > 0.0 else 0.5 * (lo + hi)
-        if not (lo <= xn <= hi):
-            xn = 0.5 * (lo + hi)
-        if abs(xn - x) <= NEWTON_TOL:
-            return xn
-        x = xn
-    return x
-
-
-@numba.njit(cache=True, inline="always")
-def _control(ts, vs, t, i):
-    """Piecewise-linear control at time t, held outside its breakpoints; i is the segment of the previous call
-    (times only grow, so the search is amortised O(1))."""
-    n = ts.shape[0]
-    while i + 1 < n and ts[i + 1] <= t:
-        i += 1
-    if t <= ts[0] or i + 1 >= n:
-        return vs[0] if t <= ts[0] else vs[n - 1], i
-    return vs[i] + (vs[i + 1] - vs[i]) * (t - ts[i]) / (ts[i + 1] - ts[i]), i
-
-
-@numba.njit(cache=True)
-def _kernel(u_prev, u_cur, eta, n0, n_out, stride, k, w2, fb_t, fb_v, vb_t, vb_v, a, u_out, eta_out):
-    """Bow force and speed follow their breakpoints (fb_t, fb_v), (vb_t, vb_v) step by step, at t = n k; this
-    call runs steps n0, n0 + 1, ..."""
-    c = 2.0 / k
-    ck = 2.0 / (k * k)
-    ifb = 0
-    ivb = 0
-    for j in range(n_out):
-        for s in range(stride):
-            t = (n0 + j * stride + s) * k
-            fb, ifb = _control(fb_t, fb_v, t, ifb)
-            vb, ivb = _control(vb_t, vb_v, t, ivb)
-            b = c * vb + ck * (u_prev - u_cur) + w2 * u_cur
-            eta = _solve_eta(eta, b, c, fb, a)
-            if s == 0:
-                u_out[j] = u_cur
-                eta_out[j] = eta
-            u_next = u_prev + 2.0 * k * (eta + vb)
-            u_prev = u_cur
-            u_cur = u_next
-    return u_prev, u_cur, eta
 
 
 def taylor_start(u0, p0, k, w, fb, vb, a):
@@ -125,10 +56,12 @@ def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None):
     state = (float(u_prev), float(u_cur), float(eta))
     # chunks of CHUNK_STEPS steps (~0.1-0.3 s each): Python runs signal handlers (Ctrl-C, SIGTERM) only between
     # compiled calls, and a 20 s x200 render in one call ignored Ctrl-C for 13 s
+    from .fdm_kernel import kernel  # numba: imported when the compiled loop first runs, not with the module
+
     per = max(1, CHUNK_STEPS // int(stride))
     for j in range(0, int(n_out), per):
         m = min(per, int(n_out) - j)
-        state = _kernel(*state, j * int(stride), m, int(stride), float(k), float(w * w), fb_t, fb_v, vb_t, vb_v,
+        state = kernel(*state, j * int(stride), m, int(stride), float(k), float(w * w), fb_t, fb_v, vb_t, vb_v,
                         float(a), u_out[j:j + m], eta_out[j:j + m])
     return u_out, eta_out
 
