@@ -30,6 +30,7 @@ from .scene import Scene
 NEWTON_TOL = 1e-14  # absolute, m/s: eta is O(0.1-1)
 NEWTON_MAXIT = 60
 MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: refuse instead
+DENSE_BELOW = 512  # states: below this `_solve_eta_vec` iterates densely (see _solve_eta_dense)
 CHUNK_STEPS = 2_000_000  # scheme steps per compiled call (see run_fdm_raw)
 
 
@@ -112,16 +113,24 @@ def render_fdm(scene: Scene, oversample: int = 1) -> Render:
 def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None):
     """Vectorised FDM over many initial states at once (numpy), same start and iteration as `render_fdm`.
 
-    q0, p0: arrays (B,); fb, vb: numbers or arrays (B,), one bow per state (range models train on many).
-    Steps of size k; returns q, p of shape (B, n_out) at every `stride`-th step (column 0 is the initial state).
-    on_progress(fraction) is called after each output step.
+    q0, p0: arrays (B,); w, fb: numbers or arrays (B,) (states at several pitches and bows roll together); vb: a
+    number, an array (B,), or a function of the time t = n k of step n returning (B,) values (a bow that changes:
+    the releases of a score's notes). Steps of size k; returns q, p of shape (B, n_out) at every `stride`-th step
+    (column 0 is the initial state). on_progress(fraction) is called after each output step.
     """
     q0 = np.asarray(q0, dtype=float)
     p0 = np.asarray(p0, dtype=float)
+    if callable(vb):
+        vb_fn = vb
+        vb_at = lambda t: np.broadcast_to(np.asarray(vb_fn(t), dtype=float), q0.shape)  # noqa: E731
+    else:
+        fixed = np.broadcast_to(np.asarray(vb, dtype=float), q0.shape)
+        vb_at = lambda t: fixed  # noqa: E731
     fb = np.broadcast_to(np.asarray(fb, dtype=float), q0.shape)
-    vb = np.broadcast_to(np.asarray(vb, dtype=float), q0.shape)
+    w = np.broadcast_to(np.asarray(w, dtype=float), q0.shape)
     if q0.size and k >= physics.max_stable_step(float(fb.max()), a):
         raise ValueError(f"step k={k:g} s breaks the uniqueness bound for fb={float(fb.max()):g}, a={a:g}")
+    vb = vb_at(0.0)
     u_cur = q0 / w
     u_prev = taylor_start(u_cur, p0, k, w, fb, vb, a)
     eta = p0 - vb
@@ -130,6 +139,7 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None):
     p = np.empty((q0.size, n_out))
     for j in range(n_out):
         for s in range(stride):
+            vb = vb_at((j * stride + s) * k)
             b = c * vb + ck * (u_prev - u_cur) + w2 * u_cur
             eta = _solve_eta_vec(eta, b, c, fb, a)
             if s == 0:
@@ -143,6 +153,12 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None):
 
 
 def _solve_eta_vec(guess, b, c, fb, a):
+    if guess.size <= DENSE_BELOW:
+        return _solve_eta_dense(guess, b, c, fb, a)
+    return _solve_eta_bracketed(guess, b, c, fb, a)
+
+
+def _solve_eta_bracketed(guess, b, c, fb, a):
     lo = (-b - fb) / c
     hi = (-b + fb) / c
     x = np.clip(guess, lo, hi)
@@ -163,5 +179,35 @@ def _solve_eta_vec(guess, b, c, fb, a):
         idx = np.flatnonzero(active)
         active[idx[done]] = False
         if not active.any():
+            break
+    return x
+
+
+def _solve_eta_dense(guess, b, c, fb, a):
+    """`_solve_eta_bracketed` for a few states (a score's releases), where numpy's per-call overhead, not the
+    arithmetic, is the cost: every state iterates until the slowest is done (a converged one held by np.where)
+    instead of gathering the active states each step. The same Newton steps in the same bracket, phi and dphi
+    written as in `physics` with their exponential shared, so each state's result is the bracketed iteration's to
+    the bit: a stick-slip release amplifies a last-bit difference to 1e-5 within 0.1 s."""
+    lo = (-b - fb) / c
+    hi = (-b + fb) / c
+    x = np.clip(guess, lo, hi)
+    s2a = math.sqrt(2.0 * a)
+    done = np.zeros(x.shape, dtype=bool)
+    for _ in range(NEWTON_MAXIT):
+        ax = -a * x
+        e = np.exp(ax * x + 0.5)
+        fx = c * x + fb * (s2a * x * e) + b
+        pos = fx > 0.0
+        hi = np.where(pos, x, hi)
+        lo = np.where(pos, lo, x)
+        d = c + fb * (s2a * e * (1.0 + 2.0 * ax * x))
+        mid = 0.5 * (lo + hi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn = np.where(d > 0.0, x - fx / d, mid)
+        xn = np.where(done | ~((lo <= xn) & (xn <= hi)), np.where(done, x, mid), xn)
+        done |= np.abs(xn - x) <= NEWTON_TOL
+        x = xn
+        if done.all():
             break
     return x

@@ -32,6 +32,7 @@ import json
 import math
 import os
 import re
+import time
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -435,31 +436,64 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     if op:
         sustains = [notes[i].sustain_scene(1 if notes[i].release > 0 else 0) for i in op]
         rs = render(sustains, engine="operator", model=model, fallback=fallback)
-        for i, r in zip(op, rs):
-            out[i] = _finish_release(notes[i], r)
+        for i, r in zip(op, finish_releases([notes[i] for i in op], rs)):
+            out[i] = r
     return out
 
 
-def _finish_release(note: Note, sus: Render) -> Render:
-    """The note's release by the FDM from the sustain's last state, joined to the sustain."""
-    if note.release <= 0:
-        return Render(note.scene, sus.t, sus.q, sus.p, sus.method, sus.seconds, sus.info)
-    from .fdm import render_fdm
+def _release_scene(note: Note, sus: Render) -> Scene:
+    """The note after its sustain: v_B falls to 0 over the release, from the sustain's last state."""
+    sc = note.scene
+    tail = sc.n_samples - (len(sus.q) - 1)
+    return Scene(f0=sc.f0, fb=float(sc.fb_at(note.hold)), vb=[[0.0, float(sc.vb_at(note.hold))], [note.release, 0.0]],
+                 a=sc.a, duration=tail / sc.sample_rate, sample_rate=sc.sample_rate,
+                 q0=float(sus.q[-1]), p0=float(sus.p[-1]))
 
+
+def finish_releases(notes: list[Note], sustains: list[Render]) -> list[Render]:
+    """Each note's release by the FDM from its sustain's last state, joined to the sustain.
+
+    The releases run together in one numpy FDM (`fdm.fdm_batch`, one batch per sample rate and oversampling): a few
+    hundred steps of ~100 ns of work each, where the compiled loop would first cost numba's import and load (~1 s,
+    more than a 100-note score's whole rollout). Same scheme, start and Newton iteration as `render_fdm`."""
+    from .fdm import check_oversample, fdm_batch
+
+    out = [None] * len(notes)
+    groups: dict[tuple, list[int]] = {}
+    scenes = {}
+    for i, (n, sus) in enumerate(zip(notes, sustains)):
+        if n.release <= 0:
+            out[i] = Render(n.scene, sus.t, sus.q, sus.p, sus.method, sus.seconds, sus.info)
+            continue
+        scenes[i] = rel = _release_scene(n, sus)
+        os_ = check_oversample(rel, 1, warn=False)
+        groups.setdefault((rel.sample_rate, os_, rel.a), []).append(i)
+    for (sr, os_, a), idx in groups.items():
+        rel = [scenes[i] for i in idx]
+        vb0 = np.array([r.vb_at(0.0) for r in rel])
+        span = np.array([notes[i].release for i in idx])
+        k = 1.0 / (sr * os_)
+        n_out = max(r.n_samples for r in rel)
+        t0 = time.perf_counter()
+        # the ramp as controls.Curve evaluates it (v0 + (v1 - v0) (t - t0) / (t1 - t0)), held at 0 after it
+        q, p = fdm_batch([r.q0 for r in rel], [r.p0 for r in rel], n_out, os_, k, np.array([r.omega for r in rel]),
+                         np.array([float(r.fb_at(0.0)) for r in rel]),
+                         lambda t: np.where(t >= span, 0.0, vb0 + (0.0 - vb0) * t / span), a)
+        secs = (time.perf_counter() - t0) / len(idx)
+        for row, i in enumerate(idx):
+            out[i] = _join(notes[i], sustains[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], secs)
+    return out
+
+
+def _join(note: Note, sus: Render, q_rel, p_rel, rel_seconds: float) -> Render:
     sc = note.scene
     n_hold = len(sus.q) - 1
-    tail = sc.n_samples - n_hold
-    rel_scene = Scene(f0=sc.f0, fb=float(sc.fb_at(note.hold)), vb=[[0.0, float(sc.vb_at(note.hold))],
-                                                                   [note.release, 0.0]],
-                      a=sc.a, duration=tail / sc.sample_rate, sample_rate=sc.sample_rate,
-                      q0=float(sus.q[-1]), p0=float(sus.p[-1]))
-    rel = render_fdm(rel_scene)
-    q = np.concatenate([np.asarray(sus.q[:n_hold], float), rel.q[:tail]])
-    p = np.concatenate([np.asarray(sus.p[:n_hold], float), rel.p[:tail]])
+    q = np.concatenate([np.asarray(sus.q[:n_hold], float), q_rel])
+    p = np.concatenate([np.asarray(sus.p[:n_hold], float), p_rel])
     t = np.arange(len(q)) / sc.sample_rate
     info = dict(sus.info)
     info["release"] = "fdm"
-    return Render(sc, t, q, p, method=f"{sus.method} + fdm release", seconds=sus.seconds + rel.seconds, info=info)
+    return Render(sc, t, q, p, method=f"{sus.method} + fdm release", seconds=sus.seconds + rel_seconds, info=info)
 
 
 def render_voices(voices, method: str = "operator", model=None, fallback: str = "none") -> list[Render]:
