@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal as sps
 
 
 def nmse(x, ref) -> float:
@@ -85,6 +84,8 @@ def harmonic_error_db(x, ref, sample_rate: float, n_harmonics: int = 10, floor_d
 def log_spectral_distance(x, ref, sample_rate: float) -> float:
     """RMS over frequency of the dB difference of Welch power spectra (dB), bins within 80 dB of the peak."""
     nper = min(4096, len(ref))
+    from scipy import signal as sps  # here only: scipy costs 0.3-0.9 s to import, and pitch solves use f0_estimate
+
     _, px = sps.welch(np.asarray(x, float), sample_rate, nperseg=nper)
     _, pr = sps.welch(np.asarray(ref, float), sample_rate, nperseg=nper)
     keep = pr > pr.max() * 1e-8
