@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import physics
+from .cache import DiskTable
 from .errors import SceneError, UsageError
 
 A4_HZ = 440.0
@@ -187,11 +188,17 @@ def _why_silent(beta, vb, a, amp_end, grows) -> str:
     return f"the bow settles on no oscillation at F_B / w = {beta:.4g}, v_B = {vb:g}: bow slower or press harder"
 
 
+# what the measurement depends on besides (beta, v_B, a): a change to any of it invalidates the on-disk table
+RATIO_VERSION = f"1/{SPP}/{MAX_PERIODS}/{AMP_TOL!r}/{FREQ_TOL!r}/{MEASURE_CHUNKS}"
+_ratios = DiskTable("sounding-ratio", RATIO_VERSION)
+
+
 @functools.lru_cache(maxsize=4096)
 def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
-    """r = sounding frequency / f0 of the note bowed from rest at (beta, v_B, a), once steady (cached).
+    """r = sounding frequency / f0 of the note bowed from rest at (beta, v_B, a), once steady.
 
-    Raises SilentNoteError when the note does not speak (see the module docstring)."""
+    Cached in the process and on disk (`bowsynth.cache`; a repeated `--pitch` costs no FDM run). Raises
+    SilentNoteError when the note does not speak (see the module docstring); that answer is cached too."""
     beta, vb, a = float(beta), float(vb), float(a)
     for name, v in (("F_B / w", beta), ("v_B", vb), ("a", a)):
         if not math.isfinite(v):
@@ -200,6 +207,26 @@ def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
         raise SceneError(f"need F_B / w >= 0 and a > 0, got {beta:g} and {a:g}")
     if beta == 0:
         raise SilentNoteError("the note does not speak: F_B = 0, no bow on the mass")
+    key = f"{beta!r} {vb!r} {a!r}"
+    hit = _ratios.get(key)
+    if isinstance(hit, dict):
+        if isinstance(hit.get("silent"), str):
+            raise SilentNoteError(hit["silent"])
+        try:
+            return Ratio(r=float(hit["r"]), settle_periods=float(hit["settle_periods"]),
+                         amplitude=float(hit["amplitude"]), beta=beta, vb=vb, a=a)
+        except (KeyError, TypeError, ValueError):
+            pass  # an entry edited by hand: measure again
+    try:
+        ratio = _measure_ratio(beta, vb, a)
+    except SilentNoteError as e:
+        _ratios.put(key, {"silent": str(e)})
+        raise
+    _ratios.put(key, {"r": ratio.r, "settle_periods": ratio.settle_periods, "amplitude": ratio.amplitude})
+    return ratio
+
+
+def _measure_ratio(beta: float, vb: float, a: float) -> Ratio:
     spp = _steps_per_period(beta, a)
     run = _Run(beta, vb, a, spp)
     # a chunk holds >= 10 sounding periods (the stick phase stretches a period to 6 free periods at beta 1.6)

@@ -1,4 +1,5 @@
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -6,6 +7,8 @@ import pytest
 from bowsynth.cli import main as _main
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+# measured pitch ratios are cached on disk (bowsynth.cache): the tests keep theirs out of the user's ~/.cache
+os.environ.setdefault("BOWSYNTH_CACHE", tempfile.mkdtemp(prefix="bowsynth-test-cache-"))
 
 # the authors' reference data the tests use, in the repository (see tests/data/README.md for provenance)
 ANCHORS = Path(__file__).resolve().parent / "data"

@@ -1,5 +1,6 @@
 """Sounding pitch: note names, and notes that sound at the asked pitch (checked against a x100 FDM render)."""
 
+import json
 import math
 
 import numpy as np
@@ -127,3 +128,92 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
     assert code == 0, err
     sc = read_wav(out).scene
     assert sc.fb == 200 and math.isclose(sc.f0, tune("Bb3", 200.0).f0) and "233.08 Hz (A#3)" in so
+
+
+# --- the on-disk table of sounding ratios ---------------------------------------------------------------------------
+
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    """An empty cache directory, and no ratio remembered by this process."""
+    from bowsynth import pitch
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
+    pitch.sounding_ratio.cache_clear()
+    yield tmp_path / "cache"
+    pitch.sounding_ratio.cache_clear()
+
+
+def _forget(monkeypatch):
+    """A new process: nothing in memory, and measuring is forbidden (only the disk can answer)."""
+    from bowsynth import pitch
+
+    pitch.sounding_ratio.cache_clear()
+    monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
+    monkeypatch.setattr(pitch, "_measure_ratio", lambda *a: pytest.fail("measured again"))
+
+
+def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
+    from bowsynth import pitch
+
+    first = pitch.sounding_ratio(0.159, 0.2, 100.0)
+    with pytest.raises(pitch.SilentNoteError) as silent:
+        pitch.sounding_ratio(0.159, 0.05, 100.0)  # a bow stop: does not speak
+    assert (fresh_cache / "sounding-ratio.json").is_file()
+    _forget(monkeypatch)
+    assert pitch.sounding_ratio(0.159, 0.2, 100.0) == first  # the same floats, bit for bit
+    with pytest.raises(pitch.SilentNoteError) as again:
+        pitch.sounding_ratio(0.159, 0.05, 100.0)
+    assert str(again.value) == str(silent.value)
+    assert pitch.tune("A4", fb=None, beta=0.159, vb=0.2).f0 == pytest.approx(440 / first.r)
+
+
+@pytest.mark.parametrize("content", [b"", b"{not json", b"\xff\xfe\x00", b'{"version": "0", "entries": {}}',
+                                     b'{"version": null, "entries": []}', b"[1, 2]"])
+def test_a_bad_cache_file_is_measured_over(fresh_cache, content):
+    """Truncated, binary, foreign-version or wrong-shaped tables are ignored and replaced, never an error."""
+    from bowsynth import pitch
+
+    fresh_cache.mkdir()
+    (fresh_cache / "sounding-ratio.json").write_bytes(content)
+    r = pitch.sounding_ratio(0.159, 0.2, 100.0)
+    assert 0.8 < r.r < 1.0
+    doc = json.loads((fresh_cache / "sounding-ratio.json").read_text())
+    assert doc["version"] == pitch.RATIO_VERSION and len(doc["entries"]) == 1
+
+
+def test_an_edited_entry_is_measured_again(fresh_cache, monkeypatch):
+    from bowsynth import pitch
+
+    r = pitch.sounding_ratio(0.159, 0.2, 100.0)
+    path = fresh_cache / "sounding-ratio.json"
+    doc = json.loads(path.read_text())
+    (key,) = doc["entries"]
+    doc["entries"][key] = {"r": "fast"}
+    path.write_text(json.dumps(doc))
+    pitch.sounding_ratio.cache_clear()
+    monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
+    assert pitch.sounding_ratio(0.159, 0.2, 100.0) == r
+
+
+def test_no_cache_when_off_or_unwritable(fresh_cache, tmp_path, monkeypatch):
+    from bowsynth import pitch
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", "off")
+    assert pitch.sounding_ratio(0.159, 0.2, 100.0).r > 0
+    assert not fresh_cache.exists()
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")  # unwritable even for root: the cache directory cannot be made
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(blocker / "sub"))
+    pitch.sounding_ratio.cache_clear()
+    monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
+    assert pitch.sounding_ratio(0.159, 0.2, 100.0).r > 0  # measured, not remembered, no error
+    assert blocker.read_text() == "not a directory"
+    link = tmp_path / "link.json"
+    link.symlink_to(tmp_path / "target.json")
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    from bowsynth.cache import DiskTable
+
+    t = DiskTable("link", "v")
+    t.put("k", 1)  # the link is replaced by a file; what it pointed to is never written
+    assert not (tmp_path / "target.json").exists() and json.loads(link.read_text())["entries"] == {"k": 1}

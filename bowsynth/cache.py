@@ -1,0 +1,80 @@
+"""A small on-disk cache of measured numbers (the sounding ratios of `pitch`), kept between processes.
+
+Why: `render --pitch A4` solves for the f0 that sounds at A4 by running the FDM from rest a few times; that costs a
+second or more per process (numba's import and load, then the runs), every time the same note is asked for. The
+answer depends only on (F_B / w, v_B, a) and the measuring code, so it is kept in one JSON file per table under
+
+    $BOWSYNTH_CACHE, else $XDG_CACHE_HOME/bowsynth, else ~/.cache/bowsynth     (BOWSYNTH_CACHE=off: no cache)
+
+A cache is never a reason to fail: a file that cannot be read, parsed or written, or that was written by another
+version of the measurement, is ignored (and replaced when it can be). Writes go to a temporary file in the same
+directory, then replace the old one (two processes writing at once: the last one's table wins, nothing is torn).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+from pathlib import Path
+
+CACHE_ENV = "BOWSYNTH_CACHE"
+MAX_ENTRIES = 20_000  # a table this size is ~2 MB of JSON; older entries go first
+
+
+def cache_dir() -> Path | None:
+    v = os.environ.get(CACHE_ENV)
+    if v is not None:
+        return None if v.strip().lower() in ("", "off", "0", "none") else Path(v)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg) if xdg else Path.home() / ".cache"
+    return base / "bowsynth"
+
+
+class DiskTable:
+    """A JSON table of key -> value (both JSON-able), valid for one `version` of whatever computed the values."""
+
+    def __init__(self, name: str, version: str):
+        self.name, self.version = name, version
+        self._data: dict | None = None
+
+    def _path(self) -> Path | None:
+        d = cache_dir()
+        return None if d is None else d / f"{self.name}.json"
+
+    def _load(self) -> dict:
+        if self._data is None:
+            self._data = {}
+            path = self._path()
+            try:
+                doc = json.loads(path.read_text()) if path is not None else None
+                if isinstance(doc, dict) and doc.get("version") == self.version and isinstance(doc.get("entries"),
+                                                                                                 dict):
+                    self._data = doc["entries"]
+            except (OSError, ValueError, UnicodeDecodeError):
+                pass
+        return self._data
+
+    def get(self, key: str):
+        return self._load().get(key)
+
+    def put(self, key: str, value) -> None:
+        data = self._load()
+        data[key] = value
+        while len(data) > MAX_ENTRIES:
+            data.pop(next(iter(data)))
+        path = self._path()
+        if path is None:
+            return
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps({"version": self.version, "entries": data}, separators=(",", ":")))
+            os.replace(tmp, path)
+        except OSError:
+            pass
+        finally:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
