@@ -113,6 +113,16 @@ class Note:
         n = int(round(self.hold * sc.sample_rate)) + extra_samples
         return sc.replace(fb=_clip(sc.fb, self.hold), vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
 
+    @property
+    def hold_samples(self) -> int:
+        return int(round(self.hold * self.scene.sample_rate))
+
+    def rollout_scene(self) -> Scene:
+        """What the operator plays: the sustain, its bow held to the note's end when there is a release (the release
+        then overwrites the samples after the hold in place: copying a 60 s voice into a new array cost more than
+        rolling the sustain on through its release)."""
+        return self.sustain_scene(self.scene.n_samples - self.hold_samples if self.release > 0 else 0)
+
     def describe(self) -> str:
         return self.label or self.name
 
@@ -388,7 +398,7 @@ def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
             model = load_model(model)
     out = []
     for n in notes:
-        sc = n.sustain_scene(1)
+        sc = n.rollout_scene()
         try:
             _resolve(sc, model, models)
         except DomainError:
@@ -434,7 +444,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
             r.info.setdefault("notes", []).append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
             out[i] = r
     if op:
-        sustains = [notes[i].sustain_scene(1 if notes[i].release > 0 else 0) for i in op]
+        sustains = [notes[i].rollout_scene() for i in op]
         rs = render(sustains, engine="operator", model=model, fallback=fallback)
         for i, r in zip(op, finish_releases([notes[i] for i in op], rs)):
             out[i] = r
@@ -442,20 +452,20 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
 
 
 def _release_scene(note: Note, sus: Render) -> Scene:
-    """The note after its sustain: v_B falls to 0 over the release, from the sustain's last state."""
-    sc = note.scene
-    tail = sc.n_samples - (len(sus.q) - 1)
+    """The note after its sustain: v_B falls to 0 over the release, from the sustain's state at the hold."""
+    sc, h = note.scene, note.hold_samples
     return Scene(f0=sc.f0, fb=float(sc.fb_at(note.hold)), vb=[[0.0, float(sc.vb_at(note.hold))], [note.release, 0.0]],
-                 a=sc.a, duration=tail / sc.sample_rate, sample_rate=sc.sample_rate,
-                 q0=float(sus.q[-1]), p0=float(sus.p[-1]))
+                 a=sc.a, duration=(sc.n_samples - h) / sc.sample_rate, sample_rate=sc.sample_rate,
+                 q0=float(sus.q[h]), p0=float(sus.p[h]))
 
 
 def finish_releases(notes: list[Note], sustains: list[Render]) -> list[Render]:
-    """Each note's release by the FDM from its sustain's last state, joined to the sustain.
+    """Each note's release by the FDM from its sustain's state at the hold, written over the sustain's samples from
+    there on (`sustains` rendered from `Note.rollout_scene`, so they already span the whole note).
 
     The releases run together in one numpy FDM (`fdm.fdm_batch`, one batch per sample rate and oversampling): a few
-    hundred steps of ~100 ns of work each, where the compiled loop would first cost numba's import and load (~1 s,
-    more than a 100-note score's whole rollout). Same scheme, start and Newton iteration as `render_fdm`."""
+    thousand steps of a few small array operations, where the compiled loop would first cost numba's import and load
+    (~1 s, more than a 100-note score's whole rollout). Same scheme, start and Newton iteration as `render_fdm`."""
     from .fdm import check_oversample, fdm_batch
 
     out = [None] * len(notes)
@@ -481,20 +491,18 @@ def finish_releases(notes: list[Note], sustains: list[Render]) -> list[Render]:
                          lambda t: np.where(t >= span, 0.0, vb0 + (0.0 - vb0) * t / span), a)
         secs = (time.perf_counter() - t0) / len(idx)
         for row, i in enumerate(idx):
-            out[i] = _join(notes[i], sustains[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], secs)
+            n, sus, m = notes[i], sustains[i], scenes[i].n_samples
+            if len(sus.q) != n.scene.n_samples:
+                raise ValueError(f"{n.describe()}: the sustain has {len(sus.q)} samples, the note "
+                                 f"{n.scene.n_samples} (render Note.rollout_scene)")
+            h = n.hold_samples
+            sus.q[h:] = q[row, :m]
+            sus.p[h:] = p[row, :m]
+            info = dict(sus.info)
+            info["release"] = "fdm"
+            out[i] = Render(n.scene, sus.t, sus.q, sus.p, method=f"{sus.method} + fdm release",
+                            seconds=sus.seconds + secs, info=info)
     return out
-
-
-def _join(note: Note, sus: Render, q_rel, p_rel, rel_seconds: float) -> Render:
-    sc = note.scene
-    n_hold = len(sus.q) - 1
-    # in the sustain's precision (float32 from the operator): a 60 s voice made float64 cost 0.15 s of copying
-    q = np.concatenate([sus.q[:n_hold], np.asarray(q_rel, sus.q.dtype)])
-    p = np.concatenate([sus.p[:n_hold], np.asarray(p_rel, sus.p.dtype)])
-    t = np.arange(len(q)) / sc.sample_rate
-    info = dict(sus.info)
-    info["release"] = "fdm"
-    return Render(sc, t, q, p, method=f"{sus.method} + fdm release", seconds=sus.seconds + rel_seconds, info=info)
 
 
 def render_voices(voices, method: str = "operator", model=None, fallback: str = "none") -> list[Render]:

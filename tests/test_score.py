@@ -281,19 +281,22 @@ def test_batched_releases_are_the_fdm_of_each_release():
               {"pitch": "D3", "beta": 0.1, "release": 0.0}]
     notes = [note_from_fields(f"v{i}", {"duration": 0.1, **f}, "test") for i, f in enumerate(fields)]
     rng = np.random.default_rng(3)
-    sustains = []
+    sustains, before = [], []
     for n in notes:  # a stand-in sustain: any state the operator could have ended in
-        sc = n.sustain_scene(1 if n.release > 0 else 0)
+        sc = n.rollout_scene()
+        assert sc.n_samples == n.scene.n_samples or n.release <= 0
         q, p = rng.uniform(-0.5, 0.5, sc.n_samples), rng.uniform(-0.5, 0.5, sc.n_samples)
         sustains.append(Render(sc, np.arange(sc.n_samples) / sc.sample_rate, q, p, "operator", 0.0, {}))
+        before.append((q.copy(), p.copy()))
+    refs = [render_fdm(_release_scene(n, s)) if n.release > 0 else None for n, s in zip(notes, sustains)]
     out = finish_releases(notes, sustains)
-    for n, s, r in zip(notes, sustains, out):
-        assert len(r.q) == n.scene.n_samples
+    for n, (q, p), ref, r in zip(notes, before, refs, out):
+        assert len(r.q) == n.scene.n_samples and r.scene is n.scene
         if n.release <= 0:
-            assert np.array_equal(r.q, s.q) and r.method == "operator"
+            assert np.array_equal(r.q, q) and r.method == "operator"
             continue
-        ref = render_fdm(_release_scene(n, s))
-        hold = len(s.q) - 1
-        assert np.array_equal(r.q[:hold], s.q[:hold]) and r.method == "operator + fdm release"
+        hold = n.hold_samples
+        assert ref.q[0] == q[hold] and abs(ref.p[0] - p[hold]) < 1e-15  # the release starts from the state at the hold
+        assert np.array_equal(r.q[:hold], q[:hold]) and r.method == "operator + fdm release"
         assert np.max(np.abs(r.q[hold:] - ref.q)) < 1e-12 and np.max(np.abs(r.p[hold:] - ref.p)) < 1e-12
     assert check_oversample(_release_scene(notes[3], sustains[3]), 1, warn=False) > 1  # its own batch, oversampled
