@@ -25,21 +25,22 @@ ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 PY = sys.executable
 
 
-def run(args, cwd) -> float:
+def run(args, cwd, env=None) -> float:
     t0 = time.perf_counter()
-    r = subprocess.run([PY, "-m", "bowsynth", *args], cwd=cwd, env=ENV, capture_output=True, text=True)
+    r = subprocess.run([PY, "-m", "bowsynth", *args], cwd=cwd, env={**ENV, **(env or {})}, capture_output=True,
+                       text=True)
     dt = time.perf_counter() - t0
     if r.returncode != 0:
         raise SystemExit(f"bowsynth {' '.join(args)} failed: {r.stderr.strip()}")
     return dt
 
 
-def alternate(a, b, runs, cwd) -> tuple[float, float, list, list]:
-    run(a, cwd), run(b, cwd)  # warm the file cache
+def alternate(a, b, runs, cwd, env=None) -> tuple[float, float, list, list]:
+    run(a, cwd, env), run(b, cwd, env)  # warm the file cache (and the pitch cache, where it is on)
     ta, tb = [], []
     for _ in range(runs):
-        ta.append(run(a, cwd))
-        tb.append(run(b, cwd))
+        ta.append(run(a, cwd, env))
+        tb.append(run(b, cwd, env))
     return statistics.median(ta), statistics.median(tb), ta, tb
 
 
@@ -123,6 +124,12 @@ def main():
             a = ["render", *flags, "x.wav"]
             mo, mf, _, _ = alternate(a, [*a[:1], "--method", "fdm", *a[1:]], runs, cwd)
             print(f"| `render {' '.join(flags)} x.wav` | {mo:.3f} | {mf:.3f} | {mo / mf:.2f} |")
+        # --pitch solves f0 by FDM runs; what they measured is kept on disk (bowsynth.cache): warm, and switched off
+        pitch = ["render", "--pitch", "A4", "--fb", "276", "-d", "1", "x.wav"]
+        for label, env in (("pitch cache warm", {"BOWSYNTH_CACHE": str(cwd / "cache")}),
+                           ("BOWSYNTH_CACHE=off: every process measures", {"BOWSYNTH_CACHE": "off"})):
+            mo, mf, _, _ = alternate(pitch, [*pitch[:1], "--method", "fdm", *pitch[1:]], runs, cwd, env)
+            print(f"| `{' '.join(pitch)}` ({label}) | {mo:.3f} | {mf:.3f} | {mo / mf:.2f} |")
         n = 20 if args.quick else 100
         for dur, extra in (("1", []), ("5", ["--mix"])):
             path = score_file(cwd / f"pitches-{dur}.toml", voices=n, duration=float(dur))

@@ -85,9 +85,10 @@ def gestures_for(m, f0=100.0):
 
 
 def stick_capture(m):
-    b0, b1, v0, v1 = m.domain.box
+    # a point model (no box) is its own box of zero width: paper-fb1000 is the model that plays F_B 1000 today
+    b0, b1, v0, v1 = m.domain.box or (m.domain.beta, m.domain.beta, m.domain.vb, m.domain.vb)
     beta = 1000 / (2 * math.pi * 100)
-    if not (b0 <= beta <= b1 and v0 <= 0.2 <= v1):
+    if not (b0 * (1 - 1e-9) <= beta <= b1 * (1 + 1e-9) and v0 <= 0.2 <= v1):
         return None
     sc = Scene(f0=100.0, fb=1000.0, vb=0.2, a=m.domain.a, duration=3.0)
     r = render_operator(sc, model=m, fallback="fdm")
