@@ -111,7 +111,7 @@ def _end_state(q0, p0, oq, op, g, endb, endlin):
     """The window's end state in float64: the linear flow plus the correction at the last offset (oq, op already
     times the range model's gain g, which the bias term takes here)."""
     nq = q0 * endlin[0] + p0 * endlin[1] + g * endlin[2]
-    np_ = p0 * endlin[0] - q0 * endlin[1] + g * endlin[3]
+    np_ = p0 * endlin[4] - q0 * endlin[5] + g * endlin[3]
     for kk in range(endb.shape[1]):
         nq += oq[kk] * endb[0, kk]
         np_ += op[kk] * endb[1, kk]
@@ -142,7 +142,7 @@ def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     Bq, Bp: (P, k + 3, n_max) float32, the trunk features times s c at the window's sample offsets, then the rows
     cos, sin and bias (zero-padded past each spacing's n_hi), so that a window's samples are [o_q, q0, p0, 1] @ Bq
     and [o_p, p0, -q0, 1] @ Bp. A window holds n_lo = floor(spw) or n_hi = ceil(spw) samples (see window_end);
-    endb (P, 2, 2, k) and endlin (P, 2, 4) give the end state after each of the two lengths.
+    endb (P, 2, 2, k) and endlin (P, 2, 6) give the end state after each of the two lengths.
     pin (B, W, n_par) float64: each window's bow inputs (n_par 0 for a point model), gain (B, W): the correction's
     factor per window (rollout.window_inputs); a voice's windows past W reuse its last.
     """
@@ -197,11 +197,12 @@ def _samples(q0, p0, o, g, Bq, Bp, m, qrow, prow):
     pf = np.float32(p0)
     gf = np.float32(g)
     c, s = Bq[k], Bq[k + 1]
+    cp, sp = Bp[k], Bp[k + 1]  # the rotation's cos and sin again, or the p rows of a linearised flow
     biasq, biasp = Bq[k + 2], Bp[k + 2]
     for j in range(m):
         qrow[j] = qf * c[j] + pf * s[j] + gf * biasq[j]
     for j in range(m):
-        prow[j] = pf * c[j] - qf * s[j] + gf * biasp[j]
+        prow[j] = pf * cp[j] - qf * sp[j] + gf * biasp[j]
     for kk in range(k):
         w = o[kk]
         row = Bq[kk]

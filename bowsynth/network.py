@@ -13,6 +13,7 @@ import math
 import torch
 from torch import nn
 
+from . import physics
 from .npnet import PARAM_SPAN, NetConfig  # noqa: F401  (torch-free: model files are read without torch)
 
 
@@ -64,12 +65,34 @@ class DeepONet(nn.Module):
         if cfg.params:  # range models: (log beta, v_B) -> (u - pcenter) / pscale, the box within +-PARAM_SPAN
             self.register_buffer("pcenter", torch.zeros(cfg.params))
             self.register_buffer("pscale", torch.ones(cfg.params))
+        if cfg.rest_linear:
+            if cfg.params or not cfg.linear_flow:
+                raise ValueError("rest_linear is for point models with the linear flow")
+            self.register_buffer("lin", torch.zeros(2, dtype=torch.float64))  # (d, q_s): physics.rest_linearisation
 
     def set_scales(self, center, halfrange, corr_scale, window: float):
         self.center.copy_(torch.as_tensor(center))
         self.halfrange.copy_(torch.as_tensor(halfrange))
         self.corr_scale.copy_(torch.as_tensor(corr_scale))
         self.window.fill_(float(window))
+
+    def set_rest_linear(self, beta: float, vb: float, a: float):
+        self.lin.copy_(torch.tensor(physics.rest_linearisation(beta, vb, a), dtype=torch.float64))
+
+    def flow(self, x0, tau):
+        """The linear part (B, M, 2) and its tau-derivative: R(tau) x0, or the flow linearised at rest."""
+        q0, p0 = x0[:, 0:1], x0[:, 1:2]
+        if not self.cfg.linear_flow:  # ablation models: the output carries x0
+            lq, lp = q0 * torch.ones_like(tau)[None, :], p0 * torch.ones_like(tau)[None, :]
+            return torch.stack([lq, lp], dim=-1), torch.zeros(*lq.shape, 2)
+        lin = None
+        if self.cfg.rest_linear:
+            lin = (float(self.lin[0]), float(self.lin[1]))
+        m11, m12, m21, m22, kq, kp = (torch.as_tensor(c, dtype=x0.dtype)[None, :]
+                                      for c in physics.flow_coefficients(tau.detach().cpu().double().numpy(), lin))
+        lq, lp = m11 * q0 + m12 * p0 + kq, m21 * q0 + m22 * p0 + kp
+        d, qs = lin if lin is not None else (0.0, 0.0)
+        return torch.stack([lq, lp], dim=-1), torch.stack([lp, -(lq - qs) - d * lp], dim=-1)
 
     def set_box(self, box):
         """Scale the parameter inputs to a ParamBox (log beta, v_B): its edges at +-PARAM_SPAN (a side of zero
@@ -114,15 +137,8 @@ class DeepONet(nn.Module):
         s = (tau / self.window)[None, :, None]
         scale = self.corr_scale if gain is None else self.corr_scale * gain[:, None, None]
         n = torch.einsum("bjk,mjk->bmj", bf, tf) + self.bias  # (B, M, 2)
-        q0, p0 = x0[:, 0:1], x0[:, 1:2]
-        c, sn = torch.cos(tau)[None, :], torch.sin(tau)[None, :]
-        if self.cfg.linear_flow:
-            lq, lp = q0 * c + p0 * sn, p0 * c - q0 * sn
-            dlin = torch.stack([lp, -lq], dim=-1)  # R' x0 = (p_lin, -q_lin)
-        else:
-            lq, lp = q0 * torch.ones_like(c), p0 * torch.ones_like(c)
-            dlin = torch.zeros(*lq.shape, 2)
-        x = torch.stack([lq, lp], dim=-1) + s * scale * n
+        lin, dlin = self.flow(x0, tau)
+        x = lin + s * scale * n
         if dtf is None:
             return x
         dn = torch.einsum("bjk,mjk->bmj", bf, dtf)  # dN/ds

@@ -30,6 +30,10 @@ class NetConfig:
     # the correction scaled by beta / beta_ref (range models): what friction adds over a window is first order in
     # beta, so the net's output stays O(1) across a box whose beta spans a factor 27
     corr_beta: bool = False
+    # point models whose note starts slowly: the linear part is the exact flow of the bowed mass linearised at its
+    # rest state (physics.flow_coefficients with the buffer lin = (d, q_s)), not the frictionless rotation, so that
+    # the onset's growth rate is exact and the net learns only the nonlinear remainder of the friction
+    rest_linear: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -45,6 +49,8 @@ def weight_shapes(cfg: NetConfig) -> dict[str, tuple]:
     out: dict[str, tuple] = {"bias": (2,), "center": (2,), "halfrange": (2,), "corr_scale": (2,), "window": ()}
     if cfg.params:
         out.update({"pcenter": (cfg.params,), "pscale": (cfg.params,)})
+    if cfg.rest_linear:
+        out["lin"] = (2,)
     for part, in_dim, m in (("branch", 2 + cfg.params, cfg.ff_branch), ("trunk", 1, cfg.ff_trunk)):
         out[f"{part}.ff.B"] = (in_dim, m)
         for gate in ("U", "V"):

@@ -73,10 +73,39 @@ def rhs_tau(q, p, b: float, vb: float, a: float):
     return p, -q - b * phi(p - vb, a)
 
 
-def linear_flow(q0, p0, tau):
-    """Exact flow of the frictionless oscillator: a rotation of (q, p) by tau."""
-    c, s = np.cos(tau), np.sin(tau)
-    return q0 * c + p0 * s, -q0 * s + p0 * c
+def linear_flow(q0, p0, tau, lin=None):
+    """Exact flow of the frictionless oscillator: a rotation of (q, p) by tau. With lin = (d, q_s) (see
+    `rest_linearisation`), the exact flow of the bowed oscillator linearised at its rest state instead."""
+    m11, m12, m21, m22, k_q, k_p = flow_coefficients(tau, lin)
+    return m11 * q0 + m12 * p0 + k_q, m21 * q0 + m22 * p0 + k_p
+
+
+def rest_linearisation(b: float, vb: float, a: float) -> tuple[float, float]:
+    """(d, q_s): the bowed mass near its rest state (q_s, 0) moves as q' = p, p' = -(q - q_s) - d p, with
+    d = beta phi'(-v_B) (negative where the bow drives the mass: the oscillation grows at -d / 2 per unit tau) and
+    q_s = beta phi(v_B)."""
+    return b * dphi(-vb, a), b * phi(vb, a)
+
+
+MAX_REST_DAMPING = 1.9  # |d| of an underdamped linearisation (|d| < 2); beyond it the linearised flow is not used
+
+
+def flow_coefficients(tau, lin=None):
+    """(m11, m12, m21, m22, k_q, k_p) at times tau: the linear flow is x(tau) = M x0 + k. lin None: the rotation
+    (k = 0); lin = (d, q_s): M = exp(A tau) with A = [[0, 1], [-1, -d]] (|d| < 2) and k = (I - M) (q_s, 0)."""
+    tau = np.asarray(tau, dtype=float)
+    if lin is None:
+        c, s = np.cos(tau), np.sin(tau)
+        z = np.zeros_like(tau)
+        return c, s, -s, c, z, z
+    d, qs = lin
+    if not abs(d) < 2.0:
+        raise ValueError(f"the rest-state linearisation needs |d| < 2 (underdamped), got d = {d:g}")
+    wd = math.sqrt(1.0 - 0.25 * d * d)
+    e = np.exp(-0.5 * d * tau)
+    c, s = np.cos(wd * tau), np.sin(wd * tau) / wd
+    m11, m12, m21, m22 = e * (c + 0.5 * d * s), e * s, -e * s, e * (c - 0.5 * d * s)
+    return m11, m12, m21, m22, qs * (1.0 - m11), -qs * m21
 
 
 def energy(q, p):

@@ -188,6 +188,7 @@ class NumpyOperator:
         d64 = lambda name: w[name].astype(np.float64)  # noqa: E731
         self.center, self.halfrange = d64("center"), d64("halfrange")
         self.corr_scale, self.window, self.bias = d64("corr_scale"), float(w["window"]), d64("bias")
+        self.lin = tuple(float(v) for v in w["lin"]) if cfg.rest_linear else None  # (d, q_s), see NetConfig
 
     def window_inputs(self, par: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bows (B, W, 2) (beta, v_B) per window -> the loops' pin (B, W, n_par) and gain (B, W), float64."""
@@ -237,7 +238,8 @@ class NumpyOperator:
         of n_hi samples runs past T by less than one sample spacing.
         Returns spw = T / dtau, n_lo; Bq, Bp (k + 3, n_hi) float32: the trunk features times s c at the sample
         offsets, then cos, sin and the bias term (see kernels.roll_voices); for the end state after n_lo and after
-        n_hi samples, in float64, the features endb (2, 2, k) and endlin (2, 4) = (cos, sin, bias_q, bias_p).
+        n_hi samples, in float64, the features endb (2, 2, k) and endlin (2, 6) = (m11, m12, bias_q, bias_p, m22,
+        -m21) of the linear flow M (the rotation: cos, sin, ..., cos, sin; see physics.flow_coefficients).
         The trunk is evaluated in numpy, float64 (once per render and pitch); tf: its features at the offsets
         j dtau / T, j <= n_hi, if already computed (trunk_features).
         """
@@ -250,14 +252,19 @@ class NumpyOperator:
         basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n_hi+1)
         bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n_hi+1)
         if self.cfg.linear_flow:
-            c, sn = np.cos(tau), np.sin(tau)
+            m11, m12, m21, m22, kq, kp = physics.flow_coefficients(tau, self.lin)
         else:  # ablation models: the output carries x0, not R(tau) x0
-            c, sn = np.ones_like(tau), np.zeros_like(tau)
+            m11, m22 = np.ones_like(tau), np.ones_like(tau)
+            m12 = m21 = kq = kp = np.zeros_like(tau)
+        # q rows act on (q0, p0), p rows on (p0, -q0) (kernels._samples); the flow's constant joins the bias row
+        # (a point model's gain is 1)
+        bias = bias + np.stack([kq, kp])
+        lin = ((m11, m12), (m22, -m21))
         rows = lambda i: np.ascontiguousarray(  # noqa: E731
-            np.vstack([basis[i, :, :n_hi], c[:n_hi], sn[:n_hi], bias[i, :n_hi]]), dtype=np.float32)
+            np.vstack([basis[i, :, :n_hi], lin[i][0][:n_hi], lin[i][1][:n_hi], bias[i, :n_hi]]), dtype=np.float32)
         ends = (n_lo, n_hi)
         endb = np.ascontiguousarray(np.stack([basis[:, :, e] for e in ends]))
-        endlin = np.array([[c[e], sn[e], bias[0, e], bias[1, e]] for e in ends])
+        endlin = np.array([[m11[e], m12[e], bias[0, e], bias[1, e], m22[e], -m21[e]] for e in ends])
         return spw, n_lo, rows(0), rows(1), endb, endlin
 
 
@@ -270,7 +277,7 @@ def _operator(model: OperatorModel) -> NumpyOperator:
 
 def _bases(model: OperatorModel, dtaus: np.ndarray):
     """The window bases (NumpyOperator.window_basis) of the distinct sample spacings `dtaus`, stacked and padded to
-    the longest window: spw (P,), n_lo (P,), Bq, Bp (P, k + 3, n_max), endb (P, 2, 2, k), endlin (P, 2, 4).
+    the longest window: spw (P,), n_lo (P,), Bq, Bp (P, k + 3, n_max), endb (P, 2, 2, k), endlin (P, 2, 6).
     Cached per model: the last stack, and each spacing's basis."""
     key = tuple(float(d) for d in dtaus)
     last = model.__dict__.get("_stack")
@@ -450,7 +457,7 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     E = np.zeros((len(spw), 2, 2 * k + 3, 2))
     E[:, :, :k, 0], E[:, :, k:2 * k, 1] = endb[:, :, 0], endb[:, :, 1]
     E[:, :, 2 * k, 0], E[:, :, 2 * k + 1, 0], E[:, :, 2 * k + 2, 0] = endlin[..., 0], endlin[..., 1], endlin[..., 2]
-    E[:, :, 2 * k, 1], E[:, :, 2 * k + 1, 1], E[:, :, 2 * k + 2, 1] = -endlin[..., 1], endlin[..., 0], endlin[..., 3]
+    E[:, :, 2 * k, 1], E[:, :, 2 * k + 1, 1], E[:, :, 2 * k + 2, 1] = -endlin[..., 5], endlin[..., 4], endlin[..., 3]
     lo, span = np.array([box[0], box[2]]), np.array([box[1] - box[0], box[3] - box[2]])
     g = mask.shape[0]
     done = np.zeros(B, np.int64)  # windows computed per voice (the last one may be where it failed)

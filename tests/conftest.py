@@ -51,3 +51,17 @@ def run_main(args, capsys, monkeypatch):
         raise SystemExit(0)
     cap = capsys.readouterr()
     return e.value.code or 0, cap.out, cap.err
+
+
+@pytest.fixture(scope="session")
+def tiny_rest_model(tmp_path_factory):
+    """A tiny point model with the rest-linearised flow (NetConfig.rest_linear), at scratch-g2's F_B / w and v_B."""
+    from bowsynth import Scene
+    from bowsynth.training import Trainer
+
+    sc = Scene(f0=100.0, fb=0.815 * 2 * 3.141592653589793 * 100, vb=0.3)
+    tr = Trainer(sc, tiny_config(steps=200, sampling="box", rest_linear=True), "tiny-rest")
+    tr.run()
+    path = tmp_path_factory.mktemp("models") / "tiny-rest.safetensors"
+    tr.model().save(path)
+    return path

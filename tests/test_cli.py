@@ -129,3 +129,13 @@ def test_help_everywhere():
         r = runner.invoke(app, [cmd, "--help"])
         assert r.exit_code == 0 and "Usage" in r.output
     assert "m/s^2" in runner.invoke(app, ["render", "--help"]).output
+
+
+@pytest.mark.parametrize("args,why", [(["--fb", "50:200"], "point models"), (["--fb", "1000"], "too strongly")],
+                         ids=["range", "driven-hard"])
+def test_rest_linear_is_refused_where_it_cannot_apply(args, why, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "m.safetensors"
+    code, _, err = run_main(["train", *args, "--rest-linear", "--steps", "1", "--out", str(out), "-q"], capsys,
+                            monkeypatch)
+    assert code == 2 and why in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists() and list(tmp_path.iterdir()) == []

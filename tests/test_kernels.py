@@ -151,3 +151,49 @@ def test_trunk_features_interpolated_for_many_pitches_match_the_network():
         for s, f in zip(offsets, op.trunk_features(offsets)):
             direct = npnet.trunk_features(op._w, op.cfg, s)
             assert np.abs(f - direct).max() < 1e-7 * np.abs(direct).max()  # float32 rounding is 6e-8
+
+
+@pytest.mark.parametrize("loop,voices", [("numpy", 2), ("numba", 1), ("numba", BATCH_FROM + 1)],
+                         ids=["numpy", "voice-loop", "batch-loop"])
+def test_rest_linearised_flow_rolls_like_the_torch_network(tiny_rest_model, loop, voices):
+    """A model whose linear part is the flow linearised at rest (damped rotation about the static deflection, in
+    the window bases and the end states): every loop follows the torch network, at a pitch whose windows hold 220
+    and 221 samples."""
+    m = load_model(tiny_rest_model)
+    assert m.cfg.rest_linear and m.weights["lin"].shape == (2,)
+    sc = Scene(f0=200.0)
+    d = m.domain
+    x0 = np.stack([np.linspace(0.4 * d.q_lo, 0.4 * d.q_hi, voices), np.linspace(0.3 * d.p_hi, 0.3 * d.p_lo, voices)], 1)
+    n = 5 * 221
+    ref = torch_rollout(m, x0, n, sc.dtau)
+    q, p, fail = rollout_states(m, x0, n, sc.dtau, check_domain=False, loop=loop)
+    assert np.all(fail[:, 0] == -1)
+    scale = np.abs(ref).max()
+    assert np.abs(q - ref[..., 0]).max() < 2e-5 * scale
+    assert np.abs(p - ref[..., 1]).max() < 2e-5 * scale
+
+
+def test_the_linear_parts_are_the_exact_flows(tiny_rest_model):
+    """The torch network's linear part and its derivative: the rotation for a plain model; for a rest-linearised
+    one exp(A tau) about the rest state (against scipy's expm), whose derivative is A (x - x_s)."""
+    from scipy.linalg import expm
+
+    from bowsynth import physics
+
+    m = load_model(tiny_rest_model)
+    net = m.net.double()
+    try:
+        d, qs = (float(v) for v in net.lin)
+        assert (d, qs) == pytest.approx(physics.rest_linearisation(0.815, 0.3, 100.0))
+        assert d < 0  # the bow drives the mass out of rest
+        tau = torch.linspace(0, 6.0, 13, dtype=torch.float64)
+        x0 = torch.tensor([[0.3, -0.2], [qs, 0.0]], dtype=torch.float64)
+        lin, dlin = net.flow(x0, tau)
+        A = np.array([[0.0, 1.0], [-1.0, -d]])
+        for i, t in enumerate(tau.numpy()):
+            want = np.array([qs, 0.0]) + expm(A * t) @ (x0[0].numpy() - [qs, 0.0])
+            np.testing.assert_allclose(lin[0, i].numpy(), want, atol=1e-12)
+            np.testing.assert_allclose(dlin[0, i].numpy(), A @ (want - [qs, 0.0]), atol=1e-12)
+        np.testing.assert_allclose(lin[1].numpy(), np.tile([qs, 0.0], (13, 1)), atol=1e-15)  # rest stays at rest
+    finally:
+        m.net.float()

@@ -46,6 +46,9 @@ class TrainConfig:
     range_n_data: int = 16384
     range_corr_beta: bool = True  # the correction scaled by beta / beta_ref (npnet.NetConfig.corr_beta)
     range_select_points: int = 4  # held-out bows the weight selection rolls out from rest
+    # point models: the linear part linearised at the rest state (npnet.NetConfig.rest_linear), for notes that start
+    # slowly (v_B near where the bow stops driving the mass: scratch-g2); measured in docs/BENCHMARKS.md
+    rest_linear: bool = False
     net: NetConfig = field(default_factory=NetConfig)
 
     def to_dict(self) -> dict:

@@ -124,14 +124,16 @@ def build(scene: Scene, cfg: TrainConfig, window: float, rng: np.random.Generato
         x0[:m] = pick + jitter
     tau, x = fdm_windows(scene, x0, window, cfg.data_times, cfg.data_oversample,
                          on_progress=lambda f: report(f"FDM data: {len(x0)} windows at x{cfg.data_oversample}", f))
-    return TrainingData(band, domain, sampler, x0, tau, x, correction_scale(x0, tau, x, window, cfg.net.linear_flow))
+    lin = physics.rest_linearisation(scene.beta, scene.vb, scene.a) if cfg.net.rest_linear else None
+    return TrainingData(band, domain, sampler, x0, tau, x,
+                        correction_scale(x0, tau, x, window, cfg.net.linear_flow, lin=lin))
 
 
-def correction_scale(x0, tau, x, window: float, linear_flow: bool, gain=None) -> np.ndarray:
+def correction_scale(x0, tau, x, window: float, linear_flow: bool, gain=None, lin=None) -> np.ndarray:
     """c (2,): the RMS of what friction adds to the linear flow over a window, per s (and per unit of a range
-    model's gain (B,))."""
+    model's gain (B,)); lin: the rest-state linearisation the flow carries (NetConfig.rest_linear)."""
     if linear_flow:
-        lq, lp = physics.linear_flow(x0[:, 0:1], x0[:, 1:2], tau[None, :])
+        lq, lp = physics.linear_flow(x0[:, 0:1], x0[:, 1:2], tau[None, :], lin)
     else:
         lq, lp = np.broadcast_arrays(x0[:, 0:1], x0[:, 1:2], tau[None, :])[:2]
     corr = (x - np.stack([lq, lp], -1))[:, 1:] / (tau[1:] / window)[None, :, None]

@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import physics
+from ..errors import UsageError
 from ..model import ModelMeta, OperatorModel
 from ..network import DeepONet
 from ..scene import Scene
@@ -37,6 +39,15 @@ class Trainer:
         self.box = box if box is not None and not box.is_point else None
         if self.box is not None:
             cfg.net = dataclasses.replace(cfg.net, params=2, corr_beta=cfg.range_corr_beta)
+        if cfg.rest_linear:
+            if self.box is not None:
+                raise UsageError("--rest-linear is for point models (a range model's rest state moves with the bow)")
+            d, _ = physics.rest_linearisation(scene.beta, scene.vb, scene.a)
+            if not abs(d) < physics.MAX_REST_DAMPING:
+                raise UsageError(f"--rest-linear: the bow's linearisation at rest is too strongly damped or driven "
+                                 f"(F_B / w phi'(-v_B) = {d:.3g}, at most {physics.MAX_REST_DAMPING:g} in size): "
+                                 f"train without it")
+            cfg.net = dataclasses.replace(cfg.net, rest_linear=True)
         self.scene, self.cfg, self.name = scene, cfg, name
         self.weights = cfg.weights or default_weights(scene, cfg.hybrid,
                                                       beta_max=None if self.box is None else self.box.beta_hi)
@@ -54,6 +65,8 @@ class Trainer:
                             [(d.q_hi - d.q_lo) / 2, (d.p_hi - d.p_lo) / 2], self.data.corr_scale, self.window)
         if self.box is not None:
             self.net.set_box(self.box)
+        if cfg.net.rest_linear:
+            self.net.set_rest_linear(scene.beta, scene.vb, scene.a)
         self.data_x0 = torch.tensor(self.data.x0, dtype=torch.float32)
         self.data_x = torch.tensor(self.data.x, dtype=torch.float32)
         self.data_tau = torch.tensor(self.data.tau, dtype=torch.float32)
