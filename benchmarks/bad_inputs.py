@@ -34,6 +34,8 @@ CASES = [
     ("a bow range written high:low", "train --fb 200:50 --steps 1 --out r.safetensors"),
     ("a range with three parts", "train --fb 50:100:200 --steps 1 --out r.safetensors"),
     ("a curve given to train", "train --fb 50@0,100@1 --steps 1 --out r.safetensors"),
+    ("--rest-linear for a range model", "train --fb 50:200 --rest-linear --steps 1 --out r.safetensors"),
+    ("--rest-linear where the bow drives the mass hard", "train --fb 1000 --rest-linear --steps 1 --out r.safetensors"),
     ("curve times not increasing", "render --fb 50@1,100@0 x.wav"),
     ("a non-finite curve value", "render --fb nan@0,100@1 x.wav"),
     ("a bow curve that leaves every model's range", "render --fb 100@0,3000@1 x.wav"),

@@ -32,8 +32,9 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
 # Limits: 4x (at least 2 voices for the count).
 # soft-range (its centre bow, F_B / w 0.078, v_B 0.175; states drawn over the union of its box's bands): 5 left,
 # 5.4e-3, 0.086 cents.
+# scratch-g2 (rest-linearised flow): 3 left, 2.9e-3, 0.146 cents.
 CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), "paper-fb1000": (12, 2.7e-2, 0.8),
-               "soft-range": (20, 2.2e-2, 0.35)}
+               "soft-range": (20, 2.2e-2, 0.35), "scratch-g2": (12, 1.2e-2, 0.6)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
