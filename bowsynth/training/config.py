@@ -89,6 +89,22 @@ class TrainConfig:
         return self
 
 
+def check_rest_linear(cfg: TrainConfig, scene, box=None) -> None:
+    """--rest-linear only where it applies (one line each): a point model, and a bow whose linearisation at rest is
+    underdamped (|F_B / w phi'(-v_B)| < physics.MAX_REST_DAMPING). Runs before anything loads or renders."""
+    from .. import physics
+
+    if not cfg.rest_linear:
+        return
+    if box is not None and not box.is_point:
+        raise UsageError("--rest-linear is for point models (a range model's rest state moves with the bow)")
+    d, _ = physics.rest_linearisation(scene.beta, scene.vb, scene.a)
+    if not abs(d) < physics.MAX_REST_DAMPING:
+        raise UsageError(f"--rest-linear: the bow's linearisation at rest is too strongly damped or driven "
+                         f"(F_B / w phi'(-v_B) = {d:.3g}, at most {physics.MAX_REST_DAMPING:g} in size): train "
+                         f"without it")
+
+
 def checkpoint_path(out) -> Path:
     """Where the checkpoint of the model file `out` lives (beside it)."""
     out = Path(out)

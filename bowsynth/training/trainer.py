@@ -11,13 +11,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import physics
-from ..errors import UsageError
 from ..model import ModelMeta, OperatorModel
 from ..network import DeepONet
 from ..scene import Scene
 from . import checkpoint
-from .config import TrainConfig, default_model_name  # noqa: F401
+from .config import TrainConfig, check_rest_linear, default_model_name  # noqa: F401
 from .data import build, build_range
 from .losses import default_weights, loss_terms, weighted
 from .selection import RangeSelector, Selector, json_number, selection_scene
@@ -40,13 +38,7 @@ class Trainer:
         if self.box is not None:
             cfg.net = dataclasses.replace(cfg.net, params=2, corr_beta=cfg.range_corr_beta)
         if cfg.rest_linear:
-            if self.box is not None:
-                raise UsageError("--rest-linear is for point models (a range model's rest state moves with the bow)")
-            d, _ = physics.rest_linearisation(scene.beta, scene.vb, scene.a)
-            if not abs(d) < physics.MAX_REST_DAMPING:
-                raise UsageError(f"--rest-linear: the bow's linearisation at rest is too strongly damped or driven "
-                                 f"(F_B / w phi'(-v_B) = {d:.3g}, at most {physics.MAX_REST_DAMPING:g} in size): "
-                                 f"train without it")
+            check_rest_linear(cfg, scene, self.box)
             cfg.net = dataclasses.replace(cfg.net, rest_linear=True)
         self.scene, self.cfg, self.name = scene, cfg, name
         self.weights = cfg.weights or default_weights(scene, cfg.hybrid,
