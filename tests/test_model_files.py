@@ -201,3 +201,27 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
     else:
         assert share > 30 * CHECK_FLOOR ** 2
     assert math.isfinite(check_physics(m))
+
+
+@pytest.mark.parametrize("args", [["render", "--pitch", "A4", "--fb", "276", "-d", "0.2", "x.wav"],
+                                  ["score", "--score", "s.toml", "--mix", "m.wav"]], ids=["render-pitch", "score"])
+def test_a_repeated_pitch_and_an_operator_score_load_no_numba(tmp_path, args):
+    """The first `--pitch` measures the sounding pitch with the compiled FDM; the same note again reads the on-disk
+    table (bowsynth.cache) and loads no numba. An operator score (its releases in the numpy FDM batch) loads none
+    from the first run on."""
+    (tmp_path / "s.toml").write_text('[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.2\n'
+                                     '[[voice]]\nname = "w"\nf0 = 150.0\nbeta = 0.159155\nduration = 0.3\n')
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "BOWSYNTH_CACHE": str(tmp_path / "cache")}
+
+    def modules():
+        r = subprocess.run([sys.executable, "-X", "importtime", "-m", "bowsynth", *args], capture_output=True,
+                           text=True, cwd=tmp_path, env=env, timeout=300)
+        assert r.returncode == 0, r.stderr
+        return {line.split("|")[-1].strip().split(".")[0] for line in r.stderr.splitlines() if "import time:" in line}
+
+    first = modules()
+    assert "numpy" in first and (("numba" in first) == (args[0] == "render"))
+    again = modules()
+    assert "numpy" in again and "numba" not in again and "torch" not in again
+    if args[0] == "render":
+        assert (tmp_path / "cache" / "sounding-ratio.json").is_file()
