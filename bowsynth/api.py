@@ -108,10 +108,15 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
                 model.meta.validation = validate_range(model, scene, box)
             rep.update("validated", 1.0)
         except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM raised as errors.Terminated by the CLI
-            tr.save_checkpoint(ckpt)
             code = interrupt_exit_code(e)
-            raise Interrupted(f"{'terminated' if code == 143 else 'interrupted'} at step {tr.step}; checkpoint saved "
-                              f"to {ckpt}; continue with the same command and --resume", exit_code=code) from None
+            what = "terminated" if code == 143 else "interrupted"
+            try:
+                tr.save_checkpoint(ckpt)
+            except Exception as save_error:  # still an interruption (its exit code), said in one line
+                raise Interrupted(f"{what} at step {tr.step}; the checkpoint could not be saved "
+                                  f"({type(save_error).__name__}: {save_error})", exit_code=code) from None
+            raise Interrupted(f"{what} at step {tr.step}; checkpoint saved to {ckpt}; continue with the same command "
+                              f"and --resume", exit_code=code) from None
     model.save(out, force=True)
     ckpt.unlink(missing_ok=True)
     return TrainResult(model, out, tr.history)

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import signal
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -37,16 +40,45 @@ def _unflatten(obj, tensors):
     return obj
 
 
+@contextmanager
+def signals_held():
+    """Ctrl-C and SIGTERM wait until the block is done, then act as they would have: a checkpoint is written whole
+    or not at all, and the save that an interruption makes is not itself cut short by a second Ctrl-C. Done with the
+    Python handlers (a blocked signal mask would not do: the kernel hands a process's signal to any thread that does
+    not block it, and torch's threads do not)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending = []
+    old = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        h = signal.getsignal(sig)
+        if h is not signal.SIG_IGN and h is not None:
+            old[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+        if pending:
+            h = old[pending[0]]
+            if callable(h):
+                h(pending[0], None)  # raises, as the handler would have (KeyboardInterrupt, errors.Terminated)
+            else:
+                signal.raise_signal(pending[0])
+
+
 def save(path: Path, state: dict) -> None:
     """state: {"tensors": {name: tensor}, "optimizer": opt.state_dict(), "meta": JSON-able dict}."""
     from safetensors.torch import save_file
 
     from ..wav import atomic_write
 
-    tensors = dict(state["tensors"])
-    meta = {**state["meta"], "opt": _flatten(state["optimizer"], "opt", tensors)}
-    tensors["torch_rng"] = torch.get_rng_state()
-    atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: json.dumps(meta)}))
+    with signals_held():
+        tensors = dict(state["tensors"])
+        meta = {**state["meta"], "opt": _flatten(state["optimizer"], "opt", tensors)}
+        tensors["torch_rng"] = torch.get_rng_state()
+        atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: json.dumps(meta)}))
 
 
 def load(path: Path) -> tuple[dict, dict, dict]:
