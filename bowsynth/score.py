@@ -111,7 +111,7 @@ class Note:
     def sustain_scene(self, extra_samples: int = 0) -> Scene:
         """The note without its release: the controls over [0, hold], constant ones as numbers."""
         sc = self.scene
-        n = int(round(self.hold * sc.sample_rate)) + extra_samples
+        n = self.hold_samples + extra_samples
         return sc.replace(fb=_clip(sc.fb, self.hold), vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
 
     @property
