@@ -476,6 +476,9 @@ def finish_releases(notes: list[Note], sustains: list[Render]) -> list[Render]:
         if n.release <= 0:
             out[i] = Render(n.scene, sus.t, sus.q, sus.p, sus.method, sus.seconds, sus.info)
             continue
+        if len(sus.q) != n.scene.n_samples:
+            raise ValueError(f"{n.describe()}: the sustain has {len(sus.q)} samples, the note "
+                             f"{n.scene.n_samples} (render Note.rollout_scene)")
         scenes[i] = rel = _release_scene(n, sus)
         os_ = check_oversample(rel, 1, warn=False)
         groups.setdefault((rel.sample_rate, os_, rel.a), []).append(i)
@@ -493,9 +496,6 @@ def finish_releases(notes: list[Note], sustains: list[Render]) -> list[Render]:
         secs = (time.perf_counter() - t0) / len(idx)
         for row, i in enumerate(idx):
             n, sus, m = notes[i], sustains[i], scenes[i].n_samples
-            if len(sus.q) != n.scene.n_samples:
-                raise ValueError(f"{n.describe()}: the sustain has {len(sus.q)} samples, the note "
-                                 f"{n.scene.n_samples} (render Note.rollout_scene)")
             h = n.hold_samples
             sus.q[h:] = q[row, :m]
             sus.p[h:] = p[row, :m]
