@@ -65,13 +65,13 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     A model whose validation rollout fails is saved but marked failed in its record (it is never picked by default).
     """
     from .progress import Reporter
-    from .training.config import check_rest_linear, checkpoint_path, default_model_name
+    from .training.config import check_net_options, checkpoint_path, default_model_name
 
     config = config or make_train_config(scene, **settings)
     config.validate()
     if box is not None and box.is_point:
         box = None
-    check_rest_linear(config, scene, box)
+    check_net_options(config, scene, box)
     name = default_model_name(scene) if box is None else range_model_name(scene, box)
     out = Path(out) if out else Path("models") / f"{name}.safetensors"
     if out.suffix != ".safetensors":

@@ -144,7 +144,8 @@ def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     and [o_p, p0, -q0, 1] @ Bp. A window holds n_lo = floor(spw) or n_hi = ceil(spw) samples (see window_end);
     endb (P, 2, 2, k) and endlin (P, 2, 6) give the end state after each of the two lengths.
     pin (B, W, n_par) float64: each window's bow inputs (n_par 0 for a point model), gain (B, W): the correction's
-    factor per window (rollout.window_inputs); a voice's windows past W reuse its last.
+    factor per window, center and halfrange (B, W, 2): the state's scaling per window (npnet.state_scaling)
+    (rollout.window_inputs); a voice's windows past W reuse its last.
     """
     k = endb.shape[3]
     width = Hw.shape[1]
@@ -164,7 +165,7 @@ def roll_voices(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
         while start < n_samples:
             n = window_end(win, spw[P]) - start
             wi = min(win, pin.shape[1] - 1)
-            _features(q0, p0, center, halfrange, ff, pin[b, wi], h)
+            _features(q0, p0, center[b, wi], halfrange[b, wi], ff, pin[b, wi], h)
             _dense(h, Gw, Gb, g)
             for j in range(width):  # modified MLP: h = v + tanh(z) (u - v); u is kept as u - v
                 vv = tanh32(g[width + j])
@@ -251,7 +252,7 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
         while nb < BLOCK and running > 0:
             wi = min(win, last_w)
             for b in range(B):
-                _features(x[b, 0], x[b, 1], center, halfrange, ff, pin[b, wi], H[b])
+                _features(x[b, 0], x[b, 1], center[b, wi], halfrange[b, wi], ff, pin[b, wi], H[b])
             G = np.dot(H, Gw)
             for b in range(B):  # modified MLP: h = v + tanh(z) (u - v); U is kept as u - v
                 for j in range(width):
@@ -290,8 +291,8 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
                         running += 1
                 else:  # park the stopped voice where the network is defined, so the batch's products stay finite
                     alive[b] = False
-                    x[b, 0] = center[0]
-                    x[b, 1] = center[1]
+                    x[b, 0] = center[b, wi, 0]
+                    x[b, 1] = center[b, wi, 1]
             nb += 1
             win += 1
         for b in range(B):

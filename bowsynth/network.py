@@ -65,6 +65,11 @@ class DeepONet(nn.Module):
         if cfg.params:  # range models: (log beta, v_B) -> (u - pcenter) / pscale, the box within +-PARAM_SPAN
             self.register_buffer("pcenter", torch.zeros(cfg.params))
             self.register_buffer("pscale", torch.ones(cfg.params))
+        if cfg.bow_scaled:
+            if not cfg.params:
+                raise ValueError("bow_scaled is for range models")
+            self.register_buffer("center_slope", torch.zeros(2, cfg.params))  # npnet.state_scaling
+            self.register_buffer("halfrange_slope", torch.zeros(2, cfg.params))
         if cfg.rest_linear:
             if cfg.params or not cfg.linear_flow:
                 raise ValueError("rest_linear is for point models with the linear flow")
@@ -114,12 +119,24 @@ class DeepONet(nn.Module):
             return None
         return par[:, 0] / self.pcenter[0].exp()
 
+    def set_bow_scaling(self, center, halfrange, center_slope, halfrange_slope):
+        """A bow-scaled range model's state scaling (npnet.state_scaling): at the box's centre, and the slopes of the
+        centre and of the log half-range in the branch's bow inputs, (2, n_par) each."""
+        self.center.copy_(torch.as_tensor(center))
+        self.halfrange.copy_(torch.as_tensor(halfrange))
+        self.center_slope.copy_(torch.as_tensor(center_slope))
+        self.halfrange_slope.copy_(torch.as_tensor(halfrange_slope))
+
     def branch_features(self, x0, par=None):
         """(B, 2) states (and (B, 2) bows (beta, v_B) for a range model) -> (B, 2, k)."""
-        x = (x0 - self.center) / self.halfrange
-        if self.cfg.params:
-            x = torch.cat([x, self.param_inputs(par)], dim=1)
-        return self.branch(x).view(-1, 2, self.cfg.k)
+        if not self.cfg.params:
+            return self.branch((x0 - self.center) / self.halfrange).view(-1, 2, self.cfg.k)
+        pin = self.param_inputs(par).to(x0.dtype)
+        if self.cfg.bow_scaled:
+            x = (x0 - self.center - pin @ self.center_slope.T) / (self.halfrange * torch.exp(pin @ self.halfrange_slope.T))
+        else:
+            x = (x0 - self.center) / self.halfrange
+        return self.branch(torch.cat([x, pin], dim=1)).view(-1, 2, self.cfg.k)
 
     def trunk_features(self, s):
         """(M,) window fractions -> (M, 2, k)."""

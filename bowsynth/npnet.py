@@ -34,6 +34,11 @@ class NetConfig:
     # rest state (physics.flow_coefficients with the buffer lin = (d, q_s)), not the frictionless rotation, so that
     # the onset's growth rate is exact and the net learns only the nonlinear remainder of the friction
     rest_linear: bool = False
+    # range models whose playing amplitude changes with the bow (stick-slip: the limit cycle's size grows with
+    # F_B / w, 0.6 to 2.1 across its box): the state is scaled per bow, its centre and log half-range affine in the
+    # bow inputs (buffers center_slope, halfrange_slope, fitted to the training renders), so that every bow's limit
+    # cycle fills the branch's input as a point model's does
+    bow_scaled: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -51,6 +56,8 @@ def weight_shapes(cfg: NetConfig) -> dict[str, tuple]:
         out.update({"pcenter": (cfg.params,), "pscale": (cfg.params,)})
     if cfg.rest_linear:
         out["lin"] = (2,)
+    if cfg.bow_scaled:
+        out.update({"center_slope": (2, cfg.params), "halfrange_slope": (2, cfg.params)})
     for part, in_dim, m in (("branch", 2 + cfg.params, cfg.ff_branch), ("trunk", 1, cfg.ff_trunk)):
         out[f"{part}.ff.B"] = (in_dim, m)
         for gate in ("U", "V"):
@@ -97,9 +104,23 @@ def gain(w: dict, cfg: NetConfig, beta) -> np.ndarray:
     return beta / math.exp(float(w["pcenter"][0]))
 
 
+def state_scaling(w: dict, cfg: NetConfig, pin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The state's centre and half-range (N, 2) for bows with branch inputs pin (N, n_par) (param_inputs): the
+    buffers center, halfrange, and for a bow-scaled model center + pin C^T and halfrange exp(pin H^T)."""
+    pin = np.asarray(pin, float).reshape(len(pin), -1)
+    c, h = w["center"].astype(float), w["halfrange"].astype(float)
+    if not cfg.bow_scaled:
+        return np.broadcast_to(c, (len(pin), 2)), np.broadcast_to(h, (len(pin), 2))
+    return (c + pin @ w["center_slope"].astype(float).T,
+            h * np.exp(pin @ w["halfrange_slope"].astype(float).T))
+
+
 def branch_features(w: dict, cfg: NetConfig, x0: np.ndarray, par=None) -> np.ndarray:
     """DeepONet.branch_features: (B, 2) states (and (B, 2) bows for a range model) -> (B, 2, k)."""
-    x = (np.asarray(x0, float).reshape(-1, 2) - w["center"].astype(float)) / w["halfrange"].astype(float)
+    x0 = np.asarray(x0, float).reshape(-1, 2)
+    pin = param_inputs(w, par) if cfg.params else np.zeros((len(x0), 0))
+    c, h = state_scaling(w, cfg, pin)
+    x = (x0 - c) / h
     if cfg.params:
-        x = np.concatenate([x, param_inputs(w, par)], axis=1)
+        x = np.concatenate([x, pin], axis=1)
     return modified_mlp(w, "branch", cfg.depth, x).reshape(-1, 2, cfg.k)

@@ -190,14 +190,19 @@ class NumpyOperator:
         self.corr_scale, self.window, self.bias = d64("corr_scale"), float(w["window"]), d64("bias")
         self.lin = tuple(float(v) for v in w["lin"]) if cfg.rest_linear else None  # (d, q_s), see NetConfig
 
-    def window_inputs(self, par: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bows (B, W, 2) (beta, v_B) per window -> the loops' pin (B, W, n_par) and gain (B, W), float64."""
+    def window_inputs(self, par: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Bows (B, W, 2) (beta, v_B) per window -> the loops' pin (B, W, n_par), gain (B, W) and the state's
+        scaling center, halfrange (B, W, 2) (npnet.state_scaling), float64."""
         B, W = par.shape[:2]
         if not self.cfg.params:
-            return np.zeros((B, W, 0)), np.ones((B, W))
+            c = np.ascontiguousarray(np.broadcast_to(self.center, (B, W, 2)))
+            h = np.ascontiguousarray(np.broadcast_to(self.halfrange, (B, W, 2)))
+            return np.zeros((B, W, 0)), np.ones((B, W)), c, h
         flat = par.reshape(-1, 2)
-        pin = npnet.param_inputs(self._w, flat).reshape(B, W, -1)
-        return np.ascontiguousarray(pin), np.ascontiguousarray(npnet.gain(self._w, self.cfg, flat[:, 0]).reshape(B, W))
+        pin = npnet.param_inputs(self._w, flat)
+        c, h = npnet.state_scaling(self._w, self.cfg, pin)
+        f = lambda a, *shape: np.ascontiguousarray(np.reshape(a, (B, W, *shape)))  # noqa: E731
+        return f(pin, -1), f(npnet.gain(self._w, self.cfg, flat[:, 0])), f(c, 2), f(h, 2)
 
     def trunk_features(self, s_list: list) -> list:
         """The trunk features (M, 2, k) at each array of window fractions in s_list, float64.
@@ -406,8 +411,8 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     fail = np.tile(np.array([-1, 0], np.int64), (B, 1))  # the loops write only the voices that fail
     d = model.domain
     W = max_windows(n_samples, spw)  # as many windows as the loops may start
-    pin, gain = op.window_inputs(_window_bows(model, B, W, params))
-    args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, op.center, op.halfrange, op.ff, pin, gain, *op.weights,
+    pin, gain, center, halfrange = op.window_inputs(_window_bows(model, B, W, params))
+    args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
     if loop == "auto":
         loop = choose_loop(model, n_samples, dt)
@@ -451,7 +456,10 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     n_run = (starts < n_samples).sum(axis=1)  # windows each voice needs
     # per window as few numpy calls as possible (each costs microseconds): the features' scaling folded into ff,
     # and the end state as one product of [o_q, o_p, q0, p0, 1] with E[pitch, length] (float64, kernels._end_state)
-    ffs, off = ff[:2] / halfrange[:, None], (center / halfrange) @ ff[:2]
+    # (the scaling varies per window only for a bow-scaled range model: then it is applied per window)
+    per_window = not (np.all(center == center[:1, :1]) and np.all(halfrange == halfrange[:1, :1]))
+    c0, h0 = (center[0, 0], halfrange[0, 0]) if center.size else (np.zeros(2), np.ones(2))
+    ffs, off = ff[:2] / h0[:, None], (c0 / h0) @ ff[:2]
     ffp = ff[2:]  # a range model's bow inputs (pin) enter the same features
     last_w = pin.shape[1] - 1
     E = np.zeros((len(spw), 2, 2 * k + 3, 2))
@@ -479,7 +487,10 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
             xa = x[act]
             X_blk[act, win - w0] = xa
             wi = min(win, last_w)
-            z = xa @ ffs - off
+            if per_window:
+                z = ((xa - center[act, wi]) / halfrange[act, wi]) @ ff[:2]
+            else:
+                z = xa @ ffs - off
             if ffp.shape[0]:
                 z += pin[act, wi] @ ffp
             ga = gain[act, wi]

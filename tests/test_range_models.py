@@ -28,6 +28,21 @@ def range_model(tmp_path_factory):
     return res.path
 
 
+@pytest.fixture(scope="module")
+def scaled_range_model(tmp_path_factory):
+    """The same with the state scaled per bow (train --bow-scaled), on a box whose amplitude grows with F_B / w."""
+    from bowsynth import api
+
+    sc = api.range_scene(STICK)
+    cfg = tiny_config(steps=100, sampling="box", range_points=12, range_gestures=2, range_n_data=256,
+                      range_bow_scaled=True)
+    res = api.train(sc, config=cfg, out=tmp_path_factory.mktemp("rs") / "s.safetensors", box=STICK)
+    return res.path
+
+
+STICK = ParamBox(0.6, 1.2, 0.1, 0.2, 100.0)
+
+
 def test_range_model_file_records_its_box_and_version(range_model):
     m = load_model(range_model)
     assert m.meta.format_version == RANGE_VERSION
@@ -41,12 +56,14 @@ def test_range_model_file_records_its_box_and_version(range_model):
     assert v["grid"] == 3 and len(v["points"]) == 9
 
 
-def test_the_three_evaluations_agree_with_per_window_bows(range_model):
+@pytest.mark.parametrize("which", ["range_model", "scaled_range_model"])
+def test_the_three_evaluations_agree_with_per_window_bows(which, request):
     """torch (training), numpy and compiled rollouts of one window give the same trajectory for each bow; a bow
-    changes the output (the branch does take it)."""
-    m = load_model(range_model)
+    changes the output (the branch does take it). Also with the state scaled per bow."""
+    m = load_model(request.getfixturevalue(which))
+    box = m.domain.box
     x0 = np.array([[0.02, 0.01], [-0.05, 0.1], [0.0, 0.0]])
-    bows = np.array([[0.1, 0.15], [0.3, 0.25], [0.2, 0.2]])
+    bows = np.array([[box[0], box[2]], [box[1], box[3]], [(box[0] + box[1]) / 2, (box[2] + box[3]) / 2]])
     n = 9
     dtau = m.domain.window / (n - 1)
     with torch.no_grad():
@@ -61,15 +78,17 @@ def test_the_three_evaluations_agree_with_per_window_bows(range_model):
     assert np.abs(p2[0] - ref[0, :, 1]).max() > 1e-4
 
 
-def test_batched_and_single_voice_loops_agree_on_gestures(range_model):
+@pytest.mark.parametrize("which", ["range_model", "scaled_range_model"])
+def test_batched_and_single_voice_loops_agree_on_gestures(which, request):
     """Eight voices at different pitches with bows that change per window: the window-at-a-time loop (BLAS), the
-    voice-at-a-time loop and numpy give the same samples."""
-    m = load_model(range_model)
+    voice-at-a-time loop and numpy give the same samples (with the state's scaling changing per window too)."""
+    m = load_model(request.getfixturevalue(which))
+    box = m.domain.box
     B, n = 8, 2000
     dt = np.linspace(0.01, 0.03, B)
     W = int(n / (m.domain.window / dt.max())) + 3
     rng = np.random.default_rng(1)
-    par = np.stack([rng.uniform(0.1, 0.3, (B, W)), rng.uniform(0.15, 0.25, (B, W))], axis=-1)
+    par = np.stack([rng.uniform(box[0], box[1], (B, W)), rng.uniform(box[2], box[3], (B, W))], axis=-1)
     x0 = np.zeros((B, 2))
     a = rollout_states(m, x0, n, dt, check_domain=False, loop="numpy", params=par)
     b = rollout_states(m, x0, n, dt, check_domain=False, loop="numba", params=par)  # roll_batch (B >= 8)
@@ -81,6 +100,31 @@ def test_batched_and_single_voice_loops_agree_on_gestures(range_model):
     for i in range(2):
         np.testing.assert_allclose(a[1][i], c[i][1][0], atol=1e-5, equal_nan=True)
     assert kernels.BLOCK > 0
+
+
+def test_bow_scaling_follows_the_playing_amplitude(scaled_range_model):
+    """A stick-slip limit cycle grows with F_B / w (q's half-range ~0.63 at 0.6, ~1.13 at 1.1): the fitted scaling
+    follows the renders' own amplitudes at both ends of the box, where one scaling for the box cannot."""
+    from bowsynth import npnet
+    from bowsynth.fdm import render_fdm
+
+    m = load_model(scaled_range_model)
+    assert m.cfg.bow_scaled
+    w = 2 * math.pi * 100
+    for beta in (0.6, 1.2):
+        r = render_fdm(Scene(f0=100, fb=beta * w, vb=0.15, duration=0.5))
+        half = (r.q[len(r.q) // 2:].max() - r.q[len(r.q) // 2:].min()) / 2
+        pin = npnet.param_inputs(m.weights, [[beta, 0.15]])
+        c, h = npnet.state_scaling(m.weights, m.cfg, pin)
+        assert abs(h[0, 0] / half - 1.05) < 0.1, (beta, h[0, 0], half)  # the fit, times 1 + margin
+        assert abs(c[0, 0]) < 0.05 * half
+
+
+def test_bow_scaling_is_for_range_models(capsys, monkeypatch, tmp_path):
+    code, _, err = run_main(["train", "--fb", "100", "--bow-scaled", "--steps", "1", "--out",
+                             str(tmp_path / "m.safetensors")], capsys, monkeypatch)
+    assert code == 2 and "--bow-scaled is for range models" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "m.safetensors").exists()
 
 
 def test_a_gesture_render_reports_the_controls_it_applied(range_model):

@@ -45,6 +45,8 @@ class TrainConfig:
     range_band_stride: int = 4
     range_n_data: int = 16384
     range_corr_beta: bool = True  # the correction scaled by beta / beta_ref (npnet.NetConfig.corr_beta)
+    # the state scaled per bow (npnet.NetConfig.bow_scaled): for boxes whose playing amplitude changes with the bow
+    range_bow_scaled: bool = False
     range_select_points: int = 4  # held-out bows the weight selection rolls out from rest
     # point models: the linear part linearised at the rest state (npnet.NetConfig.rest_linear), for notes that start
     # slowly (v_B near where the bow stops driving the mass: scratch-g2); measured in docs/BENCHMARKS.md
@@ -89,11 +91,14 @@ class TrainConfig:
         return self
 
 
-def check_rest_linear(cfg: TrainConfig, scene, box=None) -> None:
-    """--rest-linear only where it applies (one line each): a point model, and a bow whose linearisation at rest is
-    underdamped (|F_B / w phi'(-v_B)| < physics.MAX_REST_DAMPING). Runs before anything loads or renders."""
+def check_net_options(cfg: TrainConfig, scene, box=None) -> None:
+    """The network options only where they apply (one line each): --bow-scaled for a range model; --rest-linear for
+    a point model whose bow's linearisation at rest is underdamped (|F_B / w phi'(-v_B)| <
+    physics.MAX_REST_DAMPING). Runs before anything loads or renders."""
     from .. import physics
 
+    if cfg.range_bow_scaled and (box is None or box.is_point):
+        raise UsageError("--bow-scaled is for range models (give --fb or --vb as lo:hi, or --score)")
     if not cfg.rest_linear:
         return
     if box is not None and not box.is_point:

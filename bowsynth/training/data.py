@@ -100,6 +100,7 @@ class TrainingData:
     corr_scale: np.ndarray  # (2,) RMS size of the friction correction per variable
     par: np.ndarray | None = None  # range data: (B, 2) each trajectory's bow (beta, v_B)
     box: object = None  # range data: the ParamBox
+    extents: np.ndarray | None = None  # range data: ranges.RangeBand.extents
 
 
 def build(scene: Scene, cfg: TrainConfig, window: float, rng: np.random.Generator, on_progress=None) -> TrainingData:
@@ -201,4 +202,4 @@ def build_range(scene: Scene, box, cfg: TrainConfig, window: float, rng: np.rand
                          on_progress=lambda f: report(f"FDM data: {n} windows at x{cfg.data_oversample}", f))
     gain = par[:, 0] / domain.beta if cfg.range_corr_beta else None
     c = correction_scale(x0, tau, x, window, cfg.net.linear_flow, gain)
-    return TrainingData(band.states, domain, sampler, x0, tau, x, c, par=par, box=box)
+    return TrainingData(band.states, domain, sampler, x0, tau, x, c, par=par, box=box, extents=band.extents)

@@ -116,6 +116,8 @@ class RangeBand:
     params: np.ndarray  # (N, 2) beta, v_B
     weights: np.ndarray  # (N,) sampling weight: each point's own onset as likely as its limit cycle
     starts: np.ndarray  # (S, 4) q, p, beta, v_B where renders from rest start their windows
+    # (R, 6) per render at a held bow: beta, v_B, q_lo, q_hi, p_lo, p_hi over its second half (the limit cycle)
+    extents: np.ndarray | None = None
 
 
 def _balanced(states: np.ndarray, grid: int = 64) -> np.ndarray:
@@ -146,6 +148,7 @@ def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, s
         rng = rng or np.random.default_rng(0)
         ends = box.sample(2 * gestures, rng)
         runs += [((ends[i, 0], ends[gestures + i, 0]), (ends[i, 1], ends[gestures + i, 1])) for i in range(gestures)]
+    extents = []
     for (b0, b1), (v0, v1) in runs:
         fb = b0 * w if b0 == b1 else [(0.0, b0 * w), (seconds, b1 * w)]
         vb = v0 if v0 == v1 else [(0.0, v0), (seconds, v1)]
@@ -153,9 +156,32 @@ def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, s
         x = np.stack([r.q, r.p], axis=1)
         par = np.stack([r.controls["fb"] / w, r.controls["vb"]], axis=1)
         starts.append(np.hstack([x, par])[::per_window])
+        if b0 == b1 and v0 == v1:
+            tail = x[len(x) // 2:]
+            extents.append([b0, v0, *tail.min(0)[[0]], *tail.max(0)[[0]], *tail.min(0)[[1]], *tail.max(0)[[1]]])
         x, par = x[::stride], par[::stride]
         states.append(x)
         params.append(par)
         weights.append(_balanced(x))
     wts = np.concatenate(weights)
-    return RangeBand(np.concatenate(states), np.concatenate(params), wts / wts.sum(), np.concatenate(starts))
+    return RangeBand(np.concatenate(states), np.concatenate(params), wts / wts.sum(), np.concatenate(starts),
+                     np.array(extents).reshape(-1, 6))
+
+
+def fit_bow_scaling(extents: np.ndarray, pin: np.ndarray, margin: float):
+    """A bow-scaled model's state scaling (npnet.state_scaling) fitted to the limit cycles of renders at held bows:
+    least squares of each variable's centre and log half-range, affine in the bows' branch inputs pin (R, n_par).
+    Renders that have not spoken (p's half-range below a tenth of v_B: still near rest, see speaks) say nothing about
+    the playing amplitude and are left out. Returns center (2,), halfrange (2,) (times 1 + margin: the band's jitter),
+    center_slope and halfrange_slope (2, n_par); None when fewer than n_par + 2 renders spoke."""
+    ext = np.asarray(extents, float)
+    mid = np.stack([ext[:, 2] + ext[:, 3], ext[:, 4] + ext[:, 5]], 1) / 2
+    half = np.stack([ext[:, 3] - ext[:, 2], ext[:, 5] - ext[:, 4]], 1) / 2
+    spoke = half[:, 1] >= 0.1 * np.abs(ext[:, 1])
+    n_par = pin.shape[1]
+    if spoke.sum() < n_par + 2:
+        return None
+    A = np.hstack([np.ones((int(spoke.sum()), 1)), np.asarray(pin, float)[spoke]])
+    cm = np.linalg.lstsq(A, mid[spoke], rcond=None)[0]  # (1 + n_par, 2)
+    ch = np.linalg.lstsq(A, np.log(half[spoke]), rcond=None)[0]
+    return cm[0], np.exp(ch[0]) * (1 + margin), cm[1:].T, ch[1:].T

@@ -11,11 +11,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..errors import UsageError
 from ..model import ModelMeta, OperatorModel
 from ..network import DeepONet
 from ..scene import Scene
 from . import checkpoint
-from .config import TrainConfig, check_rest_linear, default_model_name  # noqa: F401
+from .config import TrainConfig, check_net_options, default_model_name  # noqa: F401
 from .data import build, build_range
 from .losses import default_weights, loss_terms, weighted
 from .selection import RangeSelector, Selector, json_number, selection_scene
@@ -36,9 +37,10 @@ class Trainer:
         cfg.validate()
         self.box = box if box is not None and not box.is_point else None
         if self.box is not None:
-            cfg.net = dataclasses.replace(cfg.net, params=2, corr_beta=cfg.range_corr_beta)
+            cfg.net = dataclasses.replace(cfg.net, params=2, corr_beta=cfg.range_corr_beta,
+                                          bow_scaled=cfg.range_bow_scaled)
+        check_net_options(cfg, scene, self.box)
         if cfg.rest_linear:
-            check_rest_linear(cfg, scene, self.box)
             cfg.net = dataclasses.replace(cfg.net, rest_linear=True)
         self.scene, self.cfg, self.name = scene, cfg, name
         self.weights = cfg.weights or default_weights(scene, cfg.hybrid,
@@ -57,6 +59,8 @@ class Trainer:
                             [(d.q_hi - d.q_lo) / 2, (d.p_hi - d.p_lo) / 2], self.data.corr_scale, self.window)
         if self.box is not None:
             self.net.set_box(self.box)
+            if cfg.net.bow_scaled:
+                self._fit_bow_scaling()
         if cfg.net.rest_linear:
             self.net.set_rest_linear(scene.beta, scene.vb, scene.a)
         self.data_x0 = torch.tensor(self.data.x0, dtype=torch.float32)
@@ -71,6 +75,16 @@ class Trainer:
             self.selector = Selector(selection_scene(scene, self.data.band, self.window, d.contains))
         else:
             self.selector = RangeSelector(scene, self.box, cfg.range_select_points, seed=cfg.seed + 1)
+
+    def _fit_bow_scaling(self):
+        from .ranges import fit_bow_scaling
+
+        ext = self.data.extents
+        pin = self.net.param_inputs(torch.tensor(ext[:, :2], dtype=torch.float64)).double().numpy()
+        fit = fit_bow_scaling(ext, pin, self.cfg.margin)
+        if fit is None:  # too few renders spoke to fit: the box's scaling, the same for every bow
+            return
+        self.net.set_bow_scaling(*fit)
 
     @property
     def best(self) -> dict:
@@ -153,8 +167,6 @@ class Trainer:
         checkpoint.save(path, {"tensors": tensors, "optimizer": self.opt.state_dict(), "meta": meta})
 
     def load_checkpoint(self, path: Path):
-        from ..errors import UsageError
-
         tensors, opt_state, meta = checkpoint.load(path)
         if meta["scene"] != self.scene.to_dict() or meta.get("box") != self._box_json():
             raise UsageError(f"checkpoint {path} is for another scene; delete it or pick another --out")
