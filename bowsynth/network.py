@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from . import physics
-from .npnet import PARAM_SPAN, NetConfig  # noqa: F401  (torch-free: model files are read without torch)
+from .npnet import PARAM_SPAN, NetConfig, linear_part  # noqa: F401  (torch-free: model files are read without torch)
 
 
 class FourierFeatures(nn.Module):
@@ -85,17 +85,14 @@ class DeepONet(nn.Module):
         self.lin.copy_(torch.tensor(physics.rest_linearisation(beta, vb, a), dtype=torch.float64))
 
     def flow(self, x0, tau):
-        """The linear part (B, M, 2) and its tau-derivative: R(tau) x0, or the flow linearised at rest."""
+        """The linear part (B, M, 2) and its tau-derivative: R(tau) x0, the flow linearised at rest, or x0."""
         q0, p0 = x0[:, 0:1], x0[:, 1:2]
-        if not self.cfg.linear_flow:  # ablation models: the output carries x0
-            lq, lp = q0 * torch.ones_like(tau)[None, :], p0 * torch.ones_like(tau)[None, :]
-            return torch.stack([lq, lp], dim=-1), torch.zeros(*lq.shape, 2)
-        lin = None
-        if self.cfg.rest_linear:
-            lin = (float(self.lin[0]), float(self.lin[1]))
+        lin = (float(self.lin[0]), float(self.lin[1])) if self.cfg.rest_linear else None
         m11, m12, m21, m22, kq, kp = (torch.as_tensor(c, dtype=x0.dtype)[None, :]
-                                      for c in physics.flow_coefficients(tau.detach().cpu().double().numpy(), lin))
+                                      for c in linear_part(self.cfg, tau.detach().cpu().double().numpy(), lin))
         lq, lp = m11 * q0 + m12 * p0 + kq, m21 * q0 + m22 * p0 + kp
+        if not self.cfg.linear_flow:
+            return torch.stack([lq, lp], dim=-1), torch.zeros(*lq.shape, 2, dtype=x0.dtype)
         d, qs = lin if lin is not None else (0.0, 0.0)
         return torch.stack([lq, lp], dim=-1), torch.stack([lp, -(lq - qs) - d * lp], dim=-1)
 

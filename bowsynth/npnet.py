@@ -13,6 +13,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from . import physics
+
 
 @dataclass
 class NetConfig:
@@ -47,6 +49,16 @@ class NetConfig:
 # Parameter inputs normalised to [-1, 1] like the state made rollouts diverge (median NMSE(p) 32 over a 4 x 4 grid);
 # scaled to [-0.3, 0.3] the branch is smoother in the bow: median 0.15 after the same 15 minutes (shared/GUIDE.md 8)
 PARAM_SPAN = 0.3
+
+
+def linear_part(cfg: NetConfig, tau, lin=None) -> tuple:
+    """(m11, m12, m21, m22, k_q, k_p) at times tau: the network's exact linear part x = M x0 + k. The free
+    oscillator's rotation, or with lin = (d, q_s) the flow linearised at rest (physics.flow_coefficients); the
+    identity for ablation models without the linear flow (their output carries x0)."""
+    if cfg.linear_flow:
+        return physics.flow_coefficients(tau, lin)
+    one, zero = np.ones_like(np.asarray(tau, float)), np.zeros_like(np.asarray(tau, float))
+    return one, zero, zero, one, zero, zero
 
 
 def weight_shapes(cfg: NetConfig) -> dict[str, tuple]:

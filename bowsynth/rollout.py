@@ -256,11 +256,7 @@ class NumpyOperator:
             tf = self.trunk_features([s])[0]  # (n_hi+1, 2, k)
         basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n_hi+1)
         bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n_hi+1)
-        if self.cfg.linear_flow:
-            m11, m12, m21, m22, kq, kp = physics.flow_coefficients(tau, self.lin)
-        else:  # ablation models: the output carries x0, not R(tau) x0
-            m11, m22 = np.ones_like(tau), np.ones_like(tau)
-            m12 = m21 = kq = kp = np.zeros_like(tau)
+        m11, m12, m21, m22, kq, kp = npnet.linear_part(self.cfg, tau, self.lin)
         # q rows act on (q0, p0), p rows on (p0, -q0) (kernels._samples); the flow's constant joins the bias row
         # (a point model's gain is 1)
         bias = bias + np.stack([kq, kp])
@@ -764,10 +760,8 @@ def physics_error(model: OperatorModel, q0: float, p0: float) -> float:
     if fail[0, 0] >= 0:
         return math.inf
     rq, rp = reference_tau(q0, p0, d.beta, d.vb, d.a, dtau, n)
-    if op.cfg.linear_flow:
-        lq, lp = physics.linear_flow(q0, p0, np.arange(n) * dtau)
-    else:
-        lq, lp = np.full(n, q0), np.full(n, p0)
+    m11, m12, m21, m22, kq, kp = npnet.linear_part(op.cfg, np.arange(n) * dtau)
+    lq, lp = m11 * q0 + m12 * p0 + kq, m21 * q0 + m22 * p0 + kp
     corr = max(np.mean((rq - lq) ** 2 + (rp - lp) ** 2), CHECK_FLOOR ** 2 * float(np.sum(op.corr_scale ** 2)))
     return float(np.mean((q[0] - rq) ** 2 + (p[0] - rp) ** 2) / max(corr, 1e-30))
 

@@ -12,6 +12,7 @@ from scipy import ndimage
 from .. import physics
 from ..fdm import fdm_batch, render_fdm
 from ..model import Domain
+from ..npnet import NetConfig, linear_part
 from ..scene import Scene
 from .config import TrainConfig
 
@@ -127,16 +128,14 @@ def build(scene: Scene, cfg: TrainConfig, window: float, rng: np.random.Generato
                          on_progress=lambda f: report(f"FDM data: {len(x0)} windows at x{cfg.data_oversample}", f))
     lin = physics.rest_linearisation(scene.beta, scene.vb, scene.a) if cfg.net.rest_linear else None
     return TrainingData(band, domain, sampler, x0, tau, x,
-                        correction_scale(x0, tau, x, window, cfg.net.linear_flow, lin=lin))
+                        correction_scale(x0, tau, x, window, cfg.net, lin=lin))
 
 
-def correction_scale(x0, tau, x, window: float, linear_flow: bool, gain=None, lin=None) -> np.ndarray:
-    """c (2,): the RMS of what friction adds to the linear flow over a window, per s (and per unit of a range
+def correction_scale(x0, tau, x, window: float, net: NetConfig, gain=None, lin=None) -> np.ndarray:
+    """c (2,): the RMS of what friction adds to the net's linear part over a window, per s (and per unit of a range
     model's gain (B,)); lin: the rest-state linearisation the flow carries (NetConfig.rest_linear)."""
-    if linear_flow:
-        lq, lp = physics.linear_flow(x0[:, 0:1], x0[:, 1:2], tau[None, :], lin)
-    else:
-        lq, lp = np.broadcast_arrays(x0[:, 0:1], x0[:, 1:2], tau[None, :])[:2]
+    m11, m12, m21, m22, kq, kp = (c[None, :] for c in linear_part(net, tau, lin))
+    lq, lp = m11 * x0[:, 0:1] + m12 * x0[:, 1:2] + kq, m21 * x0[:, 0:1] + m22 * x0[:, 1:2] + kp
     corr = (x - np.stack([lq, lp], -1))[:, 1:] / (tau[1:] / window)[None, :, None]
     if gain is not None:
         corr = corr / np.asarray(gain, float)[:, None, None]
@@ -201,5 +200,5 @@ def build_range(scene: Scene, box, cfg: TrainConfig, window: float, rng: np.rand
     tau, x = fdm_windows(scene, x0, window, cfg.data_times, cfg.data_oversample, par=par,
                          on_progress=lambda f: report(f"FDM data: {n} windows at x{cfg.data_oversample}", f))
     gain = par[:, 0] / domain.beta if cfg.range_corr_beta else None
-    c = correction_scale(x0, tau, x, window, cfg.net.linear_flow, gain)
+    c = correction_scale(x0, tau, x, window, cfg.net, gain)
     return TrainingData(band.states, domain, sampler, x0, tau, x, c, par=par, box=box, extents=band.extents)
