@@ -9,6 +9,7 @@ Rows (TrainConfig fields changed from the defaults):
     no_corr_beta   the correction not scaled by beta / beta_ref (range_corr_beta False)
     no_gestures    band from renders at fixed bows only (range_gestures 0)
     no_starts      no window-start data (start_share 0)
+    bow_scaled     the state scaled per bow, fitted to the renders' limit cycles (range_bow_scaled True)
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ ROWS = {
     "no_corr_beta": {"range_corr_beta": False},
     "no_gestures": {"range_gestures": 0},
     "no_starts": {"start_share": 0.0},
+    "bow_scaled": {"range_bow_scaled": True},
 }
 
 

@@ -52,12 +52,28 @@ def load_model(path):
     return _l(path)
 
 
+def model_path(name) -> Path:
+    """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`)."""
+    path = Path(name)
+    if path.exists() or path.suffix or len(path.parts) > 1:
+        return path
+    from .rollout import model_dirs
+
+    for d in model_dirs():
+        if (d / f"{name}.safetensors").is_file():
+            return d / f"{name}.safetensors"
+    return path  # load_model names it as not found
+
+
 def train(scene: Scene, config=None, out=None, force=False, resume=False, progress=False, console=None, box=None,
-          **settings):
+          init=None, **settings):
     """Train an operator for `scene`, save it to `out` (default ./models/<name>.safetensors) and validate it.
 
     box: a `bowsynth.training.ParamBox` of bows (beta, v_B) to train a range model for (see `range_scene`); the
     scene then gives the pitch, sample rate and a at which the training renders are made.
+
+    init: a trained range model (a path or an OperatorModel) to refine for `box` (or for the scene's own bow, a box
+    of zero width): its network and scalings are kept and trained further on this box's data (`train --from`).
 
     config: a `bowsynth.training.TrainConfig`; or settings as keywords (minutes=, steps=, seed=, optimizer=, ...:
     its fields; `window_ms` gives the window in ms at the scene's pitch; `width`/`depth` the network's). Its
@@ -65,11 +81,19 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     A model whose validation rollout fails is saved but marked failed in its record (it is never picked by default).
     """
     from .progress import Reporter
-    from .training.config import check_net_options, checkpoint_path, default_model_name
+    from .training.config import check_net_options, check_refine, checkpoint_path, default_model_name
 
     config = config or make_train_config(scene, **settings)
     config.validate()
-    if box is not None and box.is_point:
+    if init is not None:
+        from .training.ranges import ParamBox
+
+        from .model import OperatorModel
+
+        init = init if isinstance(init, OperatorModel) else load_model(model_path(init))
+        box = box or ParamBox(scene.beta, scene.beta, scene.vb, scene.vb, scene.a)
+        check_refine(init, config, scene, box)
+    elif box is not None and box.is_point:
         box = None
     check_net_options(config, scene, box)
     name = default_model_name(scene) if box is None else range_model_name(scene, box)
@@ -86,7 +110,8 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
         from .training import TrainResult, Trainer, validate
 
         out.parent.mkdir(parents=True, exist_ok=True)
-        tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f), box=box)
+        tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f), box=box,
+                     init=init)
         if resume:
             tr.load_checkpoint(ckpt)
         def on_step(rec):

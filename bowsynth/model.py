@@ -52,15 +52,27 @@ class Domain:
     def is_range(self) -> bool:
         return self.box is not None
 
+    def beta_in(self, beta) -> np.ndarray:
+        """Elementwise: is F_B / w inside this model's box (a point model: equal to its own)?"""
+        beta = np.asarray(beta, float)
+        if self.box is None:
+            return np.isclose(beta, self.beta, rtol=REL_TOL, atol=1e-12)
+        b0, b1 = self.box[:2]
+        tol = REL_TOL * max(b1, 1e-12)
+        return (beta >= b0 - tol) & (beta <= b1 + tol)
+
+    def vb_in(self, vb) -> np.ndarray:
+        """Elementwise: is v_B inside this model's box (a point model: equal to its own)?"""
+        vb = np.asarray(vb, float)
+        if self.box is None:
+            return np.isclose(vb, self.vb, rtol=REL_TOL, atol=1e-12)
+        v0, v1 = self.box[2:]
+        tol = REL_TOL * max(abs(v1), 1e-12)
+        return (vb >= v0 - tol) & (vb <= v1 + tol)
+
     def box_contains(self, beta, vb) -> np.ndarray:
         """Elementwise: is the bow (beta, v_B) inside this model's box (a point model: equal to its point)?"""
-        beta, vb = np.asarray(beta, float), np.asarray(vb, float)
-        if self.box is None:
-            return (np.isclose(beta, self.beta, rtol=REL_TOL, atol=1e-12)
-                    & np.isclose(vb, self.vb, rtol=REL_TOL, atol=1e-12))
-        b0, b1, v0, v1 = self.box
-        tb, tv = REL_TOL * max(b1, 1e-12), REL_TOL * max(abs(v1), 1e-12)
-        return (beta >= b0 - tb) & (beta <= b1 + tb) & (vb >= v0 - tv) & (vb <= v1 + tv)
+        return self.beta_in(beta) & self.vb_in(vb)
 
     def describe_bows(self) -> str:
         if self.box is None:
@@ -101,9 +113,9 @@ class Domain:
             return out
         b0, b1, v0, v1 = self.box
         (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
-        if not (self.box_contains(blo, v0) and self.box_contains(bhi, v0)):
+        if not (self.beta_in(blo) and self.beta_in(bhi)):
             out.append(f"F_B / w {_span(blo, bhi)} leaves the model's {b0:.4g}..{b1:.4g}")
-        if not (self.box_contains(b0, vlo) and self.box_contains(b0, vhi)):
+        if not (self.vb_in(vlo) and self.vb_in(vhi)):
             out.append(f"v_B {_span(vlo, vhi, '.4g')} leaves the model's {v0:g}..{v1:g}")
         return out
 

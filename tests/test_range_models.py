@@ -251,3 +251,68 @@ def test_bench_scores_held_out_bows_of_a_range_model(range_model):
     s = parameter_summary(rows)
     assert s["points"] == 4 and s["speaking"] == sum(r["speaks"] for r in rows)
     assert s["worst_nmse"] >= s["median_nmse"]
+
+
+def test_refining_keeps_the_parent_function_then_trains_on_the_sub_box(range_model, tmp_path):
+    """`train --from`: the refined net starts as the parent (same outputs for every state and bow, its scalings
+    kept), trains on the sub-box's data only, and its file records the sub-box and the parent's id."""
+    from bowsynth import api
+    from bowsynth.training import Trainer
+
+    parent = load_model(range_model)
+    sub = ParamBox(0.15, 0.2, 0.18, 0.22, 100.0)
+    sc = api.range_scene(sub)
+    cfg = tiny_config(steps=20, sampling="box", range_points=6, range_gestures=1, range_n_data=128)
+    tr = Trainer(sc, cfg, "refine", box=sub, init=parent)
+    x0 = torch.tensor([[0.02, 0.01], [-0.05, 0.1]], dtype=torch.float32)
+    tau = torch.linspace(0, float(parent.domain.window), 7)
+    bows = torch.tensor([[0.16, 0.2], [0.3, 0.15]], dtype=torch.float32)
+    with torch.no_grad():
+        np.testing.assert_array_equal(tr.net(x0, tau, bows).numpy(), parent.net(x0, tau, bows).numpy())
+    assert tr.cfg.net == parent.cfg and tr.window == parent.domain.window
+    res = api.train(sc, config=tiny_config(steps=20, sampling="box", range_points=6, range_gestures=1,
+                                           range_n_data=128), out=tmp_path / "r.safetensors", box=sub, init=range_model)
+    m = load_model(res.path)
+    assert m.domain.box == [0.15, 0.2, 0.18, 0.22] and m.meta.training["refined_from"] == parent.id
+    assert m.cfg == parent.cfg
+    for name in ("pcenter", "pscale", "center", "halfrange", "corr_scale"):  # the parent's scalings, not the sub-box's
+        np.testing.assert_array_equal(m.weights[name], parent.weights[name])
+    with torch.no_grad():
+        assert not np.array_equal(m.net(x0, tau, bows).numpy(), parent.net(x0, tau, bows).numpy())
+
+
+def test_refining_for_one_bow_makes_a_box_of_zero_width(range_model, capsys, monkeypatch, tmp_path):
+    """`train --fb F --vb V --from RANGE`: a point refined from the range is a range model whose box is that bow;
+    its validation rolls the one bow once (not nine times), and it covers that bow and no other."""
+    out = tmp_path / "p.safetensors"
+    w = 2 * math.pi * 100
+    code, _, err = run_main(["train", "--fb", str(0.2 * w), "--vb", "0.2", "--f0", "100", "--from", str(range_model),
+                             "--steps", "5", "--out", str(out), "--quiet"], capsys, monkeypatch)
+    assert code == 0, err
+    m = load_model(out)
+    assert m.domain.is_range and m.domain.box == pytest.approx([0.2, 0.2, 0.2, 0.2])
+    assert len(m.meta.validation["points"]) == 1
+    assert m.covers(Scene(f0=200, fb=0.2 * 2 * math.pi * 200, vb=0.2)) and not m.covers(Scene(f0=100, fb=0.21 * w))
+
+
+@pytest.mark.parametrize("extra,needle", [
+    (["--fb", "5:10"], "must lie inside it"),
+    (["--fb", "80:120", "--vb", "0.1:0.2"], "must lie inside it"),
+    (["--fb", "80:120", "--bow-scaled"], "drop --rest-linear and --bow-scaled"),
+    (["--fb", "80:120", "--a", "50"], "a = 100"),
+])
+def test_refining_refuses_what_the_parent_cannot_take(extra, needle, range_model, capsys, monkeypatch, tmp_path):
+    out = tmp_path / "r.safetensors"
+    code, _, err = run_main(["train", "--f0", "100", "--vb", "0.2", "--from", str(range_model), *extra, "--steps", "1",
+                             "--out", str(out)], capsys, monkeypatch)
+    assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_refining_takes_range_models_only(tiny_model, capsys, monkeypatch, tmp_path):
+    # a usage error exits 2; a model file that is missing exits 1, as `render --model` does (docs/bad_inputs.md)
+    for src, needle, want in ((str(tiny_model), "--from takes a range model", 2), ("no-such-model", "not found", 1)):
+        code, _, err = run_main(["train", "--fb", "100", "--from", src, "--steps", "1", "--out",
+                                 str(tmp_path / "r.safetensors")], capsys, monkeypatch)
+        assert code == want and needle in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "r.safetensors").exists()

@@ -21,6 +21,7 @@ class TrainConfig:
     optimizer: str = "soap"  # soap | adam (measured: SOAP 5-10x lower rollout error at equal time, BENCHMARKS.md)
     lr: float = 3e-3
     lr_final: float = 2e-5
+    refine_lr: float = 1e-3  # the starting rate when refining a trained range model (train --from)
     lbfgs_fraction: float = 0.0  # share of the budget for an L-BFGS finish on a fixed batch
     hybrid: bool = True
     window: float | None = None  # in tau; None picks one period of the free oscillator, 2 pi
@@ -108,6 +109,24 @@ def check_net_options(cfg: TrainConfig, scene, box=None) -> None:
         raise UsageError(f"--rest-linear: the bow's linearisation at rest is too strongly damped or driven "
                          f"(F_B / w phi'(-v_B) = {d:.3g}, at most {physics.MAX_REST_DAMPING:g} in size): train "
                          f"without it")
+
+
+def check_refine(init, cfg: TrainConfig, scene, box) -> None:
+    """train --from MODEL (one line each): MODEL is a range model, at the scene's a, whose box holds the bows to train,
+    and the network options it fixes are not given again."""
+    import math
+
+    what = init.path or init.meta.name
+    if not init.domain.is_range:
+        raise UsageError(f"--from takes a range model; {what} plays one bow ({init.domain.describe_bows()})")
+    if not math.isclose(init.domain.a, scene.a, rel_tol=1e-6):
+        raise UsageError(f"--from {what} has a = {init.domain.a:g}; this scene has a = {scene.a:g}")
+    if cfg.rest_linear or cfg.range_bow_scaled:
+        raise UsageError("--from keeps the network of the model it refines: drop --rest-linear and --bow-scaled")
+    d = init.domain
+    if not (d.beta_in(box.beta_lo) and d.beta_in(box.beta_hi) and d.vb_in(box.vb_lo) and d.vb_in(box.vb_hi)):
+        raise UsageError(f"--from {what} plays {d.describe_bows()}; the bows to train ({box.describe()}) must lie "
+                         f"inside it")
 
 
 def checkpoint_path(out) -> Path:

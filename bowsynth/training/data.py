@@ -177,12 +177,14 @@ def build_range(scene: Scene, box, cfg: TrainConfig, window: float, rng: np.rand
     straight-line gestures through it (ranges.range_band, at the scene's pitch and rate), the state domain around
     all of them, and FDM windows from (state, bow) pairs near that band, a share of them where the renders start
     their windows."""
-    from .ranges import range_band
+    from .ranges import distinct, range_band
 
     report = on_progress or (lambda phase, frac: None)
     report(f"range band: {cfg.range_points} renders from rest, {cfg.range_gestures} gestures", 0.0)
-    band = range_band(box, box.sample(cfg.range_points, rng), scene.f0, scene.sample_rate, cfg.band_seconds, window,
-                      gestures=cfg.range_gestures, rng=rng, stride=cfg.range_band_stride)
+    # a box of zero width (a bow refined from a range model) is one bow: one render, no gestures
+    band = range_band(box, distinct(box.sample(cfg.range_points, rng)), scene.f0, scene.sample_rate,
+                      cfg.band_seconds, window, gestures=0 if box.is_point else cfg.range_gestures, rng=rng,
+                      stride=cfg.range_band_stride)
     domain = make_domain(scene, band.states, window, cfg.margin, box_only=cfg.sampling == "box")
     lb = (math.log(max(box.beta_lo, 1e-12)) + math.log(max(box.beta_hi, 1e-12))) / 2
     domain.beta, domain.vb = math.exp(lb), (box.vb_lo + box.vb_hi) / 2

@@ -95,6 +95,14 @@ class ParamBox:
                 f"a {self.a:g}")
 
 
+def distinct(pts: np.ndarray) -> np.ndarray:
+    """The rows of pts without repeats, in their order (a box with a side of zero width repeats its points)."""
+    if not len(pts):
+        return pts
+    _, first = np.unique(pts, axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
 def speaks(beta, vb, a: float, f0: float = 100.0, seconds: float = 1.0) -> np.ndarray:
     """Does a note from rest speak within `seconds`? Small oscillations about the rest state grow as exp(rate tau)
     from the rest state's offset beta phi(v_B); once they reach a tenth of v_B the friction's nonlinearity takes them

@@ -78,10 +78,10 @@ class RangeSelector(Selector):
     apart from the training points (another seed), where the note speaks within the second."""
 
     def __init__(self, scene: Scene, box, n: int, seed: int):
-        from .ranges import speaks
+        from .ranges import distinct, speaks
 
         pts = box.sample(4 * n, np.random.default_rng(seed))
-        pts = pts[speaks(pts[:, 0], pts[:, 1], box.a, scene.f0)][:n]
+        pts = distinct(pts[speaks(pts[:, 0], pts[:, 1], box.a, scene.f0)])[:n]
         if not len(pts):
             pts = np.array([[box.beta_hi, (box.vb_lo + box.vb_hi) / 2]])
         self.scenes = [scene.replace(fb=float(b) * scene.omega, vb=float(v), duration=1.0) for b, v in pts]
@@ -114,7 +114,9 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
     NMSE(p) is the model's score ('nmse'), the worst beside it; the silent corners must stay finite."""
     from .ranges import speaks
 
-    pts = box.grid(n)
+    from .ranges import distinct
+
+    pts = distinct(box.grid(n))  # a side of zero width (a score's held v_B, a refined point) repeats points
     rows = []
     for b, v in pts:
         sc = scene.replace(fb=float(b) * scene.omega, vb=float(v))

@@ -13,7 +13,7 @@ import torch
 
 from ..errors import UsageError
 from ..model import ModelMeta, OperatorModel
-from ..network import DeepONet
+from ..network import DeepONet, NetConfig
 from ..scene import Scene
 from . import checkpoint
 from .config import TrainConfig, check_net_options, default_model_name  # noqa: F401
@@ -33,13 +33,19 @@ class Trainer:
     """Trains a point model for `scene`, or a range model for the bows of `box` (a ParamBox that is not a point; the
     scene then gives the pitch, rate and a at which the band is rendered, its bow the box's centre)."""
 
-    def __init__(self, scene: Scene, cfg: TrainConfig, name: str, on_progress=None, box=None):
+    def __init__(self, scene: Scene, cfg: TrainConfig, name: str, on_progress=None, box=None, init=None):
         cfg.validate()
-        self.box = box if box is not None and not box.is_point else None
-        if self.box is not None:
+        # init: a trained range model (OperatorModel) to refine: its network, scalings and window are kept, and it
+        # trains on this box's data (a box of zero width too: a point refined from the range)
+        self.init = init
+        self.box = box if box is not None and (init is not None or not box.is_point) else None
+        check_net_options(cfg, scene, self.box)
+        if init is not None:
+            cfg.net = NetConfig(**init.cfg.to_dict())
+            cfg.window = float(init.domain.window)
+        elif self.box is not None:
             cfg.net = dataclasses.replace(cfg.net, params=2, corr_beta=cfg.range_corr_beta,
                                           bow_scaled=cfg.range_bow_scaled)
-        check_net_options(cfg, scene, self.box)
         if cfg.rest_linear:
             cfg.net = dataclasses.replace(cfg.net, rest_linear=True)
         self.scene, self.cfg, self.name = scene, cfg, name
@@ -55,14 +61,17 @@ class Trainer:
         self.domain, self.sampler = self.data.domain, self.data.sampler
         d = self.domain
         self.net = DeepONet(cfg.net, seed=cfg.seed)
-        self.net.set_scales([(d.q_lo + d.q_hi) / 2, (d.p_lo + d.p_hi) / 2],
-                            [(d.q_hi - d.q_lo) / 2, (d.p_hi - d.p_lo) / 2], self.data.corr_scale, self.window)
-        if self.box is not None:
-            self.net.set_box(self.box)
-            if cfg.net.bow_scaled:
-                self._fit_bow_scaling()
-        if cfg.net.rest_linear:
-            self.net.set_rest_linear(scene.beta, scene.vb, scene.a)
+        if init is not None:  # the parent's weights and every scaling buffer: the function it learned, unchanged
+            self.net.load_state_dict(init.net.state_dict())
+        else:
+            self.net.set_scales([(d.q_lo + d.q_hi) / 2, (d.p_lo + d.p_hi) / 2],
+                                [(d.q_hi - d.q_lo) / 2, (d.p_hi - d.p_lo) / 2], self.data.corr_scale, self.window)
+            if self.box is not None:
+                self.net.set_box(self.box)
+                if cfg.net.bow_scaled:
+                    self._fit_bow_scaling()
+            if cfg.net.rest_linear:
+                self.net.set_rest_linear(scene.beta, scene.vb, scene.a)
         self.data_x0 = torch.tensor(self.data.x0, dtype=torch.float32)
         self.data_x = torch.tensor(self.data.x, dtype=torch.float32)
         self.data_tau = torch.tensor(self.data.tau, dtype=torch.float32)
@@ -90,13 +99,19 @@ class Trainer:
     def best(self) -> dict:
         return self.selector.best
 
+    @property
+    def lr(self) -> float:
+        """The starting learning rate: a refinement starts lower (TrainConfig.refine_lr), not to throw away what the
+        parent learned in its first steps."""
+        return self.cfg.refine_lr if self.init is not None else self.cfg.lr
+
     def _make_optimizer(self):
         params = self.net.parameters()
         if self.cfg.optimizer == "soap":
             from pytorch_optimizer import SOAP
 
-            return SOAP(params, lr=self.cfg.lr, betas=(0.95, 0.95), precondition_frequency=10)
-        return torch.optim.Adam(params, lr=self.cfg.lr, fused=True)
+            return SOAP(params, lr=self.lr, betas=(0.95, 0.95), precondition_frequency=10)
+        return torch.optim.Adam(params, lr=self.lr, fused=True)
 
     def batch(self, n_states: int | None = None) -> dict:
         cfg = self.cfg
@@ -123,7 +138,7 @@ class Trainer:
 
     def train_step(self) -> dict:
         frac = self.progress() / max(1e-9, 1 - self.cfg.lbfgs_fraction)
-        lr = self.cfg.lr * (self.cfg.lr_final / self.cfg.lr) ** min(frac, 1.0)
+        lr = self.lr * (self.cfg.lr_final / self.lr) ** min(frac, 1.0)
         for g in self.opt.param_groups:
             g["lr"] = lr
         terms = loss_terms(self.net, self.batch(), self.scene, self.weights)
@@ -161,7 +176,7 @@ class Trainer:
             tensors.update({f"best.{k}": v.contiguous() for k, v in self.best["state"].items()})
         meta = {"step": self.step, "elapsed": self.elapsed, "rng": self.rng.bit_generator.state,
                 "scene": self.scene.to_dict(), "box": self._box_json(), "config": self.cfg.to_dict(),
-                "history": self.history[-200:],
+                "init": self._init_id(), "history": self.history[-200:],
                 "best": {"score": json_number(self.best["score"]), "step": self.best["step"],
                          "scored": self.best["scored"]}}
         checkpoint.save(path, {"tensors": tensors, "optimizer": self.opt.state_dict(), "meta": meta})
@@ -170,6 +185,10 @@ class Trainer:
         tensors, opt_state, meta = checkpoint.load(path)
         if meta["scene"] != self.scene.to_dict() or meta.get("box") != self._box_json():
             raise UsageError(f"checkpoint {path} is for another scene; delete it or pick another --out")
+        if meta.get("init") != self._init_id():
+            was = meta.get("init")
+            raise UsageError(f"checkpoint {path} was made " + (f"refining model {was}: resume with the same --from"
+                                                                if was else "without --from: resume without it"))
         self.net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
         best = meta.get("best") or {}
         state = {k[5:]: v for k, v in tensors.items() if k.startswith("best.")}
@@ -178,6 +197,9 @@ class Trainer:
         self.opt.load_state_dict(opt_state)
         self.rng.bit_generator.state = meta["rng"]
         self.step, self.elapsed, self.history = meta["step"], meta["elapsed"], meta["history"]
+
+    def _init_id(self):
+        return None if self.init is None else self.init.id
 
     def _box_json(self):
         return None if self.box is None else self.box.to_json()
@@ -228,6 +250,7 @@ class Trainer:
                                    "weights": self.weights, "steps_done": self.step,
                                    "seconds": round(self.elapsed, 1),
                                    "final_loss": self.history[-1]["loss"] if self.history else None,
-                                   "selected": self.selector.record(), "box": self._box_json()},
+                                   "selected": self.selector.record(), "box": self._box_json(),
+                                   "refined_from": self._init_id()},
                          validation={}, scene=self.scene.to_dict())
         return OperatorModel(self.net, meta)
