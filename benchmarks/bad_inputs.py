@@ -36,7 +36,6 @@ CASES = [
     ("a curve given to train", "train --fb 50@0,100@1 --steps 1 --out r.safetensors"),
     ("--rest-linear for a range model", "train --fb 50:200 --rest-linear --steps 1 --out r.safetensors"),
     ("--rest-linear where the bow drives the mass hard", "train --fb 1000 --rest-linear --steps 1 --out r.safetensors"),
-    ("--bow-scaled for a point model", "train --fb 100 --bow-scaled --steps 1 --out r.safetensors"),
     ("--from a point model", "train --fb 100 --from paper-fb100 --steps 1 --out r.safetensors"),
     ("--from a range model that does not hold the bows", "train --fb 300:400 --from soft-range --steps 1 --out r.safetensors"),
     ("--from a model that does not exist", "train --fb 100 --from no-such-model --steps 1 --out r.safetensors"),

@@ -86,9 +86,8 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     config = config or make_train_config(scene, **settings)
     config.validate()
     if init is not None:
-        from .training.ranges import ParamBox
-
         from .model import OperatorModel
+        from .training.ranges import ParamBox
 
         init = init if isinstance(init, OperatorModel) else load_model(model_path(init))
         box = box or ParamBox(scene.beta, scene.beta, scene.vb, scene.vb, scene.a)

@@ -182,7 +182,6 @@ def train(
     width: Optional[int] = typer.Option(None, "--width", help="Hidden width of branch and trunk (default 64)."),
     depth: Optional[int] = typer.Option(None, "--depth", help="Hidden layers of branch and trunk (default 4)."),
     rest_linear: bool = typer.Option(False, "--rest-linear", help="Point models whose note starts slowly (v_B near 0.3): carry the bowed mass's flow linearised at its rest state, so the onset's growth rate is exact (docs/BENCHMARKS.md)."),
-    bow_scaled: bool = typer.Option(False, "--bow-scaled", help="Range models whose playing amplitude grows with the bow (stick-slip boxes): scale the state per bow, fitted to the training renders (docs/BENCHMARKS.md)."),
     from_model: Optional[str] = typer.Option(None, "--from", help="Refine a trained range model (a file, or a name such as soft-range) for these bows or this score: its network is kept and trained further on their data only (the bows must lie in its box)."),
     n_data: Optional[int] = typer.Option(None, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band (default 4096)."),
     checkpoint_every: Optional[float] = typer.Option(None, "--checkpoint-every", help="Seconds between checkpoints (default 60)."),
@@ -214,8 +213,7 @@ def train(
                                 lbfgs_fraction=lbfgs, hybrid=hybrid, window_ms=window_ms, width=width, depth=depth,
                                 n_data=n_data if box is None else None,
                                 range_n_data=n_data if box is not None else None,
-                                checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
-                                range_bow_scaled=bow_scaled or None)
+                                checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None)
     res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err,
                     box=box, init=from_model)
     v = res.model.meta.validation

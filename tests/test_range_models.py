@@ -30,7 +30,8 @@ def range_model(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def scaled_range_model(tmp_path_factory):
-    """The same with the state scaled per bow (train --bow-scaled), on a box whose amplitude grows with F_B / w."""
+    """The same with the state scaled per bow (TrainConfig.range_bow_scaled), on a box whose amplitude grows with
+    F_B / w."""
     from bowsynth import api
 
     sc = api.range_scene(STICK)
@@ -120,10 +121,12 @@ def test_bow_scaling_follows_the_playing_amplitude(scaled_range_model):
         assert abs(c[0, 0]) < 0.05 * half
 
 
-def test_bow_scaling_is_for_range_models(capsys, monkeypatch, tmp_path):
-    code, _, err = run_main(["train", "--fb", "100", "--bow-scaled", "--steps", "1", "--out",
-                             str(tmp_path / "m.safetensors")], capsys, monkeypatch)
-    assert code == 2 and "--bow-scaled is for range models" in err and len(err.strip().splitlines()) == 1
+def test_bow_scaling_is_for_range_models(tmp_path):
+    from bowsynth import api
+    from bowsynth.errors import UsageError
+
+    with pytest.raises(UsageError, match="range_bow_scaled is for range models"):
+        api.train(Scene(fb=100), config=tiny_config(steps=1, range_bow_scaled=True), out=tmp_path / "m.safetensors")
     assert not (tmp_path / "m.safetensors").exists()
 
 
@@ -298,7 +301,7 @@ def test_refining_for_one_bow_makes_a_box_of_zero_width(range_model, capsys, mon
 @pytest.mark.parametrize("extra,needle", [
     (["--fb", "5:10"], "must lie inside it"),
     (["--fb", "80:120", "--vb", "0.1:0.2"], "must lie inside it"),
-    (["--fb", "80:120", "--bow-scaled"], "drop --rest-linear and --bow-scaled"),
+    (["--fb", "80:120", "--rest-linear"], "drop --rest-linear"),
     (["--fb", "80:120", "--a", "50"], "a = 100"),
 ])
 def test_refining_refuses_what_the_parent_cannot_take(extra, needle, range_model, capsys, monkeypatch, tmp_path):

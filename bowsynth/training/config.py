@@ -46,7 +46,8 @@ class TrainConfig:
     range_band_stride: int = 4
     range_n_data: int = 16384
     range_corr_beta: bool = True  # the correction scaled by beta / beta_ref (npnet.NetConfig.corr_beta)
-    # the state scaled per bow (npnet.NetConfig.bow_scaled): for boxes whose playing amplitude changes with the bow
+    # the state scaled per bow (npnet.NetConfig.bow_scaled). Measured, not a default and not a CLI flag: no gain on
+    # the stick-slip box, 3.6x worse median on the soft ablation box (docs/BENCHMARKS.md; benchmarks/range_ablation.py)
     range_bow_scaled: bool = False
     range_select_points: int = 4  # held-out bows the weight selection rolls out from rest
     # point models: the linear part linearised at the rest state (npnet.NetConfig.rest_linear), for notes that start
@@ -93,13 +94,13 @@ class TrainConfig:
 
 
 def check_net_options(cfg: TrainConfig, scene, box=None) -> None:
-    """The network options only where they apply (one line each): --bow-scaled for a range model; --rest-linear for
+    """The network options only where they apply (one line each): range_bow_scaled for a range model; --rest-linear for
     a point model whose bow's linearisation at rest is underdamped (|F_B / w phi'(-v_B)| <
     physics.MAX_REST_DAMPING). Runs before anything loads or renders."""
     from .. import physics
 
     if cfg.range_bow_scaled and (box is None or box.is_point):
-        raise UsageError("--bow-scaled is for range models (give --fb or --vb as lo:hi, or --score)")
+        raise UsageError("range_bow_scaled is for range models (a box of bows, not one bow)")
     if not cfg.rest_linear:
         return
     if box is not None and not box.is_point:
@@ -122,7 +123,7 @@ def check_refine(init, cfg: TrainConfig, scene, box) -> None:
     if not math.isclose(init.domain.a, scene.a, rel_tol=1e-6):
         raise UsageError(f"--from {what} has a = {init.domain.a:g}; this scene has a = {scene.a:g}")
     if cfg.rest_linear or cfg.range_bow_scaled:
-        raise UsageError("--from keeps the network of the model it refines: drop --rest-linear and --bow-scaled")
+        raise UsageError("--from keeps the network of the model it refines: drop --rest-linear")
     d = init.domain
     if not (d.beta_in(box.beta_lo) and d.beta_in(box.beta_hi) and d.vb_in(box.vb_lo) and d.vb_in(box.vb_hi)):
         raise UsageError(f"--from {what} plays {d.describe_bows()}; the bows to train ({box.describe()}) must lie "
