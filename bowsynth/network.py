@@ -130,7 +130,8 @@ class DeepONet(nn.Module):
             return self.branch((x0 - self.center) / self.halfrange).view(-1, 2, self.cfg.k)
         pin = self.param_inputs(par).to(x0.dtype)
         if self.cfg.bow_scaled:
-            x = (x0 - self.center - pin @ self.center_slope.T) / (self.halfrange * torch.exp(pin @ self.halfrange_slope.T))
+            scale = self.halfrange * torch.exp(pin @ self.halfrange_slope.T)
+            x = (x0 - self.center - pin @ self.center_slope.T) / scale
         else:
             x = (x0 - self.center) / self.halfrange
         return self.branch(torch.cat([x, pin], dim=1)).view(-1, 2, self.cfg.k)

@@ -121,12 +121,16 @@ def test_bow_scaling_follows_the_playing_amplitude(scaled_range_model):
         assert abs(c[0, 0]) < 0.05 * half
 
 
-def test_bow_scaling_is_for_range_models(tmp_path):
+def test_bow_scaling_is_for_range_models(range_model, tmp_path):
     from bowsynth import api
     from bowsynth.errors import UsageError
 
     with pytest.raises(UsageError, match="range_bow_scaled is for range models"):
         api.train(Scene(fb=100), config=tiny_config(steps=1, range_bow_scaled=True), out=tmp_path / "m.safetensors")
+    # a refinement keeps its parent's network: the option is refused by name, not silently dropped
+    with pytest.raises(UsageError, match="drop range_bow_scaled$"):
+        api.train(api.range_scene(BOX), config=tiny_config(steps=1, range_bow_scaled=True), box=BOX,
+                  init=range_model, out=tmp_path / "m.safetensors")
     assert not (tmp_path / "m.safetensors").exists()
 
 

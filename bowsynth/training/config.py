@@ -122,8 +122,9 @@ def check_refine(init, cfg: TrainConfig, scene, box) -> None:
         raise UsageError(f"--from takes a range model; {what} plays one bow ({init.domain.describe_bows()})")
     if not math.isclose(init.domain.a, scene.a, rel_tol=1e-6):
         raise UsageError(f"--from {what} has a = {init.domain.a:g}; this scene has a = {scene.a:g}")
-    if cfg.rest_linear or cfg.range_bow_scaled:
-        raise UsageError("--from keeps the network of the model it refines: drop --rest-linear")
+    given = [name for name, on in (("--rest-linear", cfg.rest_linear), ("range_bow_scaled", cfg.range_bow_scaled)) if on]
+    if given:
+        raise UsageError(f"--from keeps the network of the model it refines: drop {' and '.join(given)}")
     d = init.domain
     if not (d.beta_in(box.beta_lo) and d.beta_in(box.beta_hi) and d.vb_in(box.vb_lo) and d.vb_in(box.vb_hi)):
         raise UsageError(f"--from {what} plays {d.describe_bows()}; the bows to train ({box.describe()}) must lie "
