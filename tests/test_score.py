@@ -268,10 +268,12 @@ def test_score_outputs_follow_the_output_rules(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.filterwarnings("ignore::bowsynth.fdm.OversampleWarning")  # the reference of the fb 12000 note
-def test_batched_releases_are_the_fdm_of_each_release():
-    """The releases of many notes run as one numpy FDM batch (no numba); each equals `render_fdm` of that note's
-    release scene (same start, scheme and Newton), for notes at several pitches, bow forces, speeds and release
-    times, one of them needing the FDM oversampled, and a note without a release passes through untouched."""
+@pytest.mark.parametrize("loop", ["numpy", "numba"])
+def test_batched_releases_are_the_fdm_of_each_release(loop):
+    """The releases of many notes run as one numpy FDM batch (or, where numba is loaded, by the compiled loop);
+    each equals `render_fdm` of that note's release scene (same start, scheme and Newton), for notes at several
+    pitches, bow forces, speeds and release times, one of them needing the FDM oversampled, and a note without a
+    release passes through untouched."""
     from bowsynth.fdm import check_oversample, render_fdm
     from bowsynth.render import Render
     from bowsynth.score import _release_scene, finish_releases, note_from_fields
@@ -289,7 +291,7 @@ def test_batched_releases_are_the_fdm_of_each_release():
         sustains.append(Render(sc, np.arange(sc.n_samples) / sc.sample_rate, q, p, "operator", 0.0, {}))
         before.append((q.copy(), p.copy()))
     refs = [render_fdm(_release_scene(n, s)) if n.release > 0 else None for n, s in zip(notes, sustains)]
-    out = finish_releases(notes, sustains)
+    out = finish_releases(notes, sustains, loop=loop)
     for n, (q, p), ref, r in zip(notes, before, refs, out):
         assert len(r.q) == n.scene.n_samples and r.scene is n.scene
         if n.release <= 0:
