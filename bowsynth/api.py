@@ -54,15 +54,9 @@ def load_model(path):
 
 def model_path(name) -> Path:
     """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`)."""
-    path = Path(name)
-    if path.exists() or path.suffix or len(path.parts) > 1:
-        return path
-    from .rollout import model_dirs
+    from .rollout import model_path as _m
 
-    for d in model_dirs():
-        if (d / f"{name}.safetensors").is_file():
-            return d / f"{name}.safetensors"
-    return path  # load_model names it as not found
+    return _m(name)
 
 
 def train(scene: Scene, config=None, out=None, force=False, resume=False, progress=False, console=None, box=None,

@@ -116,7 +116,9 @@ def render(
     sample_rate: Optional[int] = RateOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
     pitch: Optional[str] = PitchOpt, a4: Optional[float] = A4Opt,
     oversample: int = typer.Option(1, "--oversample", help="FDM only: render at this multiple of the sample rate."),
-    model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the model covering the scene)."),
+    model: Optional[Path] = typer.Option(None, "--model", help="Operator model: a file, or a name in ./models or the "
+                                                               "shipped models (soft-range; `bowsynth models` lists "
+                                                               "them). Default: the model covering the scene."),
     signal: str = typer.Option("u", "--signal", help="Signal to write: u (displacement, as the paper) or p (velocity)."),
     fallback: str = typer.Option("none", "--fallback", help="If the operator leaves its domain: none (stop) or fdm."),
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
@@ -403,7 +405,8 @@ def score(
     presets_list: Optional[str] = typer.Option(None, "--presets", help="Comma-separated preset names, one voice each."),
     duration: Optional[float] = DurOpt,
     method: str = typer.Option("operator", "--method", "-m", help="operator (one batched rollout) or fdm (one by one)."),
-    model: Optional[Path] = typer.Option(None, "--model", help="Operator model file (default: the one covering each note)."),
+    model: Optional[Path] = typer.Option(None, "--model", help="Operator model: a file or a model's name, as in render "
+                                                               "(default: the one covering each note)."),
     mix: bool = typer.Option(False, "--mix", help="Write one mixed file (each note at its start) instead of one file per note."),
     stems: Optional[Path] = typer.Option(None, "--stems", help="With --mix: also write one WAV per note into this "
                                                                 "directory (what `compare` on the mix reads)."),

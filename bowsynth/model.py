@@ -26,6 +26,16 @@ RANGE_VERSION = 3  # 3: a range model (its domain has a box of bows, its branch 
 READ_VERSIONS = (1, 2, 3)
 META_KEY = "bowsynth"
 REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the network does not take them as input
+
+
+def within(x, lo: float, hi: float, rel_tol: float = REL_TOL) -> np.ndarray:
+    """Elementwise lo <= x <= hi up to rel_tol of the larger end (a box's side, or a point when lo == hi): the one
+    test of a bow against a range, for model files (Domain) and training boxes (ParamBox) alike."""
+    x = np.asarray(x, float)
+    if lo == hi:
+        return np.isclose(x, lo, rtol=rel_tol, atol=1e-12)
+    tol = rel_tol * max(abs(hi), 1e-12)
+    return (x >= lo - tol) & (x <= hi + tol)
 # A model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above this is
 # not picked by default: the shipped models score 1e-7 to 3e-4; 0.1 is a note visibly off in phase or pitch.
 MAX_VALIDATION_NMSE = 0.1
@@ -54,21 +64,11 @@ class Domain:
 
     def beta_in(self, beta) -> np.ndarray:
         """Elementwise: is F_B / w inside this model's box (a point model: equal to its own)?"""
-        beta = np.asarray(beta, float)
-        if self.box is None:
-            return np.isclose(beta, self.beta, rtol=REL_TOL, atol=1e-12)
-        b0, b1 = self.box[:2]
-        tol = REL_TOL * max(b1, 1e-12)
-        return (beta >= b0 - tol) & (beta <= b1 + tol)
+        return within(beta, self.beta, self.beta) if self.box is None else within(beta, *self.box[:2])
 
     def vb_in(self, vb) -> np.ndarray:
         """Elementwise: is v_B inside this model's box (a point model: equal to its own)?"""
-        vb = np.asarray(vb, float)
-        if self.box is None:
-            return np.isclose(vb, self.vb, rtol=REL_TOL, atol=1e-12)
-        v0, v1 = self.box[2:]
-        tol = REL_TOL * max(abs(v1), 1e-12)
-        return (vb >= v0 - tol) & (vb <= v1 + tol)
+        return within(vb, self.vb, self.vb) if self.box is None else within(vb, *self.box[2:])
 
     def box_contains(self, beta, vb) -> np.ndarray:
         """Elementwise: is the bow (beta, v_B) inside this model's box (a point model: equal to its point)?"""

@@ -37,6 +37,20 @@ def model_dirs() -> list[Path]:
     return out
 
 
+def model_path(name) -> Path:
+    """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`): what
+    `--model` and `train --from` take."""
+    path = Path(name)
+    if path.exists() or path.suffix or len(path.parts) > 1:
+        return path
+    for d in model_dirs():
+        if (d / f"{name}.safetensors").is_file():
+            return d / f"{name}.safetensors"
+    names = sorted({f.stem for d in model_dirs() for f in d.glob("*.safetensors")})
+    raise ModelFileError(f"model {name} not found: no such file, and no model of that name in ./models or the "
+                         f"shipped models ({', '.join(names) or 'none'})")
+
+
 # Model files read in this process, by resolved path: (size, mtime_ns) when read, and the model or why it failed to
 # load. A file is read again only when its size or modification time changes, so `render_operator(scene)` with no
 # model costs a few stat calls, not a load per call (measured ~110-160 ms per call with torch before).
@@ -547,7 +561,7 @@ def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fal
                 raise
             return part[0]
     if not isinstance(model, OperatorModel):
-        model = load_model(model)
+        model = load_model(model_path(model))
     why = model.domain.mismatch(scene)
     where = first_bow_outside(model, scene) if why and model.domain.is_range else None
     if where and where[0] > 0 and fallback == "fdm" and model.domain.contains(scene.q0, scene.p0):
@@ -648,7 +662,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     t_setup = time.perf_counter()
     # load each model file once: the voices must share model objects to be grouped into one rollout
     if model is not None and not isinstance(model, OperatorModel):
-        model = load_model(model)
+        model = load_model(model_path(model))
     models = available_models() if model is None else None
     groups: dict = {}
     for i, sc in enumerate(scenes):

@@ -394,9 +394,10 @@ def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
         models = available_models()
     else:
         from .model import OperatorModel, load_model
+        from .rollout import model_path
 
         if not isinstance(model, OperatorModel):
-            model = load_model(model)
+            model = load_model(model_path(model))
     out = []
     for n in notes:
         sc = n.rollout_scene()

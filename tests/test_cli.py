@@ -99,6 +99,30 @@ def test_no_model_covers_scene(tmp_path, monkeypatch, capsys):
     assert err.count("\n") == 1 and not (tmp_path / "x.wav").exists()
 
 
+def test_model_by_name(tmp_path, tiny_model, monkeypatch, capsys):
+    """--model takes a model's name in ./models (before the shipped ones) as well as a file; an unknown name is one
+    line naming the models there are, exit 1, nothing written."""
+    import shutil
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "models").mkdir()
+    shutil.copy(tiny_model, tmp_path / "models" / "mine.safetensors")
+    wav = tmp_path / "x.wav"
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.05", "--model", "mine", str(wav)], capsys, monkeypatch)
+    assert code == 0, err
+    assert str(tmp_path / "models" / "mine.safetensors") in out and wav.exists()
+    score = tmp_path / "s.toml"
+    score.write_text('[[voice]]\nname = "a"\nfb = 100.0\nduration = 0.05\n')
+    code, out, err = run_main(["score", "--score", str(score), "--model", "mine", "--mix", str(tmp_path / "m.wav")],
+                              capsys, monkeypatch)
+    assert code == 0, err
+    code, _, err = run_main(["render", "--fb", "100", "-d", "0.05", "--model", "nosuch", str(tmp_path / "y.wav")],
+                            capsys, monkeypatch)
+    assert code == 1 and err.count("\n") == 1
+    assert "model nosuch not found" in err and "mine" in err and "paper-fb100" in err
+    assert not (tmp_path / "y.wav").exists()
+
+
 def test_rollout_forced_out_of_domain_stops_cleanly(tmp_path, tiny_model, monkeypatch, capsys):
     from bowsynth import Scene, render_operator
     from bowsynth.model import load_model

@@ -57,12 +57,11 @@ class ParamBox:
     def is_point(self) -> bool:
         return self.beta_lo == self.beta_hi and self.vb_lo == self.vb_hi
 
-    def contains(self, beta, vb, rel_tol: float = 1e-6) -> np.ndarray:
-        beta, vb = np.asarray(beta, float), np.asarray(vb, float)
-        tb = rel_tol * max(abs(self.beta_hi), 1e-12)
-        tv = rel_tol * max(abs(self.vb_hi), 1e-12)
-        return ((beta >= self.beta_lo - tb) & (beta <= self.beta_hi + tb)
-                & (vb >= self.vb_lo - tv) & (vb <= self.vb_hi + tv))
+    def contains(self, beta, vb) -> np.ndarray:
+        """Elementwise: is the bow inside the box (the same test as a model file's, model.within)?"""
+        from ..model import within
+
+        return within(beta, self.beta_lo, self.beta_hi) & within(vb, self.vb_lo, self.vb_hi)
 
     def normalise(self, beta, vb) -> np.ndarray:
         """(beta, v_B) -> [-1, 1]^2 over the box (log beta); a zero-width side maps to 0. (N, 2)."""
