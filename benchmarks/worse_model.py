@@ -12,7 +12,7 @@ import sys
 
 import torch
 
-from bowsynth import load_model, make_scene, render_fdm, render_operator
+from bowsynth import Scene, load_model, render_fdm, render_operator
 from bowsynth.metrics import nmse
 from bowsynth.rollout import SHIPPED_DIR
 
@@ -23,6 +23,6 @@ with torch.no_grad():
     for v in m.net.parameters():
         v.add_(torch.randn(v.shape, generator=g) * sigma * v.abs().mean())
 m.save(out, force=True)
-sc = make_scene(name, duration=0.25)
+sc = Scene(**{**m.meta.scene, "duration": 0.25})  # the model's training scene (a range model: its box's centre)
 print(f"{name}, sigma {sigma:g}: in-sample NMSE(p) 0.25 s",
       f"{nmse(render_operator(sc, model=load_model(out)).p, render_fdm(sc, oversample=100).p):.2e}")

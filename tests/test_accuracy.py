@@ -8,7 +8,7 @@ trajectory at fractions of a window (no window of the trained render starts ther
 other pitches with the same F_B / w where a window is not a whole number of samples (f0 130: 339.2 samples, f0 200:
 220.5), and 48 / 96 kHz.
 
-Measure (prints the table MEASURED holds; the shared 2-core CPU, about 20 s):
+Measure (prints the tables RANGE_MEASURED and MEASURED hold; the shared 2-core CPU, about 30 s):
     PYTHONPATH=. python tests/test_accuracy.py
 Point the tests at other model files (same names) with BOWSYNTH_TEST_MODELS=DIR.
 """
@@ -128,7 +128,35 @@ def test_slow_onset_model_from_rest(case):
     assert error(model, sc) <= LIMIT * SLOW_ONSET_MEASURED[case]
 
 
+# The soft range model (one net over F_B / w 0.015-0.4 x v_B 0.05-0.3): bows of the held-out grid of
+# benchmarks/ranges.py (cell centres in log F_B / w; no training bow is one) where it plays within its validation,
+# and a crescendo through the box, 1 s from rest at f0 100 against FDM x100 (the crescendo's reference follows the
+# curve per step; the operator holds each window's bow at its middle). Far from the issue's targets, but a worse
+# model fails here as for the point models: a copy with 1 % weight noise (`benchmarks/worse_model.py soft-range 0.01
+# DIR/soft-range.safetensors`) scores 14-15x the measured values on three of the five cases and fails them.
+RANGE_MEASURED = {(0.0226, 0.1437): 9.94e-5, (0.0514, 0.1437): 5.90e-4, (0.1168, 0.1437): 1.45e-3,
+                  (0.1168, 0.2062): 1.25e-3, "crescendo 0.05 -> 0.35": 5.64e-3}
+
+
+def range_case(case) -> Scene:
+    w = 2 * math.pi * 100.0
+    if isinstance(case, tuple):
+        return Scene(f0=100.0, fb=case[0] * w, vb=case[1], duration=1.0)
+    return Scene(f0=100.0, fb=[[0.0, 0.05 * w], [1.0, 0.35 * w]], vb=0.2, duration=1.0)
+
+
+@pytest.mark.parametrize("case", list(RANGE_MEASURED), ids=str)
+def test_soft_range_model_held_out_bows(case):
+    model = load_model(MODELS / "soft-range.safetensors")
+    sc = range_case(case)
+    assert model.covers(sc)
+    assert error(model, sc) <= LIMIT * RANGE_MEASURED[case]
+
+
 if __name__ == "__main__":
+    m = load_model(MODELS / "soft-range.safetensors")
+    for case in RANGE_MEASURED:
+        print(f"    {case!r}: {error(m, range_case(case)):.2e},")
     for preset in PRESETS:
         m = load_model(MODELS / f"{preset}.safetensors")
         for name, sc in cases(preset).items():
