@@ -80,10 +80,10 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     config = config or make_train_config(scene, **settings)
     config.validate()
     if init is not None:
-        from .model import OperatorModel
+        from .rollout import as_model
         from .training.ranges import ParamBox
 
-        init = init if isinstance(init, OperatorModel) else load_model(model_path(init))
+        init = as_model(init)
         box = box or ParamBox(scene.beta, scene.beta, scene.vb, scene.vb, scene.a)
         check_refine(init, config, scene, box)
     elif box is not None and box.is_point:

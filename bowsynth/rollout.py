@@ -51,6 +51,11 @@ def model_path(name) -> Path:
                          f"shipped models ({', '.join(names) or 'none'})")
 
 
+def as_model(model) -> OperatorModel:
+    """An OperatorModel as given, or read from a file path or a model's name (model_path)."""
+    return model if isinstance(model, OperatorModel) else load_model(model_path(model))
+
+
 # Model files read in this process, by resolved path: (size, mtime_ns) when read, and the model or why it failed to
 # load. A file is read again only when its size or modification time changes, so `render_operator(scene)` with no
 # model costs a few stat calls, not a load per call (measured ~110-160 ms per call with torch before).
@@ -338,9 +343,15 @@ def _numpy_seconds(rounds: int, voice_windows: int, voice_samples: int) -> float
     return 80e-6 * rounds + 6e-6 * voice_windows + 15e-9 * voice_samples
 
 
+def numba_loaded() -> bool:
+    """Has this process already paid numba's import (the FDM ran, or a compiled rollout)? Then compiled loops cost
+    only their own cache load (~10 ms), and every later render or release repays it."""
+    return "numba" in sys.modules
+
+
 def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
     """'numba' when numba is already imported or the numpy loop's estimated time repays loading it, else 'numpy'."""
-    if "numba" in sys.modules:  # a process that already paid the import (the FDM ran): its renders repay the rest
+    if numba_loaded():
         return "numba"
     spw = _operator(model).window / np.atleast_1d(np.asarray(dtau, dtype=float))
     slow = _numpy_seconds(int(n_samples / spw.min()) + 1, int(np.sum(n_samples / spw)) + len(spw), n_samples * len(spw))
@@ -560,8 +571,7 @@ def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fal
             if part is None:
                 raise
             return part[0]
-    if not isinstance(model, OperatorModel):
-        model = load_model(model_path(model))
+    model = as_model(model)
     why = model.domain.mismatch(scene)
     where = first_bow_outside(model, scene) if why and model.domain.is_range else None
     if where and where[0] > 0 and fallback == "fdm" and model.domain.contains(scene.q0, scene.p0):
@@ -661,8 +671,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     FDM (fallback 'fdm') or stops the render (DomainError)."""
     t_setup = time.perf_counter()
     # load each model file once: the voices must share model objects to be grouped into one rollout
-    if model is not None and not isinstance(model, OperatorModel):
-        model = load_model(model_path(model))
+    model = None if model is None else as_model(model)
     models = available_models() if model is None else None
     groups: dict = {}
     for i, sc in enumerate(scenes):

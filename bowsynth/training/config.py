@@ -117,10 +117,12 @@ def check_refine(init, cfg: TrainConfig, scene, box) -> None:
     and the network options it fixes are not given again."""
     import math
 
+    from ..model import REL_TOL
+
     what = init.path or init.meta.name
     if not init.domain.is_range:
         raise UsageError(f"--from takes a range model; {what} plays one bow ({init.domain.describe_bows()})")
-    if not math.isclose(init.domain.a, scene.a, rel_tol=1e-6):
+    if not math.isclose(init.domain.a, scene.a, rel_tol=REL_TOL):
         raise UsageError(f"--from {what} has a = {init.domain.a:g}; this scene has a = {scene.a:g}")
     given = [name for name, on in (("--rest-linear", cfg.rest_linear), ("range_bow_scaled", cfg.range_bow_scaled)) if on]
     if given:

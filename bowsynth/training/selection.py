@@ -112,9 +112,7 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
                    ref_oversample: int = REF_OVERSAMPLE) -> dict:
     """validate() at the n x n grid of the box (from rest, the scene's pitch) where the note speaks: the median
     NMSE(p) is the model's score ('nmse'), the worst beside it; the silent corners must stay finite."""
-    from .ranges import speaks
-
-    from .ranges import distinct
+    from .ranges import distinct, speaks
 
     pts = distinct(box.grid(n))  # a side of zero width (a score's held v_B, a refined point) repeats points
     rows = []
