@@ -4,6 +4,9 @@
   end   - the window's end state against the FDM (it seeds the next window, so its error compounds)
   kin   - kinematic residual q' - p
   fric  - friction residual p' + q + beta phi(p - v_B); stiff at high force, where it fights the data
+  deriv - the network's d x / d tau on the data trajectories against the ODE's right-hand side at the *true* states:
+          an exact target (unlike fric, evaluated at predicted states) that weights harmonic k by k, so the small,
+          fast part of the correction (the upper harmonics a value loss barely sees) is learned
 """
 
 from __future__ import annotations
@@ -18,6 +21,9 @@ from ..scene import Scene
 
 STIFF = 10.0  # beta sqrt(2a) e^1/2 above this: the friction residual is dropped from the hybrid loss by default
 FRIC_WEIGHT = 0.03  # hybrid, non-stiff: fb 100, 3 min SOAP: 0.3 -> 2.3e-3, 0.1 -> 3.8e-4, 0.03 -> 3.5e-5 NMSE(p) 1 s
+# range models: soft box, 10 min, 16 held-out bows, harmonics 1-10 median / worst: without it 11.4 / 16.2 dB, at weight
+# 1: 0.79 / 1.76, at 0.1: 0.70 / 1.30 (docs/BENCHMARKS.md, "The whole instrument")
+DERIV_WEIGHT = 0.1
 
 
 def stiffness(scene: Scene, beta: float | None = None) -> float:
@@ -34,6 +40,8 @@ def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None) -
     w = {"data": 1.0, "end": 1.0, "kin": 1.0}
     if beta_max is None and stiffness(scene) < STIFF:
         w["fric"] = FRIC_WEIGHT
+    if beta_max is not None:
+        w["deriv"] = DERIV_WEIGHT
     return w
 
 
@@ -56,7 +64,7 @@ def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
     """The named loss terms. Branch and trunk run once each on the data and physics points together: on a CPU
     these small networks cost mostly per-call overhead. A range model's batch carries each state's bow (beta, v_B)
     in data_par and phys_par."""
-    use_data = "data" in weights or "end" in weights
+    use_data = "data" in weights or "end" in weights or "deriv" in weights
     use_phys = "kin" in weights or "fric" in weights
     ranged = "phys_par" in batch
     x0s = [batch["data_x0"]] * use_data + [batch["phys_x0"]] * use_phys
@@ -65,7 +73,7 @@ def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
     gain = net.gain(par) if ranged else None
     bf = net.branch_features(torch.cat(x0s), par)
     tau_all = torch.cat(taus)
-    if use_phys:
+    if use_phys or "deriv" in weights:
         tf, dtf = net.trunk_features_jvp(tau_all / net.window)
     else:
         tf, dtf = net.trunk_features(tau_all / net.window), None
@@ -73,7 +81,13 @@ def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
     nb, nm = (len(batch["data_x0"]), len(batch["data_tau"])) if use_data else (0, 0)
     if use_data:
         g = None if gain is None else gain[:nb]
-        pred = net.assemble(batch["data_x0"], batch["data_tau"], bf[:nb], tf[:nm], gain=g)
+        if "deriv" in weights:
+            pred, dpred = net.assemble(batch["data_x0"], batch["data_tau"], bf[:nb], tf[:nm], dtf[:nm], gain=g)
+            b, vb = _bows(batch, "data_par", scene)
+            rq, rp = residuals(net, batch["data_x"], dpred, b, vb, scene.a, gain=g)
+            terms["deriv"] = (rq.square().mean() + rp.square().mean()) / 2
+        else:
+            pred = net.assemble(batch["data_x0"], batch["data_tau"], bf[:nb], tf[:nm], gain=g)
         err = (pred - batch["data_x"]) / (net.corr_scale if g is None else net.corr_scale * g[:, None, None])
         if "data" in weights:
             terms["data"] = err.square().mean()
@@ -82,13 +96,17 @@ def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
     if use_phys:
         g = None if gain is None else gain[nb:]
         x, dx = net.assemble(batch["phys_x0"], batch["phys_tau"], bf[nb:], tf[nm:], dtf[nm:], gain=g)
-        if ranged:
-            b, vb = batch["phys_par"][:, 0:1], batch["phys_par"][:, 1:2]
-        else:
-            b, vb = scene.beta, scene.vb
+        b, vb = _bows(batch, "phys_par", scene)
         rk, rf = residuals(net, x, dx, b, vb, scene.a, gain=g)
         if "kin" in weights:
             terms["kin"] = rk.square().mean()
         if "fric" in weights:
             terms["fric"] = rf.square().mean()
     return terms
+
+
+def _bows(batch: dict, key: str, scene: Scene):
+    """Each trajectory's bow, (B, 1) tensors for a range model's batch, else the scene's (floats)."""
+    if key in batch:
+        return batch[key][:, 0:1], batch[key][:, 1:2]
+    return scene.beta, scene.vb
