@@ -57,6 +57,11 @@ def rest_state(b: float, vb: float, a: float):
     return b * phi(vb, a), 0.0
 
 
+def vb_stop(a: float) -> float:
+    """The bow speed below which friction damps the mass instead of driving it (phi' > 0 at -v_B): 1 / sqrt(2a)."""
+    return 1.0 / math.sqrt(2.0 * a)
+
+
 def onset_rate(b: float, vb: float, a: float):
     """Growth rate per unit tau of small oscillations about the rest state: -beta phi'(-v_B) / 2. Positive: the note
     speaks by itself; negative or zero: the bow damps the mass (below v_B = 1/sqrt(2a) phi' > 0, a bow stop)."""

@@ -43,6 +43,7 @@ class TrainConfig:
     # hypercube) and range_gestures straight-line gestures make the band; range_n_data FDM windows from it
     range_points: int = 256
     range_gestures: int = 64
+    range_stops: int = 64  # bow stops (ranges.stop_runs), for boxes that reach below physics.vb_stop
     range_band_stride: int = 4
     range_n_data: int = 16384
     range_corr_beta: bool = True  # the correction scaled by beta / beta_ref (npnet.NetConfig.corr_beta)

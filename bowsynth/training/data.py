@@ -180,11 +180,13 @@ def build_range(scene: Scene, box, cfg: TrainConfig, window: float, rng: np.rand
     from .ranges import distinct, range_band
 
     report = on_progress or (lambda phase, frac: None)
-    report(f"range band: {cfg.range_points} renders from rest, {cfg.range_gestures} gestures", 0.0)
-    # a box of zero width (a bow refined from a range model) is one bow: one render, no gestures
+    # bow stops only where the box holds bows that stop the mass; a box of zero width (a bow refined from a range
+    # model) is one bow: one render, no gestures
+    stops = cfg.range_stops if not box.is_point and box.vb_lo < physics.vb_stop(box.a) else 0
+    report(f"range band: {cfg.range_points} renders from rest, {cfg.range_gestures} gestures, {stops} bow stops", 0.0)
     band = range_band(box, distinct(box.sample(cfg.range_points, rng)), scene.f0, scene.sample_rate,
                       cfg.band_seconds, window, gestures=0 if box.is_point else cfg.range_gestures, rng=rng,
-                      stride=cfg.range_band_stride)
+                      stride=cfg.range_band_stride, stops=stops)
     domain = make_domain(scene, band.states, window, cfg.margin, box_only=cfg.sampling == "box")
     lb = (math.log(max(box.beta_lo, 1e-12)) + math.log(max(box.beta_hi, 1e-12))) / 2
     domain.beta, domain.vb = math.exp(lb), (box.vb_lo + box.vb_hi) / 2

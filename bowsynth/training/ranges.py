@@ -138,12 +138,30 @@ def _balanced(states: np.ndarray, grid: int = 64) -> np.ndarray:
     return w / w.sum()
 
 
+def stop_runs(box: ParamBox, n: int, seconds: float, rng: np.random.Generator) -> list:
+    """n bow stops inside the box: a bow that speaks (v_B from max(0.1, the box's bottom) up) held for 40-70 % of
+    `seconds`, then v_B falling linearly to the box's bottom over 20-200 ms (a score's release is 50 ms), held there:
+    the states a note passes through as it dies, which renders from rest never visit (a bow below vb_stop from rest
+    stays silent). Each run is ((beta, beta), vb curve)."""
+    if n <= 0:
+        return []
+    lo = max(box.vb_lo, min(0.1, box.vb_hi))
+    pts = box.sample(n, rng)
+    v = lo + (pts[:, 1] - box.vb_lo) / max(box.vb_hi - box.vb_lo, 1e-12) * (box.vb_hi - lo)
+    hold = rng.uniform(0.4, 0.7, n) * seconds
+    fall = rng.uniform(0.02, 0.2, n)
+    return [((float(b), float(b)), [(0.0, float(vv)), (float(h), float(vv)), (float(h + f), box.vb_lo)])
+            for b, vv, h, f in zip(pts[:, 0], v, hold, fall)]
+
+
 def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, seconds: float, window: float,
-               gestures: int = 0, rng: np.random.Generator | None = None, stride: int = 1) -> RangeBand:
+               gestures: int = 0, rng: np.random.Generator | None = None, stride: int = 1,
+               stops: int = 0) -> RangeBand:
     """Audio-rate FDM renders from rest at each parameter point, plus `gestures` renders whose bow moves in a
     straight line between two random points of the box over `seconds` (the states a crescendo or a bow change
-    visits). Every point gets the same total sampling weight. stride: keep every stride-th state (neighbouring
-    samples are nearly the same state; the window starts are kept whatever the stride)."""
+    visits), plus `stops` bow stops (stop_runs). Every run gets the same total sampling weight. stride: keep every
+    stride-th state (neighbouring samples are nearly the same state; the window starts are kept whatever the
+    stride)."""
     from ..fdm import render_fdm
     from ..scene import Scene
 
@@ -155,10 +173,16 @@ def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, s
         rng = rng or np.random.default_rng(0)
         ends = box.sample(2 * gestures, rng)
         runs += [((ends[i, 0], ends[gestures + i, 0]), (ends[i, 1], ends[gestures + i, 1])) for i in range(gestures)]
+    if stops:
+        runs += stop_runs(box, stops, seconds, rng or np.random.default_rng(0))
     extents = []
-    for (b0, b1), (v0, v1) in runs:
+    for (b0, b1), vrun in runs:
         fb = b0 * w if b0 == b1 else [(0.0, b0 * w), (seconds, b1 * w)]
-        vb = v0 if v0 == v1 else [(0.0, v0), (seconds, v1)]
+        if isinstance(vrun, list):  # a stop: its own curve
+            vb, (v0, v1) = vrun, (vrun[0][1], vrun[-1][1])
+        else:
+            v0, v1 = vrun
+            vb = v0 if v0 == v1 else [(0.0, v0), (seconds, v1)]
         r = render_fdm(Scene(f0=f0, fb=fb, vb=vb, a=box.a, duration=seconds, sample_rate=sample_rate))
         x = np.stack([r.q, r.p], axis=1)
         par = np.stack([r.controls["fb"] / w, r.controls["vb"]], axis=1)

@@ -1,0 +1,107 @@
+"""The listener metrics (timbre, pitch, onset), the derivative loss term and the bow-stop data of range models."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bowsynth import Scene, physics
+from bowsynth.fdm import render_fdm
+from bowsynth.metrics import harmonic_levels, listener_errors, onset_time
+
+SR = 44100
+LEVELS = np.array([0.0, -10.0, -20.0, -26.0, -35.0, -38.0, -45.0, -48.0, -55.0, -60.0])
+
+
+def tone(f0, levels=LEVELS, seconds=1.0, start=0.0, phase_seed=0):
+    t = np.arange(int(seconds * SR)) / SR
+    ph = np.random.default_rng(phase_seed).uniform(0, 2 * np.pi, len(levels))
+    x = sum(10 ** (l / 20) * np.cos(2 * np.pi * (h + 1) * f0 * t + ph[h]) for h, l in enumerate(levels))
+    return x * (t >= start)
+
+
+def test_harmonic_levels_are_recovered_at_the_signals_own_pitch():
+    got = harmonic_levels(tone(93.7), SR)
+    assert np.allclose(got, LEVELS, atol=0.01)
+
+
+def test_a_pitch_offset_does_not_read_as_a_timbre_error():
+    # at a shared pitch a 0.16 % difference smears harmonic 10 (GUIDE section 9); each at its own pitch it does not
+    e = listener_errors(tone(100.0 * 2 ** (3 / 1200), phase_seed=1), tone(100.0), SR)
+    assert e["cents"] == pytest.approx(3.0, abs=0.02)
+    assert e["harm_db_max"] < 0.02
+
+
+def test_a_weak_harmonic_is_scored_and_a_quiet_one_is_not():
+    weak = LEVELS.copy()
+    weak[5] -= 3.0  # harmonic 6, -38 dB: scored
+    weak[9] -= 20.0  # harmonic 10 of the truth is at -60 dB, below AUDIBLE_DB: not scored
+    e = listener_errors(tone(220.0, weak), tone(220.0), SR)
+    assert e["harm_db"][5] == pytest.approx(3.0, abs=0.02)
+    assert math.isnan(e["harm_db"][9])
+    assert e["harm_db_max"] == pytest.approx(3.0, abs=0.02)
+
+
+def test_onset_is_where_the_tone_starts():
+    for start in (0.1, 0.37):
+        assert onset_time(tone(150.0, seconds=1.0, start=start), SR) == pytest.approx(start, abs=1.5 / 150)
+    assert math.isnan(onset_time(np.zeros(SR), SR))
+
+
+def test_the_audio_rate_fdm_is_close_to_the_truth_as_a_listener_hears_it():
+    sc = Scene(f0=100, fb=100, vb=0.2, duration=1.0)
+    e = listener_errors(render_fdm(sc).p, render_fdm(sc, oversample=20).p, SR, steady_seconds=0.5)
+    assert abs(e["cents"]) < 0.1 and e["harm_db_max"] < 0.1 and abs(e["onset_err_ms"]) < 1.0
+
+
+def test_derivative_target_is_the_true_trajectorys_slope():
+    """The deriv term's target, the ODE's right-hand side at the data's true states, is the slope of the FDM data
+    (so a network that fits it learns the trajectory's fast part, not an artefact)."""
+    sc = Scene(f0=100, fb=300, vb=0.2, duration=0.2)
+    r = render_fdm(sc, oversample=40)
+    q, p = r.q[2000:2200], r.p[2000:2200]
+    dq, dp = physics.rhs_tau(q, p, sc.beta, sc.vb, sc.a)
+    fd = np.gradient(p, sc.dtau)
+    assert np.max(np.abs(fd[5:-5] - dp[5:-5])) < 0.02 * np.ptp(dp)
+
+
+def test_range_weights_carry_the_derivative_term_and_it_trains():
+    from bowsynth.training import ParamBox
+    from bowsynth.training.losses import default_weights, loss_terms
+    from bowsynth.network import DeepONet, NetConfig
+
+    box = ParamBox(0.1, 0.3, 0.1, 0.25, 100.0)
+    w = default_weights(Scene(), hybrid=True, beta_max=box.beta_hi)
+    assert w.get("deriv", 0) > 0 and "fric" not in w
+    assert "deriv" not in default_weights(Scene(), hybrid=True)  # point models: unchanged recipe
+    net = DeepONet(NetConfig(width=8, depth=1, k=4, ff_branch=4, ff_trunk=4, params=2))
+    net.set_box(box)
+    rng = np.random.default_rng(0)
+    x0 = torch.tensor(rng.normal(0, 0.2, (5, 2)), dtype=torch.float32)
+    par = torch.tensor(np.c_[rng.uniform(0.1, 0.3, 5), rng.uniform(0.1, 0.25, 5)], dtype=torch.float32)
+    tau = torch.linspace(0, 2 * math.pi, 7)
+    batch = {"data_x0": x0, "data_x": torch.zeros(5, 7, 2), "data_tau": tau, "data_par": par,
+             "phys_x0": x0, "phys_par": par, "phys_tau": tau}
+    terms = loss_terms(net, batch, Scene(), w)
+    assert set(terms) == set(w) and all(torch.isfinite(v) for v in terms.values())
+    terms["deriv"].backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in net.branch.parameters())
+
+
+def test_bow_stops_in_range_data_end_near_rest():
+    from bowsynth.training import ParamBox
+    from bowsynth.training.ranges import range_band, stop_runs
+
+    box = ParamBox(0.1, 0.3, 0.0, 0.25, 100.0)
+    runs = stop_runs(box, 4, 0.6, np.random.default_rng(3))
+    assert len(runs) == 4
+    for (b0, b1), curve in runs:
+        assert box.contains(b0, curve[0][1]) and curve[0][1] >= 0.1 and curve[-1][1] == box.vb_lo
+    band = range_band(box, np.empty((0, 2)), 100.0, SR, 0.6, 2 * math.pi, rng=np.random.default_rng(3), stops=4)
+    assert len(band.states) == 4 * int(0.6 * SR)
+    # each run's last states are near rest: the note died when the bow stopped
+    per = int(0.6 * SR)
+    for i in range(4):
+        run = band.states[i * per:(i + 1) * per]
+        assert np.ptp(run[-200:, 1]) < 0.05 * np.ptp(run[: per // 3, 1])
