@@ -23,7 +23,10 @@ def range_model(tmp_path_factory):
     from bowsynth import api
 
     sc = api.range_scene(BOX)
-    cfg = tiny_config(steps=150, sampling="box", range_points=12, range_gestures=4, range_n_data=256)
+    # the value terms only: these tests are about the box and the loops, and a 16-wide net trained 150 steps with the
+    # derivative term (losses.DERIV_WEIGHT, dominant in its first steps) leaves its states before the bow leaves the box
+    cfg = tiny_config(steps=150, sampling="box", range_points=12, range_gestures=4, range_n_data=256,
+                      weights={"data": 1.0, "end": 1.0, "kin": 1.0})
     res = api.train(sc, config=cfg, out=tmp_path_factory.mktemp("rm") / "r.safetensors", box=BOX)
     return res.path
 
