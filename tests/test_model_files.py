@@ -225,3 +225,44 @@ def test_a_repeated_pitch_and_an_operator_score_load_no_numba(tmp_path, args):
     assert "numpy" in again and "numba" not in again and "torch" not in again
     if args[0] == "render":
         assert (tmp_path / "cache" / "sounding-ratio.json").is_file()
+
+
+def noisy_branch(tensors, scale=0.06, seed=1):
+    """Perturb the branch's weights: an honest model made less accurate (its metadata still true)."""
+    rng = np.random.default_rng(seed)
+    for k in tensors:
+        if "branch" in k and "weight" in k:
+            tensors[k] = (tensors[k] * (1 + scale * rng.standard_normal(tensors[k].shape))).astype(tensors[k].dtype)
+
+
+def rewrite_weights(src, dst, edit):
+    from safetensors import safe_open
+    from safetensors.numpy import save_file
+
+    with safe_open(str(src), framework="numpy") as f:
+        meta = json.loads(f.metadata()["bowsynth"])
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    edit(tensors)
+    meta["digest"] = digest(meta, tensors)
+    save_file(tensors, str(dst), metadata={"bowsynth": json.dumps(meta)})
+    return dst
+
+
+def test_an_honest_but_inaccurate_model_is_told_from_a_mislabelled_one(tmp_path):
+    """Over the check's limit, a model whose windows still fit its claimed bow best renders with a note (an inaccurate
+    onset); one whose file claims a bow 10 % off is refused, naming the bow its weights fit as well."""
+    from bowsynth.rollout import PHYSICS_MAX_ERROR
+
+    honest = load_model(rewrite_weights(FB100, tmp_path / "noisy.safetensors", noisy_branch))
+    assert check_physics(honest) > PHYSICS_MAX_ERROR
+    r = render_operator(Scene(fb=100, duration=0.2), model=honest)
+    assert any("not a mislabelled file" in n for n in r.info["notes"])
+
+    def claim_more_force(meta):
+        meta["domain"]["beta"] *= 1.1
+        meta["scene"]["fb"] *= 1.1
+
+    liar = load_model(rewrite(FB100, tmp_path / "liar.safetensors", claim_more_force))
+    assert check_physics(liar) > PHYSICS_MAX_ERROR
+    with pytest.raises(ModelFileError, match="as well or better"):
+        render_operator(Scene(fb=110, duration=0.2), model=liar)
