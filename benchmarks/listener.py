@@ -72,6 +72,55 @@ def one(f0: float, beta: float, vb: float, seconds: float, model=None) -> dict:
     return row
 
 
+GESTURES = {  # name: (f0, F_B / w curve, v_B curve, seconds), curves as (t, value) breakpoints
+    "bow speed 0.12 -> 0.25": (220.0, 0.15, [(0.5, 0.12), (1.5, 0.25)], 2.0),
+    "soft crescendo": (100.0, [(0.3, 0.05), (1.8, 0.35)], 0.15, 2.0),
+    "crescendo into stick-slip": (100.0, [(0.3, 0.1), (1.8, 1.2)], 0.2, 2.0),
+    "bow stop to v_B 0": (150.0, 0.15, [(1.0, 0.2), (1.1, 0.0)], 1.6),
+    "attack from F_B 0": (100.0, [(0.0, 0.0), (0.05, 0.2)], 0.2, 1.5),
+}
+FRAME = 0.1
+
+
+def frame_errors(x, ref, sample_rate: float, frame: float = FRAME) -> dict:
+    """Harmonic dB and pitch cents of x against ref per `frame`-second frame, over frames where ref sounds (RMS above
+    1 % of its loudest frame's) and the first 100 ms (the attack) excluded; each frame fitted at its own pitch."""
+    n = int(frame * sample_rate)
+    frames = [(i, i + n) for i in range(n, min(len(x), len(ref)) - n + 1, n)]
+    rms = np.array([np.std(ref[a:b]) for a, b in frames])
+    harm, cents = [], []
+    for (a, b), r in zip(frames, rms):
+        if not r > 0.01 * rms.max():
+            continue
+        e = listener_errors(x[a:b], ref[a:b], sample_rate, steady_seconds=frame / 2)
+        harm.append(e["harm_db_median"])
+        cents.append(abs(e["cents"]))
+    return {"frames": len(harm), "harm_db_median": float(np.median(harm)) if harm else float("nan"),
+            "harm_db_worst_frame": float(np.max(harm)) if harm else float("nan"),
+            "cents_median": float(np.nanmedian(cents)) if np.isfinite(cents).any() else float("nan"),
+            "unpitched_frames": int(np.sum(~np.isfinite(cents)))}
+
+
+def gesture(name: str, model=None) -> dict:
+    f0, beta, vb, seconds = GESTURES[name]
+    w = 2 * math.pi * f0
+    fb = [(t, b * w) for t, b in beta] if isinstance(beta, list) else beta * w
+    sc = Scene(f0=f0, fb=fb, vb=vb, duration=seconds)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        truth = render(sc, engine="fdm", oversample=REF)
+        fdm = render(sc, engine="fdm")
+    row = {"gesture": name, "fdm": frame_errors(fdm.p, truth.p, sc.sample_rate)}
+    try:
+        op = render(sc, engine="operator", model=model)
+    except BowsynthError as e:
+        row["op"], row["why"] = None, str(e).splitlines()[0][:200]
+        return row
+    row["op"] = frame_errors(op.p, truth.p, sc.sample_rate)
+    row["op"]["nmse"] = nmse(op.p, truth.p)
+    return row
+
+
 def summary(rows: list[dict], key: str) -> dict:
     done = [r for r in rows if r.get(key)]
     harm = [h for r in done for h in r[key]["harm_db"] if h is not None and math.isfinite(h)]
@@ -99,6 +148,7 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=12, help="bows per region")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--gestures", action="store_true", help="the gestures instead of held bows")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     model = None
@@ -106,8 +156,26 @@ def main(argv=None):
         from bowsynth.api import load_model, model_path
 
         model = load_model(model_path(a.model))
-    regions = list(REGIONS) if a.region == "all" else [a.region]
     out = {"args": vars(a), "regions": {}}
+    if a.gestures:
+        print("| gesture | engine | frames | harmonics median / worst frame (dB) | pitch median (cents) |")
+        print("|---|---|---|---|---|")
+        out["gestures"] = []
+        for name in GESTURES:
+            row = gesture(name, model)
+            out["gestures"].append(row)
+            for key, label in (("op", "operator"), ("fdm", "audio-rate FDM")):
+                g = row[key]
+                if g is None:
+                    print(f"| {name} | {label} | not played: {row['why'][:90]} | | |")
+                else:
+                    print(f"| {name} | {label} | {g['frames']} | {g['harm_db_median']:.3g} / "
+                          f"{g['harm_db_worst_frame']:.3g} | {g['cents_median']:.3g} |")
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(out, f, indent=1, default=str)
+        return
+    regions = list(REGIONS) if a.region == "all" else [a.region]
     print("| region | engine | played | harmonics median / worst (dB) | pitch median / worst (cents) | onsets ok | "
           "NMSE(p) median |")
     print("|---|---|---|---|---|---|---|")
