@@ -423,7 +423,7 @@ def score(
     vb take numbers or curves \\[\\[t, value], ...] (t in s from the note's start). A voice without notes is one
     note from 0.
     Each note is tuned to sound at its pitch (at the bow's held values), ends with a bow stop (v_B -> 0 over
-    `release` s, default 0.05), and overlaps freely. MIDI: channels are voices; velocity sets F_B / w and v_B,
+    `release` s, default 0.05), and overlaps freely. MIDI: a track's channel is a voice; velocity sets F_B / w and v_B,
     CC2 bow pressure, CC11 expression. Notes no model covers are listed before anything renders. See docs/score.md.
     """
     import time
@@ -452,6 +452,8 @@ def score(
         notes = voices_from_presets([n.strip() for n in presets_list.split(",") if n.strip()], duration=duration)
     if not notes:
         raise UsageError("no voices to render")
+    for line in getattr(notes, "remarks", []):  # what the MIDI reader changed or dropped, counted
+        _say(quiet, f"note: {Path(score_file).name}: {line}", _speaker(output))
     if mix:
         check_audio_output(output, force=force)
     elif str(output) == "-":

@@ -1,9 +1,13 @@
 """Standard MIDI files (read with mido) as notes with a bow: the mapping from velocity and controllers to the bow.
 
-Types 0 and 1 (tempo changes and running status are the reader's business: mido's); type 2 is refused. Each
-channel is a voice. A note-on with velocity 0 is a note-off; a note-on of a note that already sounds on its channel
-ends the sounding one there (a retrigger); a note with no note-off ends at the end of the file; a note of zero length
-is dropped. Sustain (CC64), pitch bend and program changes are ignored.
+Types 0 and 1 (running status is mido's business); type 2 and SMPTE-timed files are refused by name. A voice is a
+track's channel: real files keep each part on its own track and often all parts on channel 1 (a chorale exported from
+a public corpus does), and read as channel = voice, unisons between parts cut each other. A voice is named `chN` when
+its channel is used by one track only, else `tT-chN` (T the track's index). A note-on with velocity 0 is a note-off; a
+note-on of a note that already sounds in its voice ends the sounding one there (a retrigger); a note with no note-off
+ends at the end of the file; a note of zero length is dropped; each of these is counted in `MidiPiece.remarks`, which
+`score` prints. Controllers act on their channel, whatever the track (as a synthesizer receives them). Sustain (CC64),
+pitch bend and program changes are ignored.
 
 The bow of a note (docs/score.md, "MIDI"):
 - velocity v (1..127) sets the dimensionless bow force and the bow speed:
@@ -42,6 +46,7 @@ class MidiNote:
     start: float  # s
     end: float  # s (the note-off)
     track: int
+    voice: str = ""  # chN, or tT-chN when several tracks share the channel
 
 
 @dataclass
@@ -82,50 +87,92 @@ def is_midi(path) -> bool:
         return False
 
 
+def _header(p: Path) -> tuple[int, int, int] | None:
+    """(format, tracks, division) of the file's MThd chunk, or None if it does not start with one."""
+    with p.open("rb") as fh:
+        head = fh.read(14)
+    if len(head) < 14 or head[:4] != b"MThd":
+        return None
+    return int.from_bytes(head[8:10], "big"), int.from_bytes(head[10:12], "big"), int.from_bytes(head[12:14], "big")
+
+
+def _timed_events(mid) -> list:
+    """(seconds, track, message) of every track, merged in time order (ties in track order, as mido merges) through
+    every tempo change, whichever track holds it."""
+    merged = []
+    for i, track in enumerate(mid.tracks):
+        tick = 0
+        for j, msg in enumerate(track):
+            tick += msg.time
+            merged.append((tick, i, j, msg))
+    merged.sort(key=lambda e: e[:3])
+    out, tempo, last_tick, t = [], 500000, 0, 0.0  # 120 bpm until a set_tempo says otherwise
+    for tick, i, _, msg in merged:
+        t += (tick - last_tick) * tempo / (1e6 * mid.ticks_per_beat)
+        last_tick = tick
+        if msg.type == "set_tempo":
+            tempo = msg.tempo
+        out.append((t, i, msg))
+    return out
+
+
 def read_midi(path) -> MidiPiece:
-    """Notes (with their channels, velocities and times in seconds) and the CC2/CC11 controller changes of a MIDI
-    file. Raises UsageError (one line) for a file that is not a standard MIDI file, is empty or has no notes."""
+    """Notes (with their voices, velocities and times in seconds) and the CC2/CC11 controller changes of a MIDI
+    file. Raises UsageError (one line) for a file that is not a standard MIDI file, is empty, truncated, timed in
+    SMPTE frames or has no notes."""
     import mido
 
     p = Path(path)
     if not p.is_file():
         raise UsageError(f"MIDI file {p} not found")
     try:
+        head = _header(p)
+    except OSError as e:
+        raise UsageError(f"cannot read MIDI file {p}: {e.strerror or e}") from None
+    if head is not None:
+        fmt, n_tracks, division = head
+        if division & 0x8000:
+            raise UsageError(f"{p} is timed in SMPTE frames ({256 - (division >> 8)} frames a second); only files "
+                             f"timed in ticks per beat are read: save it with a tempo-based division")
+        if division == 0:
+            raise UsageError(f"{p} is not a standard MIDI file (its header gives 0 ticks per beat)")
+    try:
         mid = mido.MidiFile(str(p))
     except (OSError, EOFError, ValueError, KeyError, IndexError, TypeError) as e:
         raise UsageError(f"{p} is not a standard MIDI file ({_why(e)})") from None
+    if head is not None and len(mid.tracks) < n_tracks:
+        raise UsageError(f"{p} is truncated: its header announces {n_tracks} tracks, {len(mid.tracks)} are there")
     if mid.type == 2:
         raise UsageError(f"{p} is a type 2 MIDI file (independent sequences); only types 0 and 1 are read")
     if not any(len(t) for t in mid.tracks):
         raise UsageError(f"{p} is an empty MIDI file (no events)")
     piece = MidiPiece(p, mid.type, [])
-    sounding: dict = {}  # (channel, note) -> (start, velocity, track)
+    sounding: dict = {}  # (track, channel, note) -> (start, velocity)
     retriggered = unterminated = zero = 0
     t = 0.0
     try:
-        events = list(mid)  # merged tracks, times in seconds through every tempo change
-    except (ValueError, KeyError, IndexError, TypeError, EOFError) as e:
+        events = _timed_events(mid)
+    except (ValueError, KeyError, IndexError, TypeError, EOFError, ZeroDivisionError) as e:
         raise UsageError(f"{p} is not a readable MIDI file ({_why(e)})") from None
 
     def close(key, at):
         nonlocal zero
-        start, vel, track = sounding.pop(key)
+        start, vel = sounding.pop(key)
         if at > start:
-            piece.notes.append(MidiNote(key[0], key[1], vel, start, at, track))
+            piece.notes.append(MidiNote(key[1], key[2], vel, start, at, key[0]))
         else:
             zero += 1
 
-    for msg in events:
-        t += msg.time
+    for t, track, msg in events:
         kind = msg.type
         if kind == "note_on" and msg.velocity > 0:
-            key = (msg.channel, msg.note)
+            key = (track, msg.channel, msg.note)
             if key in sounding:
                 retriggered += 1
                 close(key, t)
-            sounding[key] = (t, msg.velocity, 0)
+            sounding[key] = (t, msg.velocity)
         elif kind == "note_off" or (kind == "note_on" and msg.velocity == 0):
-            key = (msg.channel, msg.note)
+            key = (track, msg.channel, msg.note)
             if key in sounding:
                 close(key, t)
         elif kind == "control_change" and msg.control in (CC_PRESSURE, CC_EXPRESSION):
@@ -136,9 +183,20 @@ def read_midi(path) -> MidiPiece:
     piece.length = t
     if not piece.notes:
         raise UsageError(f"{p} has no notes (no note-on with a velocity above 0 and a length)")
-    piece.notes.sort(key=lambda n: (n.start, n.channel, n.number))
+    tracks_of: dict = {}
+    for n in piece.notes:
+        tracks_of.setdefault(n.channel, set()).add(n.track)
+    piece.notes = [MidiNote(n.channel, n.number, n.velocity, n.start, n.end, n.track,
+                            channel_name(n.channel) if len(tracks_of[n.channel]) == 1
+                            else f"t{n.track}-{channel_name(n.channel)}") for n in piece.notes]
+    piece.notes.sort(key=lambda n: (n.start, n.channel, n.track, n.number))
+    shared = sorted(ch + 1 for ch, trs in tracks_of.items() if len(trs) > 1)
+    if shared:
+        piece.remarks.append(f"channel(s) {', '.join(map(str, shared))} carry notes of several tracks: each track's "
+                             f"part is its own voice (tT-chN)")
     if retriggered:
-        piece.remarks.append(f"{retriggered} note(s) struck again while sounding: the first ends at the second")
+        piece.remarks.append(f"{retriggered} note(s) struck again while sounding in their voice: the first ends at "
+                             f"the second")
     if unterminated:
         piece.remarks.append(f"{unterminated} note(s) without a note-off end at the end of the file ({t:.3f} s)")
     if zero:

@@ -311,17 +311,26 @@ def load_toml_score(path) -> list[Note]:
     return notes
 
 
-def load_midi_score(path, a4: float = 440.0) -> list[Note]:
-    """The notes of a MIDI file with the bow of `bowsynth.midi`'s mapping; channels are voices."""
+class ScoreNotes(list):
+    """A score's notes, and what the reader changed or dropped on the way (`remarks`, one line each, for the user:
+    `score` prints them before it renders)."""
+
+    def __init__(self, notes=(), remarks=()):
+        super().__init__(notes)
+        self.remarks = list(remarks)
+
+
+def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
+    """The notes of a MIDI file with the bow of `bowsynth.midi`'s mapping; a track's channel is a voice."""
     from . import midi as M
 
     piece = read_midi_checked(path)
-    notes = []
+    notes = ScoreNotes(remarks=piece.remarks)
     for n in piece.notes:
         hold = n.end - n.start
         beta = _midi_control(piece, n, M.CC_PRESSURE, M.velocity_beta(n.velocity), M.pressure_factor)
         vb = _midi_control(piece, n, M.CC_EXPRESSION, M.velocity_vb(n.velocity), M.expression_factor)
-        voice = M.channel_name(n.channel)
+        voice = n.voice
         from .pitch import note_name, midi_to_hz
 
         where = f"{Path(path).name}: {voice} note {note_name(midi_to_hz(n.number, a4), a4)} at {n.start:.3f} s"

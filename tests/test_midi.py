@@ -13,6 +13,7 @@ from bowsynth.metrics import cents, f0_estimate
 from bowsynth.midi import read_midi, velocity_beta, velocity_vb
 from bowsynth.score import load_score
 from bowsynth.wav import read_wav, remove_dc
+from bowsynth.errors import UsageError
 from conftest import run_main
 
 TPB = 480
@@ -265,3 +266,78 @@ def test_a_dense_controller_stream_is_thinned_and_keeps_its_turns(tmp_path, caps
                              "--method", "fdm"], capsys, monkeypatch)
     assert code == 0, err
     assert read_wav(stems / "ch1.wav").scene.vb == vb
+
+
+def _chorale(path):
+    """A real-world layout: a tempo track and four parts on their own tracks, every part on channel 1 (as a chorale
+    exported from a public corpus is), alto and tenor in unison (G4) on the first beat, and a tempo change after two
+    beats."""
+    import mido
+
+    mid = mido.MidiFile(type=1, ticks_per_beat=480)
+    tempo = mido.MidiTrack([mido.MetaMessage("set_tempo", tempo=500000, time=0),
+                            mido.MetaMessage("set_tempo", tempo=1000000, time=960)])
+    mid.tracks.append(tempo)
+    parts = {"S": [72, 74], "A": [67, 65], "T": [67, 62], "B": [48, 43]}
+    for name, notes in parts.items():
+        tr = mido.MidiTrack([mido.MetaMessage("track_name", name=name, time=0)])
+        for i, n in enumerate(notes):
+            tr.append(mido.Message("note_on", channel=0, note=n, velocity=90, time=0))
+            tr.append(mido.Message("note_off", channel=0, note=n, velocity=0, time=960))
+        mid.tracks.append(tr)
+    mid.save(path)
+    return path
+
+
+def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys, monkeypatch):
+    from bowsynth.midi import read_midi
+    from bowsynth.score import load_score
+
+    p = read_midi(_chorale(tmp_path / "chorale.mid"))
+    assert len(p.notes) == 8  # both notes of the alto/tenor unison (67 at beat 0) survive
+    assert sorted({n.voice for n in p.notes}) == ["t1-ch1", "t2-ch1", "t3-ch1", "t4-ch1"]
+    unison = [n for n in p.notes if n.number == 67 and n.start == 0.0]
+    assert len(unison) == 2 and {n.voice for n in unison} == {"t2-ch1", "t3-ch1"}
+    # the tempo (in track 0) halves after two beats: the second notes last 2 s, the first 1 s
+    assert sorted({round(n.end - n.start, 6) for n in p.notes}) == [1.0, 2.0]
+    assert any("several tracks" in r for r in p.remarks)
+    notes = load_score(tmp_path / "chorale.mid")
+    assert len(notes) == 8 and notes.remarks == p.remarks
+    code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "c.wav"),
+                               "--method", "fdm"], capsys, monkeypatch)
+    assert code == 0 and "several tracks" in out and "rendered 8 notes in 4 voices" in out
+
+
+def test_timing_matches_mido_through_tempo_changes(tmp_path):
+    import mido
+    from bowsynth.midi import _timed_events
+
+    mid = mido.MidiFile(_chorale(tmp_path / "c.mid"))
+    ours = [t for t, _, m in _timed_events(mid) if not m.is_meta]
+    theirs, t = [], 0.0
+    for m in mid:
+        t += m.time
+        if not m.is_meta:
+            theirs.append(t)
+    assert np.allclose(sorted(ours), sorted(theirs), atol=1e-9)
+
+
+@pytest.mark.parametrize("division, says", [(0x0000, "0 ticks per beat"), (0xE728, "SMPTE frames")])
+def test_divisions_that_are_not_ticks_per_beat_are_refused_by_name(tmp_path, division, says):
+    from bowsynth.midi import read_midi
+
+    src = _chorale(tmp_path / "c.mid").read_bytes()
+    bad = tmp_path / "bad.mid"
+    bad.write_bytes(src[:12] + division.to_bytes(2, "big") + src[14:])
+    with pytest.raises(UsageError, match=says):
+        read_midi(bad)
+
+
+def test_a_header_announcing_more_tracks_than_present_is_truncated(tmp_path):
+    from bowsynth.midi import read_midi
+
+    src = _chorale(tmp_path / "c.mid").read_bytes()
+    bad = tmp_path / "bad.mid"
+    bad.write_bytes(src[:10] + (65535).to_bytes(2, "big") + src[12:])
+    with pytest.raises(UsageError, match="truncated|ends early"):
+        read_midi(bad)
