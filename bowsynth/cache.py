@@ -27,8 +27,32 @@ def cache_dir() -> Path | None:
     if v is not None:
         return None if v.strip().lower() in ("", "off", "0", "none") else Path(v)
     xdg = os.environ.get("XDG_CACHE_HOME")
-    base = Path(xdg) if xdg else Path.home() / ".cache"
-    return base / "bowsynth"
+    if xdg:
+        return Path(xdg) / "bowsynth"
+    try:
+        home = Path.home()  # a user with no HOME and no passwd entry has none: then no cache, as documented
+    except (RuntimeError, KeyError, OSError):
+        return None
+    return home / ".cache" / "bowsynth"
+
+
+MAX_TABLE_BYTES = 4 * MAX_ENTRIES * 100  # a table is ~100 bytes an entry; more is not ours
+
+
+def _read_table(path: Path) -> str | None:
+    """The table's text, or None for anything that is not a regular file of a sane size: a FIFO would block the
+    read forever, a device or a huge file is not a table."""
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_TABLE_BYTES:
+            return None
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            return fh.read(MAX_TABLE_BYTES + 1).decode("utf-8")
+    finally:
+        os.close(fd)
 
 
 class DiskTable:
@@ -47,11 +71,12 @@ class DiskTable:
             self._data = {}
             path = self._path()
             try:
-                doc = json.loads(path.read_text()) if path is not None else None
+                text = _read_table(path) if path is not None else None
+                doc = json.loads(text) if text is not None else None
                 if isinstance(doc, dict) and doc.get("version") == self.version and isinstance(doc.get("entries"),
                                                                                                  dict):
                     self._data = doc["entries"]
-            except (OSError, ValueError, UnicodeDecodeError):
+            except (OSError, ValueError, UnicodeDecodeError, RecursionError):
                 pass
         return self._data
 
