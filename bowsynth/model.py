@@ -32,6 +32,11 @@ REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the n
 MAX_VALIDATION_NMSE = 0.1
 
 
+MAX_BETA = 1e3  # F_B / w: the playing space ends at 2, the FDM's uniqueness bound at audio rate near 16
+MAX_A = 1e6
+MAX_WINDOW = 100 * math.pi  # 50 free periods, as TrainConfig.validate allows
+
+
 def within(x, lo: float, hi: float, rel_tol: float = REL_TOL) -> np.ndarray:
     """Elementwise lo <= x <= hi up to rel_tol of the larger end (a box's side, or a point when lo == hi): the one
     test of a bow against a range, for model files (Domain) and training boxes (ParamBox) alike."""
@@ -62,6 +67,29 @@ class Domain:
     @property
     def is_range(self) -> bool:
         return self.box is not None
+
+    def check(self) -> None:
+        """Refuse a domain no trainer writes (ValueError, one line): every later use (the physics check's RK4 steps
+        grow with beta and the window, the mask is indexed by cell) stays bounded and in range."""
+        nums = {"beta": self.beta, "vb": self.vb, "a": self.a, "window": self.window, "q_lo": self.q_lo,
+                "q_hi": self.q_hi, "p_lo": self.p_lo, "p_hi": self.p_hi}
+        for k, v in nums.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"domain.{k} is {v!r}, not a finite number")
+        if not (0 <= self.beta <= MAX_BETA and 0 < self.a <= MAX_A and 0 < self.window <= MAX_WINDOW):
+            raise ValueError(f"domain beta {self.beta:g}, a {self.a:g}, window {self.window:g} are outside what a "
+                             f"model can be trained for (0..{MAX_BETA:g}, 0..{MAX_A:g}, 0..{MAX_WINDOW:.4g})")
+        if not (self.q_lo < self.q_hi and self.p_lo < self.p_hi):
+            raise ValueError("domain state box is empty")
+        m = self.mask
+        if m is not None and not (m.ndim == 2 and m.shape[0] == m.shape[1] and 1 <= m.shape[0] <= 4096 and m.any()):
+            raise ValueError(f"domain.mask has shape {m.shape} and {int(m.sum())} cells: an empty or odd grid")
+        if self.box is not None:
+            b = self.box
+            if not (isinstance(b, list) and len(b) == 4 and all(isinstance(x, (int, float)) and math.isfinite(x)
+                                                                 for x in b)
+                    and 0 <= b[0] <= b[1] <= MAX_BETA and b[2] <= b[3]):
+                raise ValueError(f"domain.box {b!r} is not [beta_lo, beta_hi, vb_lo, vb_hi]")
 
     def beta_in(self, beta) -> np.ndarray:
         """Elementwise: is F_B / w inside this model's box (a point model: equal to its own)?"""
@@ -305,6 +333,7 @@ def load_model(path) -> OperatorModel:
             raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited (digest mismatch)")
         mask = tensors.pop("domain.mask").astype(bool)
         dom = Domain(**d["domain"], mask=mask)
+        dom.check()
         meta = ModelMeta(**{**d, "domain": dom})
         cfg = NetConfig(**d["net"])
         want = weight_shapes(cfg)
@@ -314,8 +343,11 @@ def load_model(path) -> OperatorModel:
         for k, shape in want.items():
             if tensors[k].shape != shape or tensors[k].dtype != np.float32:
                 raise ValueError(f"{k} is {tensors[k].dtype} {tensors[k].shape}, expected float32 {shape}")
-        if mask.ndim != 2 or mask.shape[0] != mask.shape[1]:
-            raise ValueError(f"domain.mask has shape {mask.shape}")
+        if not math.isclose(float(tensors["window"]), dom.window, rel_tol=1e-6):
+            raise ValueError(f"the window tensor ({float(tensors['window']):g}) is not the domain's ({dom.window:g})")
+        for k in ("halfrange", "corr_scale"):
+            if not np.all(tensors[k] > 0):
+                raise ValueError(f"{k} must be positive, got {tensors[k]}")
     except ModelFileError:
         raise
     except Exception as e:

@@ -86,6 +86,11 @@ def scan_models() -> list[tuple[Path, OperatorModel | None, str | None]]:
     return found
 
 
+def unreadable_notes() -> list[str]:
+    """One line per model file the default lookup skipped because it cannot be used (damaged, foreign, forged)."""
+    return [f"note: skipped {p}: {why.replace(str(p), p.name)}" for p, m, why in scan_models() if m is None]
+
+
 def available_models() -> list[OperatorModel]:
     """The readable models (./models first, then the shipped ones), including those whose validation failed."""
     return [m for _, m, _ in scan_models() if m is not None]
@@ -687,7 +692,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         groups.setdefault(id(m), (m, []))[1].append(i)
     out: list = [None] * len(scenes)
     for m, idx in groups.values():
-        checked = _physics_notes(m)
+        checked = _physics_notes(m) + (unreadable_notes() if model is None else [])
         group = [scenes[i] for i in idx]
         n = max(sc.n_samples for sc in group)
         x0 = np.array([[sc.q0, sc.p0] for sc in group])

@@ -266,3 +266,60 @@ def test_an_honest_but_inaccurate_model_is_told_from_a_mislabelled_one(tmp_path)
     assert check_physics(liar) > PHYSICS_MAX_ERROR
     with pytest.raises(ModelFileError, match="as well or better"):
         render_operator(Scene(fb=110, duration=0.2), model=liar)
+
+
+def window_times_1e6(tensors):
+    tensors["window"] = np.array(tensors["window"] * 1e6, dtype=np.float32)
+
+
+def empty_mask(tensors):
+    tensors["domain.mask"] = np.zeros((0, 0), np.uint8)
+
+
+@pytest.mark.parametrize("damage", [window_times_1e6, empty_mask])
+def test_a_damaged_model_in_models_is_skipped_and_breaks_no_other(tmp_path, monkeypatch, capsys, damage):
+    """A file whose digest was recomputed over damaged tensors: refused at load in one line, and the default lookup
+    in its directory still finds the shipped model (once, this hung for a minute or raised IndexError everywhere)."""
+    models = tmp_path / "models"
+    models.mkdir()
+    bad = rewrite_weights(FB100, models / "damaged.safetensors", damage)
+    with pytest.raises(ModelFileError, match="damaged"):
+        load_model(bad)
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.1", str(tmp_path / "y.wav")], capsys, monkeypatch)
+    assert code == 0 and "paper-fb100.safetensors" in out
+    assert "skipped" in out and "damaged.safetensors" in out  # one line naming the file and why
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.1", "--model", str(bad), str(tmp_path / "z.wav")],
+                              capsys, monkeypatch)
+    assert code != 0 and "damaged" in err and len(err.strip().splitlines()) == 1
+
+
+from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+
+_ODD = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**30, 10**30), st.none(),
+                 st.text(max_size=5), st.lists(st.floats(-10, 10), max_size=5), st.booleans())
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(field=st.sampled_from(["beta", "vb", "a", "window", "q_lo", "q_hi", "p_lo", "p_hi", "box"]), value=_ODD)
+def test_forged_domain_fields_load_cleanly_or_are_refused(tmp_path, field, value):
+    """Any value in any domain field, digest recomputed: the model loads, or ModelFileError says why; a model that
+    loads renders or refuses with a bowsynth error, fast (bounded work: no forged number makes the check loop)."""
+    import time
+
+    from bowsynth import BowsynthError
+
+    def forge(meta):
+        meta["domain"][field] = value
+
+    try:
+        path = rewrite(FB100, tmp_path / "f.safetensors", forge)
+    except (ValueError, OverflowError):  # not JSON-encodable (e.g. NaN is, huge ints are): nothing to forge
+        return
+    t0 = time.perf_counter()
+    try:
+        m = load_model(path)
+        render_operator(Scene(fb=100, duration=0.05), model=m)
+    except BowsynthError:
+        pass
+    assert time.perf_counter() - t0 < 30
