@@ -170,6 +170,9 @@ def make_train_config(scene: Scene, window_ms=None, width=None, depth=None, **fi
     if window_ms is not None:
         if not (math.isfinite(window_ms) and window_ms > 0):
             raise UsageError(f"--window-ms must be > 0, got {window_ms:g}")
+        if window_ms / 1e3 * scene.sample_rate < 1:
+            raise UsageError(f"--window-ms {window_ms:g} holds no sample at {scene.sample_rate} Hz (at least "
+                             f"{1e3 / scene.sample_rate:.4g} ms)")
         fields["window"] = scene.omega * window_ms / 1e3
     net = {k: v for k, v in (("width", width), ("depth", depth)) if v is not None}
     if net:

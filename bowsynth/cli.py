@@ -341,6 +341,8 @@ def compare(
         else:
             out.print(format_mix_table(rows))
         return
+    if info.meta is not None and other is None and any(v is not None for v in (preset, f0, fb, vb, a, q0, p0)):
+        raise UsageError(f"{wav} carries its scene in its metadata; the scene flags are for files without it")
     if info.meta is None and other is None:
         if all(v is None for v in (preset, f0, fb, vb, a)):
             raise UsageError(f"{wav} has no bowsynth metadata; give the scene with --fb/--vb/--f0/... flags")

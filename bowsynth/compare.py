@@ -74,6 +74,8 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
         if a.sample_rate != b.sample_rate:
             raise UsageError(f"sample rates differ: {a.sample_rate} Hz and {b.sample_rate} Hz")
         n = min(len(a.samples), len(b.samples))
+        if n == 0:
+            raise UsageError(f"{(a if not len(a.samples) else b).path.name} holds no samples: nothing to compare")
         x, y = a.physical, b.physical
         notes = _lossy_notes(a, b)
         if a.dc_removed != b.dc_removed:  # filter the one that kept its DC, so the DC does not count as error
@@ -100,6 +102,9 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
         check_fdm(sc, HIGH_OVERSAMPLE, force, f"the x{HIGH_OVERSAMPLE} FDM reference")
     x = a.physical
     fdm, fdm_s = _fdm_signal(sc, sig, 1, a.dc_removed)
+    if not np.any(fdm):  # e.g. v_B = 0 from rest: no metric has anything to measure against
+        raise UsageError(f"the FDM render of this scene is silent ({sc.describe()}): there is nothing to compare "
+                         f"{a.path.name} against")
     n = min(len(x), len(fdm))
     x, fdm = x[:n], fdm[:n]
     c = Comparison(sc, sig, notes=_lossy_notes(a))

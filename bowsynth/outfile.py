@@ -61,8 +61,12 @@ def resolve(path, force: bool = False) -> Target:
     p = Path(path)
     if str(p) == "":
         raise UsageError("empty output path")
-    real = Path(os.path.realpath(p)) if p.is_symlink() else p
     try:
+        str(p).encode("utf-8")
+    except UnicodeEncodeError:  # bytes no text encoding holds: every message naming the file would fail
+        raise UsageError(f"output name {ascii(str(p))} is not valid UTF-8; give a name in UTF-8") from None
+    try:
+        real = Path(os.path.realpath(p)) if p.is_symlink() else p
         st = os.stat(real)
     except FileNotFoundError:
         st = None

@@ -167,7 +167,8 @@ def list_presets() -> list[str]:
 def load_preset(name: str) -> dict:
     """The scene fields a preset sets (a dict, so CLI flags can override them before validation)."""
     path = PRESET_DIR / f"{name}.toml"
-    if not path.is_file():
+    # a preset is a name, never a path: "../x" or "./bad.toml" must not reach a file outside the presets
+    if not isinstance(name, str) or name not in list_presets() or not path.is_file():
         raise UsageError(f"unknown preset {name!r}; known presets: {', '.join(list_presets()) or 'none'}")
     with path.open("rb") as fh:
         data = tomllib.load(fh)

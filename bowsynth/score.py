@@ -267,6 +267,8 @@ def load_toml_score(path) -> list[Note]:
             data = tomllib.load(fh)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise ScoreError(f"score {p} is not valid TOML ({e})") from None
+    except RecursionError:  # tomllib recurses per level of nesting; no score nests more than a few levels
+        raise ScoreError(f"score {p} nests arrays or tables too deeply to be a score") from None
     unknown = set(data) - set(TOP_KEYS)
     if unknown:
         raise ScoreError(f"score {p}: unknown top-level key(s) {', '.join(sorted(unknown))} (known: "

@@ -159,8 +159,8 @@ def gain_for(x: np.ndarray, gain_db: float | None) -> float:
     peak = float(np.max(np.abs(x))) if x.size else 0.0
     if gain_db is None:
         if peak < TINY_PEAK:  # e.g. --fb 1e-300 moves the mass by 1e-311 m: the gain would overflow
-            if peak > 0:
-                warnings.warn(f"the signal peaks at {peak:.3g}, too small to normalise: written as silence")
+            warnings.warn(f"the signal peaks at {peak:.3g}, too small to normalise: written as silence" if peak > 0
+                          else "the signal is silent (all zeros): the bow never moved the mass")
             return 1.0
         return PEAK / peak
     if not math.isfinite(gain_db):

@@ -1,0 +1,59 @@
+"""Hostile but realistic input, round 3 (issue 26): one line, the right exit code, nothing written."""
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from conftest import run_main
+
+
+def _one_line(err):
+    lines = [x for x in err.strip().splitlines() if x.strip()]
+    return len(lines) == 1 and "internal error" not in err and "Traceback" not in err
+
+
+@pytest.fixture
+def files(tmp_path):
+    sf.write(tmp_path / "nometa.wav", (0.1 * np.sin(2 * np.pi * 100 * np.arange(4410) / 44100)).astype("float32"),
+             44100)
+    sf.write(tmp_path / "e1.wav", np.zeros(0, "float32"), 44100)
+    sf.write(tmp_path / "e2.wav", np.zeros(0, "float32"), 44100)
+    (tmp_path / "deep.toml").write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    return tmp_path
+
+
+CASES = {
+    "window shorter than a sample": (["train", "--fb", "100", "--window-ms", "1e-320", "--steps", "1"], 2,
+                                     "holds no sample"),
+    "silent reference": (["compare", "{d}/nometa.wav", "--vb", "-0.0"], 2, "is silent"),
+    "empty files": (["compare", "{d}/e1.wav", "{d}/e2.wav"], 2, "holds no samples"),
+    "deep TOML score": (["score", "--score", "{d}/deep.toml", "--mix", "{d}/m.wav"], 2, "too deeply"),
+    "preset given as a path": (["render", "--preset", "../presets/paper-fb100", "{d}/x.wav"], 2, "unknown preset"),
+    "300-character name": (["render", "--fb", "100", "-d", "0.1", "{d}/" + "a" * 300 + ".wav"], 2, "too long"),
+    "non-UTF-8 name": (["render", "--fb", "100", "-d", "0.1", "{d}/x\udcff.wav"], 2, "not valid UTF-8"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_hostile_input_gets_one_line(case, files, capsys, monkeypatch):
+    args, want_code, says = CASES[case]
+    monkeypatch.chdir(files)
+    code, out, err = run_main([a.replace("{d}", str(files)) for a in args], capsys, monkeypatch)
+    assert code == want_code and says in err and _one_line(err), (code, out, err)
+    assert not any(p.suffix in (".wav", ".safetensors") and p.name not in ("nometa.wav", "e1.wav", "e2.wav")
+                   for p in files.iterdir())
+
+
+def test_scene_flags_on_a_file_with_its_scene_are_refused(tmp_path, capsys, monkeypatch):
+    code, _, _ = run_main(["render", "--method", "fdm", "--fb", "50", "-d", "0.1", str(tmp_path / "p.wav")], capsys,
+                          monkeypatch)
+    assert code == 0
+    code, out, err = run_main(["compare", str(tmp_path / "p.wav"), "--vb", "0.1"], capsys, monkeypatch)
+    assert code == 2 and "carries its scene" in err and _one_line(err)
+
+
+def test_a_bow_too_weak_to_move_the_mass_warns(tmp_path, capsys, monkeypatch):
+    with pytest.warns(UserWarning, match="silent"):  # the CLI prints it as one 'warning:' line
+        code, out, err = run_main(["render", "--method", "fdm", "--fb", "1e-320", "-d", "0.1",
+                                   str(tmp_path / "z.wav")], capsys, monkeypatch)
+    assert code == 0
