@@ -167,7 +167,16 @@ def mix_stems(path) -> tuple[Path, list[dict]]:
     try:
         notes = json.loads(index.read_text())["notes"]
         files = [d / str(n["file"]) for n in notes]
-    except (ValueError, KeyError, TypeError):
+        for n in notes:  # the fields the comparison reads, of the types score writes (an edited index is refused)
+            for key in ("start", "duration"):
+                if key in n and not (isinstance(n[key], (int, float)) and not isinstance(n[key], bool)
+                                     and math.isfinite(n[key]) and n[key] >= 0):
+                    raise ValueError(f"{key} {n[key]!r}")
+            if n.get("pitch") is not None and not (isinstance(n["pitch"], (int, float)) and n["pitch"] > 0):
+                raise ValueError(f"pitch {n['pitch']!r}")
+            if "/" in str(n["file"]) or str(n["file"]).startswith("."):
+                raise ValueError(f"file {n['file']!r} is not a stem's name")
+    except (ValueError, KeyError, TypeError, RecursionError):
         raise UsageError(f"{index} is damaged; render the mix again with --stems") from None
     missing = [f.name for f in files if not f.is_file()]
     if missing:

@@ -281,6 +281,19 @@ def _riff_shortfall(p: Path) -> tuple[int, int] | None:
     return None
 
 
+def _check_fields(meta: dict) -> None:
+    """The fields other than the scene that readers use, of the types render writes (ValueError if not): an edited
+    comment must fail here, in one line, not as a TypeError deep in compare."""
+    rs = meta.get("render_seconds")
+    if rs is not None and (isinstance(rs, bool) or not isinstance(rs, (int, float)) or not math.isfinite(rs) or rs < 0):
+        raise ValueError(f"render_seconds {rs!r}")
+    if meta.get("signal", "u") not in ("u", "p", "q"):
+        raise ValueError(f"signal {meta.get('signal')!r}")
+    for key in ("method", "model", "dc"):
+        if meta.get(key) is not None and not isinstance(meta[key], str):
+            raise ValueError(f"{key} {meta[key]!r}")
+
+
 def read_wav(path) -> WavInfo:
     """Read any mono audio file soundfile reads; `meta` is None when bowsynth did not write it.
 
@@ -313,6 +326,7 @@ def read_wav(path) -> WavInfo:
             Scene.from_dict(meta["scene"])
             if not (math.isfinite(float(meta["gain"])) and float(meta["gain"]) > 0):
                 raise ValueError("bad gain")
+            _check_fields(meta)
     except (ValueError, KeyError, TypeError):
         raise UsageError(f"{p} has damaged bowsynth metadata; pass the scene with --fb/--vb/... flags") from None
     if meta is not None:

@@ -57,3 +57,41 @@ def test_a_bow_too_weak_to_move_the_mass_warns(tmp_path, capsys, monkeypatch):
         code, out, err = run_main(["render", "--method", "fdm", "--fb", "1e-320", "-d", "0.1",
                                    str(tmp_path / "z.wav")], capsys, monkeypatch)
     assert code == 0
+
+
+def _reforge(path, edit):
+    """Rewrite a WAV's bowsynth comment as an editor would."""
+    import json
+
+    with sf.SoundFile(str(path)) as f:
+        data, rate, meta = f.read(dtype="float32"), f.samplerate, json.loads(f.comment)
+    edit(meta)
+    with sf.SoundFile(str(path), "w", samplerate=rate, channels=1, subtype="FLOAT") as f:
+        f.comment = json.dumps(meta)
+        f.write(data)
+
+
+@pytest.mark.parametrize("field, value", [("render_seconds", "fast"), ("signal", "x"), ("render_seconds", -1),
+                                          ("method", 3), ("signal", None)])
+def test_compare_refuses_forged_metadata_fields_in_one_line(tmp_path, capsys, monkeypatch, field, value):
+    w = tmp_path / "p.wav"
+    assert run_main(["render", "--method", "fdm", "--fb", "50", "-d", "0.1", str(w)], capsys, monkeypatch)[0] == 0
+    _reforge(w, lambda m: m.__setitem__(field, value))
+    code, out, err = run_main(["compare", str(w), "--reference", "audio"], capsys, monkeypatch)
+    assert code == 2 and "damaged bowsynth metadata" in err and _one_line(err), err
+
+
+@pytest.mark.parametrize("field, value", [("duration", "abc"), ("start", None), ("file", "../../etc/passwd")])
+def test_compare_refuses_a_forged_stems_index(tmp_path, capsys, monkeypatch, field, value):
+    import json
+
+    (tmp_path / "s.toml").write_text('[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.2\n')
+    code, out, err = run_main(["score", "--score", str(tmp_path / "s.toml"), "--method", "fdm", "--mix",
+                               str(tmp_path / "m.wav"), "--stems", str(tmp_path / "st")], capsys, monkeypatch)
+    assert code == 0, err
+    idx = tmp_path / "st" / "notes.json"
+    doc = json.loads(idx.read_text())
+    doc["notes"][0][field] = value
+    idx.write_text(json.dumps(doc))
+    code, out, err = run_main(["compare", str(tmp_path / "m.wav"), "--reference", "audio"], capsys, monkeypatch)
+    assert code == 2 and "damaged" in err and _one_line(err), err
