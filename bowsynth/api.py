@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 from pathlib import Path
 
 from .errors import BowsynthError, UsageError, interrupt_exit_code
@@ -98,11 +100,18 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     ckpt = checkpoint_path(out)
     if resume and not ckpt.exists():
         raise UsageError(f"no checkpoint to resume at {ckpt}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with training_lock(out):
+        return _train(scene, config, out, ckpt, name, force, resume, progress, console, box, init)
+
+
+def _train(scene, config, out, ckpt, name, force, resume, progress, console, box, init):
+    from .progress import Reporter
+
     with Reporter(console, enabled=progress, title="train: ") as rep:
         rep.update("preparing", 0.0, "loading torch")  # before torch loads: a log shows life from the first second
         from .training import TrainResult, Trainer, validate
 
-        out.parent.mkdir(parents=True, exist_ok=True)
         tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f), box=box,
                      init=init)
         if resume:
@@ -135,9 +144,67 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
                                   f"({type(save_error).__name__}: {save_error})", exit_code=code) from None
             raise Interrupted(f"{what} at step {tr.step}; checkpoint saved to {ckpt}; continue with the same command "
                               f"and --resume", exit_code=code) from None
-    model.save(out, force=True)
+    out = _save_new(model, out, force)
     ckpt.unlink(missing_ok=True)
     return TrainResult(model, out, tr.history)
+
+
+def _save_new(model, out: Path, force: bool) -> Path:
+    """Save the trained model at `out`; a file that appeared there while it trained (the check was at the start) is
+    never replaced without force: the model goes beside it under a free name, and a warning says so."""
+    import warnings
+
+    try:
+        return model.save(out, force=force)
+    except FileExistsError:
+        for i in range(1, 1000):
+            alt = out.with_name(f"{out.stem}-{i}{out.suffix}")
+            try:
+                path = model.save(alt, force=False)
+            except FileExistsError:
+                continue
+            warnings.warn(f"{out} appeared while training and was kept; the new model was written to {path}")
+            return path
+        raise
+
+
+@contextlib.contextmanager
+def training_lock(out: Path):
+    """Hold `out`.lock for the whole training: a second training to the same --out (which would share the checkpoint
+    too) is refused at its start. A lock whose process is gone (killed) is taken over."""
+    lock = out.with_name(out.name + ".lock")
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid = int(lock.read_text().strip() or 0)
+            except (OSError, ValueError):
+                pid = 0
+            if pid > 0 and _alive(pid):
+                raise UsageError(f"another training (process {pid}) is writing {out}; wait for it, or choose another "
+                                 f"--out") from None
+            lock.unlink(missing_ok=True)  # stale: its process died without releasing it
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(str(os.getpid()))
+        break
+    else:
+        raise UsageError(f"could not take the lock {lock}; remove it if no training is running")
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
 
 
 def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: float = 1.0) -> Scene:

@@ -289,17 +289,23 @@ class OperatorModel:
         from .wav import atomic_write
 
         path = Path(path)
-        if path.exists() and not force:
-            raise ModelFileError(f"{path} exists; pass --force to overwrite it")
         tensors = dict(self.weights)
         tensors["domain.mask"] = np.ascontiguousarray(self.domain.mask, dtype=np.uint8)
         self.meta.id = model_id(self.meta.name, tensors)
         self.meta.format_version = RANGE_VERSION if self.domain.is_range else FORMAT_VERSION
         self.meta.digest = ""
         self.meta.digest = digest(json.loads(self.meta.to_json()), tensors)
-        atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: self.meta.to_json()}))
+        try:  # without force the file is placed by a link, which refuses a name taken even a moment ago
+            atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: self.meta.to_json()}),
+                         exclusive=not force)
+        except FileExistsError:
+            raise ModelExistsError(f"{path} exists; pass --force to overwrite it") from None
         self.path = path
         return path
+
+
+class ModelExistsError(ModelFileError, FileExistsError):
+    """A model file would replace an existing file without force."""
 
 
 def load_model(path) -> OperatorModel:

@@ -112,7 +112,7 @@ def _new_temp(directory: Path, name: str, suffix: str) -> str:
     return str(directory / f".{name}.{secrets.token_hex(4)}{suffix}")
 
 
-def atomic_write(path, write, force: bool = True) -> None:
+def atomic_write(path, write, force: bool = True, exclusive: bool = False) -> None:
     """Call write(tmp_path) on a temp file, then put the result at `path` as the module docstring describes.
 
     The temp file is removed on every exit path (errors, KeyboardInterrupt, and SIGTERM, which the CLI raises as a
@@ -129,9 +129,14 @@ def atomic_write(path, write, force: bool = True) -> None:
             write(tmp)
             if t.kind == "file" and not t.in_place:
                 os.chmod(tmp, t.mode if t.mode is not None else 0o666 & ~_umask())
-                os.replace(tmp, t.real)
+                if exclusive:  # a link refuses an existing name: nothing that appeared since the check is replaced
+                    os.link(tmp, t.real)
+                else:
+                    os.replace(tmp, t.real)
             else:
                 _copy_into(tmp, t)
+        except FileExistsError:
+            raise
         except OSError as e:
             where = "standard output" if t.is_stdout else str(t.real)
             raise BowsynthError(f"could not write {where}: {e.strerror or e}") from None

@@ -1,5 +1,9 @@
 """Hostile but realistic input, round 3 (issue 26): one line, the right exit code, nothing written."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import soundfile as sf
@@ -95,3 +99,34 @@ def test_compare_refuses_a_forged_stems_index(tmp_path, capsys, monkeypatch, fie
     idx.write_text(json.dumps(doc))
     code, out, err = run_main(["compare", str(tmp_path / "m.wav"), "--reference", "audio"], capsys, monkeypatch)
     assert code == 2 and "damaged" in err and _one_line(err), err
+
+
+def test_a_second_training_to_the_same_out_is_refused_and_a_stale_lock_taken_over(tmp_path):
+    from bowsynth.api import training_lock
+    from bowsynth.errors import UsageError
+
+    out = tmp_path / "m.safetensors"
+    with training_lock(out):
+        assert (tmp_path / "m.safetensors.lock").read_text() == str(os.getpid())
+        with pytest.raises(UsageError, match="another training"):
+            with training_lock(out):
+                pass
+    assert not (tmp_path / "m.safetensors.lock").exists()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    (tmp_path / "m.safetensors.lock").write_text(dead.stdout.strip())  # its process has exited: stale
+    with training_lock(out):
+        pass
+
+
+def test_a_file_that_appears_at_out_while_training_is_kept(tmp_path, tiny_model, recwarn):
+    from bowsynth.api import _save_new
+    from bowsynth.model import load_model
+
+    out = tmp_path / "m.safetensors"
+    out.write_bytes(b"someone else's file")
+    model = load_model(tiny_model)
+    path = _save_new(model, out, force=False)
+    assert out.read_bytes() == b"someone else's file"
+    assert path == tmp_path / "m-1.safetensors" and load_model(path).id == model.id
+    assert any("appeared while training" in str(w.message) for w in recwarn)
+    assert _save_new(model, out, force=True) == out and load_model(out).id == model.id  # --force replaces
