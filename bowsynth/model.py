@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -304,6 +305,29 @@ class OperatorModel:
         return path
 
 
+def _check_regular(path: Path) -> None:
+    """A model file is a regular file: say what it is instead (never open a FIFO, which blocks, or a device such as
+    /dev/zero, which never ends)."""
+    import errno
+    import stat
+
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise ModelFileError(f"model file {path} not found" + (" (a symlink to nothing)" if path.is_symlink()
+                                                                else "")) from None
+    except OSError as e:
+        why = "is a symlink loop" if e.errno == errno.ELOOP else f"cannot be read ({e.strerror})"
+        raise ModelFileError(f"model file {path} {why}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ModelFileError(f"model file {path} is a directory, not a model file")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(
+            st.st_mode) else "not a regular file"
+        raise ModelFileError(f"model file {path} is {kind}" + (f" (the target of a symlink: {os.path.realpath(path)})"
+                                                              if path.is_symlink() else "") + ", not a model file")
+
+
 class ModelExistsError(ModelFileError, FileExistsError):
     """A model file would replace an existing file without force."""
 
@@ -314,8 +338,7 @@ def load_model(path) -> OperatorModel:
     from safetensors import safe_open
 
     path = Path(path)
-    if not path.is_file():
-        raise ModelFileError(f"model file {path} not found")
+    _check_regular(path)
     try:
         with safe_open(str(path), framework="numpy") as f:
             raw = (f.metadata() or {}).get(META_KEY)

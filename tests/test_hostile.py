@@ -130,3 +130,27 @@ def test_a_file_that_appears_at_out_while_training_is_kept(tmp_path, tiny_model,
     assert path == tmp_path / "m-1.safetensors" and load_model(path).id == model.id
     assert any("appeared while training" in str(w.message) for w in recwarn)
     assert _save_new(model, out, force=True) == out and load_model(out).id == model.id  # --force replaces
+
+
+@pytest.mark.parametrize("kind, says", [("device", "is a device"), ("dir", "is a directory"), ("loop", "symlink loop"),
+                                        ("fifo", "is a FIFO"), ("dangling", "symlink to nothing")])
+def test_a_model_path_that_is_no_file_says_what_it_is(tmp_path, capsys, monkeypatch, kind, says):
+    p = tmp_path / f"{kind}.safetensors"
+    if kind == "device":
+        p.symlink_to("/dev/zero")
+    elif kind == "dir":
+        p.mkdir()
+    elif kind == "loop":
+        p.symlink_to(p.name)
+    elif kind == "fifo":
+        os.mkfifo(p)
+    else:
+        p.symlink_to(tmp_path / "gone.safetensors")
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.1", "--model", str(p), str(tmp_path / "x.wav")],
+                              capsys, monkeypatch)
+    assert code != 0 and says in err and _one_line(err), err
+    monkeypatch.chdir(tmp_path)  # the same file in ./models: the default lookup skips it and names it
+    (tmp_path / "models").mkdir()
+    os.rename(p, tmp_path / "models" / p.name)
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.1", str(tmp_path / "y.wav")], capsys, monkeypatch)
+    assert code == 0 and "paper-fb100" in out
