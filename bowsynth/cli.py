@@ -472,6 +472,10 @@ def score(
                 check_output_path(path, force=force)
     check_outputs_fit(notes, output if mix else None, stems if mix else output, dc=dc)
     check_request([n.scene for n in notes], method, 1, force, extra_voices=int(mix))
+    if mix:
+        from .limits import check_mix
+
+        check_mix([n.start for n in notes], [n.scene for n in notes], force)
     t0 = time.perf_counter()
     renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file)
     secs = time.perf_counter() - t0
@@ -551,6 +555,12 @@ def _run() -> None:
         sys.exit(2)
     except Exit as e:
         sys.exit(e.exit_code)
+    except MemoryError:  # past the estimates (--force): what the machine lacks, exit 1, and no half-written file
+        if debug:
+            raise
+        err.print("error: out of memory: the job is larger than this machine can hold (see the estimate without "
+                  "--force)", soft_wrap=True)
+        sys.exit(1)
     except Exception as e:  # a bug: still one line unless --debug
         if debug:
             raise

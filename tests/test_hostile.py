@@ -154,3 +154,15 @@ def test_a_model_path_that_is_no_file_says_what_it_is(tmp_path, capsys, monkeypa
     os.rename(p, tmp_path / "models" / p.name)
     code, out, err = run_main(["render", "--fb", "100", "-d", "0.1", str(tmp_path / "y.wav")], capsys, monkeypatch)
     assert code == 0 and "paper-fb100" in out
+
+
+@pytest.mark.parametrize("start, force, code, says", [(3000.0, False, 2, "the mix would be 50 min long"),
+                                                      (1e12, False, 2, "pass --force"),
+                                                      (1e12, True, 1, "out of memory")])
+def test_the_mix_is_estimated_as_a_whole_before_any_work(tmp_path, capsys, monkeypatch, start, force, code, says):
+    (tmp_path / "late.toml").write_text(f'[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.1\n'
+                                        f'start = {start!r}\n')
+    got, out, err = run_main(["score", "--score", str(tmp_path / "late.toml"), "--mix", str(tmp_path / "m.wav"),
+                              *(["--force"] if force else [])], capsys, monkeypatch)
+    assert got == code and says in err and _one_line(err), err
+    assert not (tmp_path / "m.wav").exists()
