@@ -33,6 +33,7 @@ import json
 import math
 import os
 import re
+import secrets
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -42,7 +43,7 @@ import numpy as np
 
 from . import physics
 from .controls import Curve, as_control
-from .errors import DomainError, SceneError, UsageError
+from .errors import BowsynthError, DomainError, SceneError, UsageError
 from .render import Render
 from .scene import Scene, load_preset
 
@@ -618,20 +619,41 @@ def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove"
                 force: bool = True) -> list[Path]:
     """One audio file per note into the directory `out` (each with its own scene, so `compare` reads it; its DC
     removed on its own, as `render` would), and `out/notes.json`: each note's file, voice, start, written duration
-    and pitch."""
-    from .wav import DC_TAG, atomic_write, write_wav
+    and pitch.
+
+    All or none: the stems are written into a hidden staging directory inside `out` (a Ctrl-C or SIGTERM there
+    removes it and leaves `out` as it was), then moved into place by renames with the signals held (a few ms for 150
+    stems), notes.json last. A stem path that is a symlink, FIFO or device is written through at that point."""
+    import shutil
+
+    from .outfile import signals_held
+    from .wav import DC_TAG, write_wav
 
     out.mkdir(parents=True, exist_ok=True)
+    stage = out / f".staging-{os.getpid()}-{secrets.token_hex(3)}"
+    stage.mkdir()
     paths, index = [], []
-    for n, r, fname in zip(notes, renders, stem_names(notes)):
-        path = out / fname
-        write_wav(path, r, signal=signal, dc=dc, gain_db=gain_db, force=force)
-        paths.append(path)
-        index.append({"file": fname, "voice": n.name, "start": n.start, "duration": n.hold, "release": n.release,
-                      "pitch": n.pitch, "label": n.describe(), "method": r.method, **n.extra})
-    text = json.dumps({"bowsynth_stems": 1, "signal": signal, "dc": DC_TAG if dc == "remove" else "kept",
-                       "notes": index}, indent=1)
-    atomic_write(out / "notes.json", lambda tmp: Path(tmp).write_text(text + "\n"), force=force)
+    try:
+        for n, r, fname in zip(notes, renders, stem_names(notes)):
+            write_wav(stage / fname, r, signal=signal, dc=dc, gain_db=gain_db, force=True)
+            paths.append(out / fname)
+            index.append({"file": fname, "voice": n.name, "start": n.start, "duration": n.hold, "release": n.release,
+                          "pitch": n.pitch, "label": n.describe(), "method": r.method, **n.extra})
+        text = json.dumps({"bowsynth_stems": 1, "signal": signal, "dc": DC_TAG if dc == "remove" else "kept",
+                           "notes": index}, indent=1)
+        (stage / "notes.json").write_text(text + "\n")
+        with signals_held():
+            for fname in [p.name for p in paths] + ["notes.json"]:
+                dst = out / fname
+                if dst.is_symlink() or (dst.exists() and not dst.is_file()):
+                    with open(stage / fname, "rb") as src, open(dst, "wb") as sink:
+                        shutil.copyfileobj(src, sink)
+                else:
+                    os.replace(stage / fname, dst)
+    except OSError as e:
+        raise BowsynthError(f"could not write the stems into {out}: {e.strerror or e}") from None
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     return paths
 
 

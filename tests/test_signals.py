@@ -152,3 +152,31 @@ def test_fdm_in_chunks_equals_one_call(monkeypatch):
     parts = fdm.render_fdm(sc, oversample=3)
     np.testing.assert_array_equal(whole.q, parts.q)
     np.testing.assert_array_equal(whole.p, parts.p)
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_stems_are_written_all_or_none(sig, tmp_path):
+    """A signal while 150 stems are being written leaves the stems directory as it was (once it left 20 of them and
+    no notes.json): here it held one old stem, which is kept, and nothing new."""
+    voices = "".join(f'[[voice]]\nname = "v{i}"\nf0 = {100 + i}.0\nbeta = 0.159155\nduration = 0.3\n'
+                     for i in range(150))
+    (tmp_path / "many.toml").write_text(voices)
+    st = tmp_path / "st"
+    st.mkdir()
+    (st / "old.wav").write_bytes(b"an earlier stem")
+    proc = _start(["score", "--score", "many.toml", "--mix", "m.wav", "--stems", "st"], tmp_path)
+    _handlers_installed(proc)
+    t0 = time.time()
+    while time.time() - t0 < 300:  # wait until the staging directory holds some stems: mid-write
+        stages = list(st.glob(".staging-*"))
+        if stages and len(list(stages[0].glob("*.wav"))) >= 10:
+            break
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.005)
+    else:
+        raise AssertionError("never saw the stems being written")
+    code, out, err = _stop(proc, sig)
+    _check(code, err, sig)
+    assert sorted(p.name for p in st.iterdir()) == ["old.wav"] and (st / "old.wav").read_bytes() == b"an earlier stem"
+    assert not (tmp_path / "m.wav").exists()

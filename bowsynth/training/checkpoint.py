@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import json
-import signal
-import threading
-from contextlib import contextmanager
 from pathlib import Path
 
 import torch
 
 from ..errors import UsageError
+from ..outfile import signals_held  # noqa: F401  (written once, beside the other output rules)
 from .config import checkpoint_path  # noqa: F401
 
 META_KEY = "bowsynth_checkpoint"
@@ -38,34 +36,6 @@ def _unflatten(obj, tensors):
         items = [_unflatten(v, tensors) for v in obj["__list__"]]
         return tuple(items) if obj.get("tuple") else items
     return obj
-
-
-@contextmanager
-def signals_held():
-    """Ctrl-C and SIGTERM wait until the block is done, then act as they would have: a checkpoint is written whole
-    or not at all, and the save that an interruption makes is not itself cut short by a second Ctrl-C. Done with the
-    Python handlers (a blocked signal mask would not do: the kernel hands a process's signal to any thread that does
-    not block it, and torch's threads do not)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pending = []
-    old = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        h = signal.getsignal(sig)
-        if h is not signal.SIG_IGN and h is not None:
-            old[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
-    try:
-        yield
-    finally:
-        for sig, h in old.items():
-            signal.signal(sig, h)
-        if pending:
-            h = old[pending[0]]
-            if callable(h):
-                h(pending[0], None)  # raises, as the handler would have (KeyboardInterrupt, errors.Terminated)
-            else:
-                signal.raise_signal(pending[0])
 
 
 def save(path: Path, state: dict) -> None:
