@@ -60,6 +60,7 @@ def resolve(path, force: bool = False) -> Target:
             raise UsageError("no standard output to write to")
         if sys.stdout.isatty():
             raise UsageError("refusing to write binary audio to a terminal; redirect standard output or give a file")
+        _temp_dir()
         return Target(Path(STDOUT), Path(STDOUT), "stdout")
     p = Path(path)
     if str(p) == "":
@@ -84,6 +85,7 @@ def resolve(path, force: bool = False) -> Target:
         if stat.S_ISFIFO(st.st_mode) or stat.S_ISCHR(st.st_mode):
             if not os.access(real, os.W_OK):
                 raise UsageError(f"{real}{via} is not writable")
+            _temp_dir()
             return Target(p, real, "special")
         if not stat.S_ISREG(st.st_mode):
             raise UsageError(f"output path {real}{via} is not a regular file, FIFO or character device")
@@ -97,6 +99,16 @@ def resolve(path, force: bool = False) -> Target:
             return Target(p, real, "file", stat.S_IMODE(st.st_mode), in_place=True)
         raise UsageError(f"output directory {parent} is not writable")
     return Target(p, real, "file", None if st is None else stat.S_IMODE(st.st_mode))
+
+
+def _temp_dir() -> str:
+    """The temporary directory a FIFO, device or stdout output is made in, checked before any work (with /tmp,
+    /var/tmp and the working directory all read-only, Python finds none: once a FileNotFoundError after rendering)."""
+    try:
+        return tempfile.gettempdir()
+    except FileNotFoundError:
+        raise BowsynthError("no writable temporary directory (tried $TMPDIR, /tmp, /var/tmp and the working "
+                            "directory): set TMPDIR to a writable directory") from None
 
 
 def check_output_path(path, force: bool = False) -> Path:
@@ -140,14 +152,26 @@ def atomic_write(path, write, force: bool = True, exclusive: bool = False) -> No
                 _copy_into(tmp, t)
         except FileExistsError:
             raise
-        except OSError as e:
+        except (OSError, RuntimeError) as e:  # libsndfile reports a full disk as RuntimeError("System error.")
             where = "standard output" if t.is_stdout else str(t.real)
-            raise BowsynthError(f"could not write {where}: {e.strerror or e}") from None
+            why = getattr(e, "strerror", None) or str(e).rstrip(".")
+            raise BowsynthError(f"could not write {where}: {why}{_full(tmp)}; the old file, if any, is unchanged"
+                                ) from None
     finally:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
+
+
+def _full(path) -> str:
+    """' (its disk is full)' when the filesystem holding `path` has under a megabyte free: libsndfile says only
+    'System error'."""
+    try:
+        st = os.statvfs(os.path.dirname(os.path.abspath(path)) or ".")
+    except OSError:
+        return ""
+    return " (its disk is full)" if st.f_bavail * st.f_frsize < 1024**2 else ""
 
 
 def _copy_into(tmp: str, t: Target) -> None:

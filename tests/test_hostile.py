@@ -166,3 +166,37 @@ def test_the_mix_is_estimated_as_a_whole_before_any_work(tmp_path, capsys, monke
                               *(["--force"] if force else [])], capsys, monkeypatch)
     assert got == code and says in err and _one_line(err), err
     assert not (tmp_path / "m.wav").exists()
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 64 kB tmpfs: a real full disk (needs root to mount; skipped where mounting is not allowed)."""
+    d = tmp_path / "tiny"
+    d.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(d)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.decode().strip()}")
+    yield d
+    subprocess.run(["umount", str(d)])
+
+
+def test_a_full_disk_is_one_line_and_keeps_the_old_file(tiny_disk, capsys, monkeypatch):
+    old = tiny_disk / "x.wav"
+    old.write_bytes(b"the old file")
+    code, out, err = run_main(["render", "--method", "fdm", "--fb", "100", "-d", "1", str(old)], capsys, monkeypatch)
+    assert code == 1 and "disk is full" in err and _one_line(err), err
+    assert old.read_bytes() == b"the old file" and sorted(p.name for p in tiny_disk.iterdir()) == ["x.wav"]
+
+
+def test_no_usable_temp_dir_for_a_fifo_is_said_before_any_work(tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    def none():
+        raise FileNotFoundError("No usable temporary directory found")
+
+    fifo = tmp_path / "out.wav"
+    os.mkfifo(fifo)
+    monkeypatch.setattr(tempfile, "gettempdir", none)
+    code, out, err = run_main(["render", "--method", "fdm", "--fb", "100", "-d", "0.1", str(fifo)], capsys,
+                              monkeypatch)
+    assert code == 1 and "TMPDIR" in err and _one_line(err) and "wrote" not in out, err
