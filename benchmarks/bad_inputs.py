@@ -104,6 +104,34 @@ CASES = [
     ("note start < 0", "score --score negstart.toml --method fdm --mix m.wav"),
     ("pitch name H4 (German B)", "render --method fdm --pitch H4 x.wav"),
     ("pitch name A10 (above B8)", "render --method fdm --pitch A10 x.wav"),
+    # round 3 (issue 26): model files that lie or break
+    ("model file whose window tensor was scaled 1e6 (digest recomputed)", "render --fb 100 --model window.safetensors x.wav"),
+    ("model file with a 0 x 0 domain mask (digest recomputed)", "render --fb 100 --model mask0.safetensors x.wav"),
+    ("... the same file in ./models: skipped, named, the shipped model plays", "render --fb 100 -d 0.1 x.wav"),
+    ("model file claiming 1.1x its bow force (digest recomputed)", "render --fb 110 --model liar.safetensors x.wav"),
+    ("model path: a symlink to /dev/zero", "render --fb 100 --model zero.safetensors x.wav"),
+    ("model path: a directory", "render --fb 100 --model adir.safetensors x.wav"),
+    ("model path: a symlink loop", "render --fb 100 --model loop.safetensors x.wav"),
+    ("model path: a FIFO", "render --fb 100 --model mfifo.safetensors x.wav"),
+    # round 3: MIDI files
+    ("MIDI file timed in SMPTE frames", "score --score smpte.mid --method fdm --mix m.wav"),
+    ("MIDI file with 0 ticks per beat", "score --score zerodiv.mid --method fdm --mix m.wav"),
+    ("MIDI header announcing 65535 tracks, one present", "score --score tracks.mid --method fdm --mix m.wav"),
+    ("four parts on their own tracks, all on channel 1, a unison", "score --score chorale.mid --method fdm --mix m.wav"),
+    # round 3: whole jobs, numbers, files
+    ("a note starting at 3000 s (mix estimated as a whole)", "score --score late.toml --mix m.wav"),
+    ("a note starting at 1e12 s, with --force", "score --score later.toml --mix m.wav --force"),
+    ("a score nested 5000 deep", "score --score deep.toml --method fdm --mix m.wav"),
+    ("a preset given as a path", "render --preset ../../etc/passwd x.wav"),
+    ("train --window-ms 1e-320", "train --fb 100 --window-ms 1e-320 --steps 1 --out w.safetensors"),
+    ("bow force 1e-320 (an all-zero render)", "render --method fdm -d 0.1 --fb 1e-320 x.wav"),
+    ("compare against a silent reference", "compare plain.wav --vb -0.0"),
+    ("scene flags on a file that carries its scene", "compare ok.wav --vb 0.1"),
+    ("two empty WAVs", "compare e1.wav e2.wav"),
+    ("metadata edited: render_seconds \"fast\"", "compare fast.wav"),
+    ("metadata edited: signal \"x\"", "compare sigx.wav"),
+    ("a stems index edited: duration \"abc\"", "compare stemmed.wav"),
+    ("a 300-character output name", "render --method fdm -d 0.1 " + "a" * 300 + ".wav"),
 ]
 
 # (what, command, signal, seconds after start-up): the signal lands in the phase named
@@ -138,6 +166,7 @@ def main():
         save_file({"w": torch.zeros(1)}, str(d / "v9.safetensors"),
                   metadata={"bowsynth": json.dumps({"format": "bowsynth-operator", "format_version": 9})})
         _round2_files(d, exe)
+        _round3_files(d, exe)
         env = {"COLUMNS": "400", "PATH": "/usr/bin:/bin", "HOME": str(d), "TMPDIR": str(d / "tmp"),
                "PYTHONPATH": os.environ.get("PYTHONPATH", "")}
         print("| bad input | command | exit code | what bowsynth says |")
@@ -231,6 +260,78 @@ def _round2_files(d: Path, exe) -> None:
     _score_files(d)
     (d / "big.toml").write_text("[defaults]\nduration = 0.01\n" + "".join(
         f'[[voice]]\nname = "voice-number-{i}"\nfb = {50 + i % 50}\n' for i in range(1000)))
+
+
+def _forge(d: Path, name: str, edit_tensors=None, edit_meta=None) -> None:
+    """A copy of paper-fb100 edited as an attacker would: the digest recomputed over the edit."""
+    import json
+
+    from safetensors import safe_open
+    from safetensors.numpy import save_file
+
+    from bowsynth.model import digest
+    from bowsynth.rollout import SHIPPED_DIR
+
+    with safe_open(str(SHIPPED_DIR / "paper-fb100.safetensors"), framework="numpy") as f:
+        meta = json.loads(f.metadata()["bowsynth"])
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    (edit_tensors or (lambda t: None))(tensors)
+    (edit_meta or (lambda m: None))(meta)
+    meta["digest"] = digest(meta, tensors)
+    save_file(tensors, str(d / name), metadata={"bowsynth": json.dumps(meta)})
+
+
+def _round3_files(d: Path, exe) -> None:
+    import json
+
+    import mido
+
+    _forge(d, "window.safetensors", lambda t: t.update(window=np.array(t["window"] * 1e6, dtype=np.float32)))
+    _forge(d, "mask0.safetensors", lambda t: t.update({"domain.mask": np.zeros((0, 0), np.uint8)}))
+
+    def more_force(m):
+        m["domain"]["beta"] *= 1.1
+        m["scene"]["fb"] *= 1.1
+    _forge(d, "liar.safetensors", edit_meta=more_force)
+    (d / "models").mkdir()
+    (d / "models" / "mask0.safetensors").write_bytes((d / "mask0.safetensors").read_bytes())
+    (d / "zero.safetensors").symlink_to("/dev/zero")
+    (d / "adir.safetensors").mkdir()
+    (d / "loop.safetensors").symlink_to("loop.safetensors")
+    os.mkfifo(d / "mfifo.safetensors")
+    mid = mido.MidiFile(type=1, ticks_per_beat=480)
+    mid.tracks.append(mido.MidiTrack([mido.MetaMessage("set_tempo", tempo=500000, time=0)]))
+    for notes in ([72, 74], [67, 65], [67, 62], [48, 43]):
+        tr = mido.MidiTrack()
+        for n in notes:
+            tr += [mido.Message("note_on", note=n, velocity=90, time=0),
+                   mido.Message("note_off", note=n, velocity=0, time=480)]
+        mid.tracks.append(tr)
+    mid.save(d / "chorale.mid")
+    raw = (d / "chorale.mid").read_bytes()
+    (d / "smpte.mid").write_bytes(raw[:12] + (0xE728).to_bytes(2, "big") + raw[14:])
+    (d / "zerodiv.mid").write_bytes(raw[:12] + (0).to_bytes(2, "big") + raw[14:])
+    (d / "tracks.mid").write_bytes(raw[:10] + (65535).to_bytes(2, "big") + raw[12:])
+    voice = '[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.1\n'
+    (d / "late.toml").write_text(voice + "start = 3000.0\n")
+    (d / "later.toml").write_text(voice + "start = 1e12\n")
+    (d / "deep.toml").write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    sf.write(d / "e1.wav", np.zeros(0, "float32"), 44100)
+    sf.write(d / "e2.wav", np.zeros(0, "float32"), 44100)
+    for name, key, value in (("fast.wav", "render_seconds", "fast"), ("sigx.wav", "signal", "x")):
+        with sf.SoundFile(str(d / "ok.wav")) as f:
+            data, meta = f.read(dtype="float32"), json.loads(f.comment)
+        meta[key] = value
+        with sf.SoundFile(str(d / name), "w", samplerate=44100, channels=1, subtype="FLOAT") as f:
+            f.comment = json.dumps(meta)
+            f.write(data)
+    (d / "one.toml").write_text(voice)
+    subprocess.run(exe + ["score", "--score", "one.toml", "--method", "fdm", "--mix", "stemmed.wav", "--stems",
+                          "stemmed"], cwd=d, check=True, capture_output=True)
+    idx = d / "stemmed" / "notes.json"
+    doc = json.loads(idx.read_text())
+    doc["notes"][0]["duration"] = "abc"
+    idx.write_text(json.dumps(doc))
 
 
 def _score_files(d: Path) -> None:

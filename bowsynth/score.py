@@ -455,12 +455,32 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
             r = render(n.scene, engine="fdm")
             r.info.setdefault("notes", []).append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
             out[i] = r
-    if op:
-        sustains = [notes[i].rollout_scene() for i in op]
+    # a note whose bow stop and tail a model covers too (a box reaching v_B = 0) is played whole by the operator
+    whole = [i for i in op if notes[i].release > 0 and _plays_whole(notes[i], model)]
+    if whole:
+        for i, r in zip(whole, render([notes[i].scene for i in whole], engine="operator", model=model,
+                                      fallback=fallback)):
+            r.info["release"] = "operator"
+            out[i] = r
+    part = [i for i in op if i not in set(whole)]
+    if part:
+        sustains = [notes[i].rollout_scene() for i in part]
         rs = render(sustains, engine="operator", model=model, fallback=fallback)
-        for i, r in zip(op, finish_releases([notes[i] for i in op], rs)):
+        for i, r in zip(part, finish_releases([notes[i] for i in part], rs)):
             out[i] = r
     return out
+
+
+def _plays_whole(note: Note, model=None) -> bool:
+    """Does the model that would play the note (the one given, else the lookup's pick) cover the whole note, its bow
+    stop and tail included?"""
+    from .rollout import as_model, find_model
+
+    try:
+        m = find_model(note.scene) if model is None else as_model(model)
+    except DomainError:
+        return False
+    return m.covers(note.scene)
 
 
 def _release_scene(note: Note, sus: Render) -> Scene:

@@ -105,3 +105,26 @@ def test_bow_stops_in_range_data_end_near_rest():
     for i in range(4):
         run = band.states[i * per:(i + 1) * per]
         assert np.ptp(run[-200:, 1]) < 0.05 * np.ptp(run[: per // 3, 1])
+
+
+def test_a_model_that_reaches_v_b_0_plays_a_notes_release_too(tmp_path):
+    """A range model whose box reaches v_B = 0 (its data holds bow stops) covers a score note whole: the operator plays
+    its bow stop and tail, no FDM in its path; a model that does not reach 0 leaves the release to the FDM."""
+    from conftest import tiny_config
+
+    from bowsynth import api
+    from bowsynth.score import note_from_fields, render_notes
+    from bowsynth.training import ParamBox
+
+    box = ParamBox(0.1, 0.3, 0.0, 0.25, 100.0)
+    cfg = tiny_config(steps=60, sampling="box", range_points=8, range_gestures=2, range_stops=4, range_n_data=128,
+                      weights={"data": 1.0, "end": 1.0, "kin": 1.0})
+    path = api.train(api.range_scene(box), config=cfg, out=tmp_path / "stop.safetensors", box=box).path
+    note = note_from_fields("v", {"f0": 100.0, "beta": 0.2, "vb": 0.2, "duration": 0.2}, "test")
+    assert note.release > 0 and note.scene.vb_at(note.scene.duration) == 0.0
+    (r,) = render_notes([note], model=path, fallback="fdm")
+    assert r.info["release"] == "operator" and len(r.q) == note.scene.n_samples
+    paper = api.model_path("paper-fb100")  # a point model: its v_B is 0.2 only, the release is the FDM's
+    (r2,) = render_notes([note_from_fields("v", {"f0": 100.0, "beta": 0.159155, "vb": 0.2, "duration": 0.2},
+                                           "test")], model=paper)
+    assert r2.info["release"] == "fdm"
