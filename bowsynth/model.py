@@ -64,6 +64,11 @@ class Domain:
     # a range model: [beta_lo, beta_hi, vb_lo, vb_hi], the bows it plays (beta, vb above: the box's centre, where the
     # render-time physics check runs); None: a point model, which plays (beta, vb) only
     box: list | None = None
+    # a range model whose correction is scaled by beta / beta_ref (npnet.gain) plays bows below its box's bottom down
+    # to F_B = 0 (a bow lifted, an attack from rest): what friction adds over a window is first order in beta, so the
+    # branch's bow input is held at the bottom (npnet.param_inputs) and the gain carries beta to 0, where the flow is
+    # exactly the free rotation. Set from the network's settings (OperatorModel), not stored in files.
+    plays_below: bool = field(default=False, repr=False, compare=False)
 
     @property
     def is_range(self) -> bool:
@@ -100,9 +105,17 @@ class Domain:
         """Elementwise: is v_B inside this model's box (a point model: equal to its own)?"""
         return within(vb, self.vb, self.vb) if self.box is None else within(vb, *self.box[2:])
 
+    def beta_plays(self, beta) -> np.ndarray:
+        """Elementwise: does the model play F_B / w: inside its box, or below it down to 0 (plays_below)?"""
+        inside = self.beta_in(beta)
+        if not self.plays_below:
+            return inside
+        return inside | ((np.asarray(beta, float) >= 0) & (np.asarray(beta, float) <= self.box[0]))
+
     def box_contains(self, beta, vb) -> np.ndarray:
-        """Elementwise: is the bow (beta, v_B) inside this model's box (a point model: equal to its point)?"""
-        return self.beta_in(beta) & self.vb_in(vb)
+        """Elementwise: does the model play the bow (beta, v_B) (a point model: equal to its point; a range model:
+        inside its box, or below it in beta, beta_plays)?"""
+        return self.beta_plays(beta) & self.vb_in(vb)
 
     def describe_bows(self) -> str:
         if self.box is None:
@@ -143,8 +156,8 @@ class Domain:
             return out
         b0, b1, v0, v1 = self.box
         (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
-        if not (self.beta_in(blo) and self.beta_in(bhi)):
-            out.append(f"F_B / w {_span(blo, bhi)} leaves the model's {b0:.4g}..{b1:.4g}")
+        if not (self.beta_plays(blo) and self.beta_plays(bhi)):
+            out.append(f"F_B / w {_span(blo, bhi)} leaves the model's {0 if self.plays_below else b0:.4g}..{b1:.4g}")
         if not (self.vb_in(vlo) and self.vb_in(vhi)):
             out.append(f"v_B {_span(vlo, vhi, '.4g')} leaves the model's {v0:g}..{v1:g}")
         return out
@@ -162,6 +175,7 @@ class Domain:
     def to_json(self) -> dict:
         d = asdict(self)
         d.pop("mask")
+        d.pop("plays_below")
         return d
 
 
@@ -242,6 +256,7 @@ class OperatorModel:
         self.from_file = net is None
         self.meta = meta
         self.path = path
+        meta.domain.plays_below = bool(meta.domain.is_range and NetConfig(**meta.net).corr_beta)
 
     @property
     def net(self):

@@ -105,7 +105,10 @@ def param_inputs(w: dict, par) -> np.ndarray:
     """(B, 2) bows (beta, v_B) -> the branch's parameter inputs (B, 2): (log beta, v_B) scaled by pcenter, pscale."""
     par = np.asarray(par, float).reshape(-1, 2)
     u = np.stack([np.log(np.maximum(par[:, 0], 1e-12)), par[:, 1]], axis=1)
-    return (u - w["pcenter"].astype(float)) / w["pscale"].astype(float)
+    x = (u - w["pcenter"].astype(float)) / w["pscale"].astype(float)
+    # below the box's bottom in beta the input is held there (Domain.plays_below: first order in beta, via gain)
+    x[:, 0] = np.maximum(x[:, 0], -PARAM_SPAN)
+    return x
 
 
 def gain(w: dict, cfg: NetConfig, beta) -> np.ndarray:

@@ -326,3 +326,22 @@ def test_refining_takes_range_models_only(tiny_model, capsys, monkeypatch, tmp_p
                                  str(tmp_path / "r.safetensors")], capsys, monkeypatch)
         assert code == want and needle in err and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "r.safetensors").exists()
+
+
+def test_below_its_box_a_range_model_plays_first_order_down_to_a_lifted_bow(range_model):
+    """F_B / w below the box: the branch's bow input held at the bottom, the correction scaled by beta / beta_ref. At
+    F_B = 0 that is exactly the free oscillator (q0 cos tau + p0 sin tau); an attack from F_B = 0 renders."""
+    m = load_model(range_model)
+    assert m.domain.plays_below and m.domain.box_contains(0.0, 0.2) and m.domain.box_contains(0.05, 0.2)
+    assert not m.domain.box_contains(0.31, 0.2) and not m.domain.beta_in(0.05)  # training's own test stays strict
+    q0, p0 = 0.05, -0.08
+    sc = Scene(f0=100, fb=0.0, vb=0.2, duration=0.1, q0=q0, p0=p0)
+    if not m.domain.contains(q0, p0):
+        pytest.skip("the tiny model's band does not hold this state")
+    r = render_operator(sc, model=m)
+    tau = sc.omega * r.t
+    assert np.allclose(r.q, q0 * np.cos(tau) + p0 * np.sin(tau), atol=1e-5)
+    assert np.allclose(r.p, -q0 * np.sin(tau) + p0 * np.cos(tau), atol=1e-5)
+    w = 2 * math.pi * 100
+    attack = Scene(f0=100, fb=[[0.0, 0.0], [0.05, 0.2 * w]], vb=0.2, duration=0.2)
+    assert np.isfinite(render_operator(attack, model=m, fallback="fdm").p).all()
