@@ -116,7 +116,7 @@ CASES = [
     # round 3: MIDI files
     ("MIDI file timed in SMPTE frames", "score --score smpte.mid --method fdm --mix m.wav"),
     ("MIDI file with 0 ticks per beat", "score --score zerodiv.mid --method fdm --mix m.wav"),
-    ("MIDI header announcing 65535 tracks, one present", "score --score tracks.mid --method fdm --mix m.wav"),
+    ("MIDI header announcing 65535 tracks, five present", "score --score tracks.mid --method fdm --mix m.wav"),
     ("four parts on their own tracks, all on channel 1, a unison", "score --score chorale.mid --method fdm --mix m.wav"),
     # round 3: whole jobs, numbers, files
     ("a note starting at 3000 s (mix estimated as a whole)", "score --score late.toml --mix m.wav"),

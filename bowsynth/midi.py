@@ -141,7 +141,8 @@ def read_midi(path) -> MidiPiece:
     except (OSError, EOFError, ValueError, KeyError, IndexError, TypeError) as e:
         raise UsageError(f"{p} is not a standard MIDI file ({_why(e)})") from None
     if head is not None and len(mid.tracks) < n_tracks:
-        raise UsageError(f"{p} is truncated: its header announces {n_tracks} tracks, {len(mid.tracks)} are there")
+        present = p.read_bytes().count(b"MTrk")  # mido stops reading at the first missing one
+        raise UsageError(f"{p} is truncated: its header announces {n_tracks} tracks, {present} are there")
     if mid.type == 2:
         raise UsageError(f"{p} is a type 2 MIDI file (independent sequences); only types 0 and 1 are read")
     if not any(len(t) for t in mid.tracks):
