@@ -38,14 +38,14 @@ PitchOpt = typer.Option(None, "--pitch", help="The pitch you hear, Hz or a note 
 A4Opt = typer.Option(None, "--a4", help="Tuning of --pitch note names: A4 in Hz (default 440).")
 
 
-def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=None):
+def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=None, ratio=None):
     from .controls import parse_control
     from .scene import make_scene
 
     fb = None if fb is None else parse_control(fb, "fb")
     vb = None if vb is None else parse_control(vb, "vb")
     return make_scene(preset, f0=f0, fb=fb, vb=vb, a=a, duration=duration, sample_rate=sample_rate, q0=q0, p0=p0,
-                      pitch=pitch, a4=a4)
+                      pitch=pitch, a4=a4, ratio=ratio)
 
 
 def _pitch_hz(pitch, a4) -> float:
@@ -140,12 +140,17 @@ def render(
     scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4)
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
-    if pitch is not None:
+    if pitch is not None:  # tuned again with the sounding ratio of the engine that plays (its own pitch)
         from .pitch import note_name
 
+        ratio, by = api.tuning_for(scene, method, model, oversample)
+        if ratio is not None:
+            scene = _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4, ratio=ratio)
         hz = _pitch_hz(pitch, a4)
-        held = "" if not scene.varying else " (tuned at the values the bow holds)"
-        _say(quiet, f"pitch {hz:.2f} Hz ({note_name(hz, a4 or 440.0)}): f0 {scene.f0:.4f} Hz{held}", _speaker(output))
+        held = "" if not scene.varying else ", at the values the bow holds"
+        how = f"tuned for {by}" if ratio is not None else f"tuned with the FDM's ratio: {by}"
+        _say(quiet, f"pitch {hz:.2f} Hz ({note_name(hz, a4 or 440.0)}): f0 {scene.f0:.4f} Hz ({how}{held})",
+             _speaker(output))
     r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force)
     write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
     model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""

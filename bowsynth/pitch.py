@@ -148,11 +148,11 @@ def _steps_per_period(beta: float, a: float) -> int:
 class _Run:
     """The w = 1 FDM (beta, v_B, a) from rest, continued period block by period block."""
 
-    def __init__(self, beta, vb, a, spp):
+    def __init__(self, beta, vb, a, spp, k=None):
         from .fdm import taylor_start
 
         self.beta, self.vb, self.a, self.spp = beta, vb, a, spp
-        self.k = 2 * math.pi / spp
+        self.k = 2 * math.pi / spp if k is None else k  # an engine's own step (spp then only sizes the blocks)
         self.state = (taylor_start(0.0, 0.0, self.k, 1.0, beta, vb, a), 0.0, -vb)
         self.u = []
 
@@ -171,7 +171,7 @@ class _Run:
         from .metrics import f0_estimate
 
         u = np.concatenate(self.u)[first_period * self.spp:last_period * self.spp]
-        return 2 * math.pi * f0_estimate(u, self.spp / (2 * math.pi), tail=1.0)
+        return 2 * math.pi * f0_estimate(u, 1.0 / self.k, tail=1.0)  # cycles per unit tau, as an angular rate
 
 
 def _why_silent(beta, vb, a, amp_end, grows) -> str:
@@ -226,9 +226,11 @@ def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
     return ratio
 
 
-def _measure_ratio(beta: float, vb: float, a: float) -> Ratio:
-    spp = _steps_per_period(beta, a)
-    run = _Run(beta, vb, a, spp)
+def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> Ratio:
+    """The steady ratio of the scheme run at steps 2 pi / spp and pi / spp combined by Richardson extrapolation (the
+    truth), or, with k, of the scheme at that step in tau alone (an engine's own: the audio-rate FDM's dispersion)."""
+    spp = _steps_per_period(beta, a) if k is None else max(4, int(round(2 * math.pi / k)))
+    run = _Run(beta, vb, a, spp, k)
     # a chunk holds >= 10 sounding periods (the stick phase stretches a period to 6 free periods at beta 1.6)
     done = 0
     while done < MAX_PERIODS // 4:
@@ -258,11 +260,38 @@ def _measure_ratio(beta: float, vb: float, a: float) -> Ratio:
     end = settled + MEASURE_CHUNKS * chunk
     run.more(end - done)
     coarse = run.r(settled, end)
+    if k is not None:
+        return Ratio(r=float(coarse), settle_periods=float(settled), amplitude=float(amps[-1]), beta=beta, vb=vb, a=a)
     fine_run = _Run(beta, vb, a, 2 * spp)
     fine_run.more(end)
     fine = fine_run.r(settled, end)
     r = fine + (fine - coarse) / 3.0  # Richardson: the scheme's error is O(k^2)
     return Ratio(r=float(r), settle_periods=float(settled), amplitude=float(amps[-1]), beta=beta, vb=vb, a=a)
+
+
+def fdm_ratio(sample_rate: float, oversample: int = 1):
+    """The sounding ratio of the FDM at this rate, as `tune(ratio=...)` takes it: the scheme's own, at its step in tau
+    k w = 2 pi f0 / (sample_rate oversample), dispersion included (about (w k)^2 / 24: +2.2 cents at A5 at 44.1 kHz
+    if tuned with the truth's ratio). Cached in the process and on disk like sounding_ratio."""
+    def ratio(beta: float, vb: float, a: float, f0: float) -> float:
+        k = 2 * math.pi * f0 / (sample_rate * oversample)
+        return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: _measure_ratio(beta, vb, a, k=k).r)
+    return ratio
+
+
+def engine_ratio(engine: str, beta: float, vb: float, a: float, measure) -> float:
+    """An engine's sounding ratio at a bow, from the on-disk table or measured (a silent note raises, as the truth's
+    does: sounding_ratio is asked first)."""
+    sounding_ratio(beta, vb, a)
+    key = f"{engine} {beta!r} {vb!r} {a!r}"
+    hit = _ratios.get(key)
+    if isinstance(hit, dict) and isinstance(hit.get("r"), float) and hit["r"] > 0:
+        return hit["r"]
+    r = float(measure())
+    if not (math.isfinite(r) and r > 0):
+        raise SilentNoteError(f"the note does not speak with this engine at F_B / w = {beta:.4g}, v_B = {vb:g}")
+    _ratios.put(key, {"r": r})
+    return r
 
 
 # --- solving for f0 ----------------------------------------------------------------------------------------------
@@ -307,11 +336,16 @@ def held_value(control, duration: float | None = None) -> float:
 
 
 def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, beta: float | None = None,
-         a4: float = A4_HZ) -> Tuning:
+         a4: float = A4_HZ, ratio=None) -> Tuning:
     """Solve for the oscillator f0 that sounds at `pitch` (Hz or a note name) when bowed with force fb (held
-    fixed) or, with `beta` given instead, with the force that keeps F_B / w = beta (fb = beta 2 pi f0)."""
+    fixed) or, with `beta` given instead, with the force that keeps F_B / w = beta (fb = beta 2 pi f0).
+
+    ratio: the engine that will play the note, as a function (beta, v_B, a, f0) -> sounding ratio (`fdm_ratio`,
+    `bowsynth.rollout.operator_ratio`); None: the truth's (sounding_ratio), which is what `compare` scores against."""
     p = parse_pitch(pitch, a4)
     vb, a = float(vb), float(a)
+    if ratio is not None:
+        return _tune_with(p, fb, vb, a, beta, ratio)
     if beta is not None:
         if fb is not None:
             raise UsageError("give the bow force as fb or as beta (F_B / w), not both")
@@ -356,11 +390,41 @@ def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, 
     return Tuning(p, f0, fb, vb, a, ratio(f0))
 
 
+def _tune_with(p: float, fb, vb: float, a: float, beta, ratio) -> Tuning:
+    """tune() with an engine's ratio: the secant method on the cents error over log f0, from the truth's solution
+    (the engine's ratio differs from the truth's by cents), to PITCH_TOL_CENTS. Not a fixed-point iteration: in
+    stick-slip r falls like 1 / beta, and f0 = pitch / r(f0) would not converge."""
+    if beta is not None and fb is not None:
+        raise UsageError("give the bow force as fb or as beta (F_B / w), not both")
+    first = tune(p, fb, vb, a, beta=beta)
+
+    def err(x):  # cents from the asked pitch at f0 = e^x
+        f0 = math.exp(x)
+        b = float(beta) if beta is not None else physics.beta(float(fb), f0)
+        return 1200.0 * math.log2(f0 * ratio(b, vb, a, f0) / p)
+
+    x0 = math.log(first.f0)
+    e0 = err(x0)
+    x1 = x0 - e0 * math.log(2) / 1200  # slope 1 in cents per cent of f0 where r does not move with f0
+    best = (abs(e0), x0)
+    for _ in range(12):
+        e1 = err(x1)
+        best = min(best, (abs(e1), x1))
+        if abs(e1) < PITCH_TOL_CENTS or e1 == e0:
+            break
+        x0, e0, x1 = x1, e1, x1 - e1 * (x1 - x0) / (e1 - e0)
+    f0 = math.exp(best[1])
+    force = float(beta) * physics.omega(f0) if beta is not None else float(fb)
+    b = physics.beta(force, f0)
+    return Tuning(p, f0, force, vb, a, Ratio(ratio(b, vb, a, f0), first.ratio.settle_periods, first.ratio.amplitude,
+                                             b, vb, a))
+
+
 def f0_for_pitch(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *,
-                 beta: float | None = None, a4: float = A4_HZ) -> float:
+                 beta: float | None = None, a4: float = A4_HZ, ratio=None) -> float:
     """The oscillator f0 (Hz) that sounds at `pitch` (Hz or a note name) with bow force fb (m/s^2) and speed vb
     (m/s); with `beta` instead of fb, the force scales with f0 (fb = beta 2 pi f0). See `tune`."""
-    return tune(pitch, fb, vb, a, beta=beta, a4=a4).f0
+    return tune(pitch, fb, vb, a, beta=beta, a4=a4, ratio=ratio).f0
 
 
 def sounding_pitch(f0: float, fb: float, vb: float = 0.2, a: float = 100.0) -> float:

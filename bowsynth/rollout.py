@@ -86,6 +86,32 @@ def scan_models() -> list[tuple[Path, OperatorModel | None, str | None]]:
     return found
 
 
+RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain does not depend on f0, only the samples
+RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
+
+
+def operator_ratio(model):
+    """The sounding ratio of a trained operator, as `pitch.tune(ratio=...)` takes it: the model rolled out from rest
+    at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods. A model's
+    window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached on disk
+    with the model's id)."""
+    from . import pitch as P
+    from .metrics import f0_estimate
+
+    m = as_model(model)
+
+    def ratio(beta: float, vb: float, a: float, f0: float) -> float:
+        def measure():
+            truth = P.sounding_ratio(beta, vb, a)
+            seconds = min((truth.settle_periods + RATIO_PERIODS / truth.r) / RATIO_F0, 60.0)
+            sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=seconds)
+            r = render_operator(sc, model=m)
+            tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
+            return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
+        return P.engine_ratio(f"operator{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
+    return ratio
+
+
 def unreadable_notes() -> list[str]:
     """One line per model file the default lookup skipped because it cannot be used (damaged, foreign, forged)."""
     return [f"note: skipped {p}: {why.replace(str(p), p.name)}" for p, m, why in scan_models() if m is None]

@@ -181,13 +181,15 @@ def preset_description(name: str) -> str:
         return tomllib.load(fh).get("description", "")
 
 
-def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, beta=None, **overrides) -> Scene:
+def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, beta=None, ratio=None,
+               **overrides) -> Scene:
     """A Scene from an optional preset, with the non-None overrides applied on top.
 
     pitch (Hz or a note name such as "A4", tuned to a4, default 440 Hz) replaces f0 by the f0 that sounds at that
     pitch with the scene's bow (see `bowsynth.pitch`); a preset's f0 gives way to it, an explicit f0 conflicts.
     beta (F_B / w, a number or a curve) replaces fb by beta 2 pi f0: the same timbre at every pitch. A preset may
-    itself say pitch = "A3" and beta = ... instead of f0 and fb."""
+    itself say pitch = "A3" and beta = ... instead of f0 and fb. ratio: the sounding ratio of the engine that will
+    play the note (`pitch.tune`; `api.tuning_for` gives it), else the truth's."""
     fields = load_preset(preset) if preset else {}
     if overrides.get("f0") is not None and pitch is not None:
         raise UsageError("give the note as pitch or as f0, not both")
@@ -217,9 +219,9 @@ def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, b
     sc = Scene.from_dict(probe)  # validates the bow before the solve
     vb = P.held_value(sc.vb, sc.duration)
     if beta is not None:
-        f0 = P.tune(hz, None, beta=P.held_value(beta, sc.duration), vb=vb, a=sc.a).f0
+        f0 = P.tune(hz, None, beta=P.held_value(beta, sc.duration), vb=vb, a=sc.a, ratio=ratio).f0
         return sc.replace(f0=f0, fb=_times(beta, physics.omega(f0)))
-    return sc.replace(f0=P.f0_for_pitch(hz, fb=P.held_value(sc.fb, sc.duration), vb=vb, a=sc.a))
+    return sc.replace(f0=P.f0_for_pitch(hz, fb=P.held_value(sc.fb, sc.duration), vb=vb, a=sc.a, ratio=ratio))
 
 
 def _times(control, k: float):

@@ -127,7 +127,12 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
                              capsys, monkeypatch)
     assert code == 0, err
     sc = read_wav(out).scene
-    assert sc.fb == 200 and math.isclose(sc.f0, tune("Bb3", 200.0).f0) and "233.08 Hz (A#3)" in so
+    # --method fdm: tuned with the audio-rate FDM's own ratio (its dispersion), not the truth's
+    from bowsynth.pitch import fdm_ratio
+
+    assert sc.fb == 200 and math.isclose(sc.f0, tune("Bb3", 200.0, ratio=fdm_ratio(44100)).f0)
+    assert not math.isclose(sc.f0, tune("Bb3", 200.0).f0, rel_tol=1e-6)
+    assert "233.08 Hz (A#3)" in so and "tuned for the FDM at x1" in so
 
 
 # --- the on-disk table of sounding ratios ---------------------------------------------------------------------------
@@ -217,3 +222,25 @@ def test_no_cache_when_off_or_unwritable(fresh_cache, tmp_path, monkeypatch):
     t = DiskTable("link", "v")
     t.put("k", 1)  # the link is replaced by a file; what it pointed to is never written
     assert not (tmp_path / "target.json").exists() and json.loads(link.read_text())["entries"] == {"k": 1}
+
+
+@pytest.mark.parametrize("pitch, fb, engine", [("A5", 553.0, "fdm"), (1000.0, 900.0, "fdm"),
+                                               (146.83, 193.7, "operator")])
+def test_a_note_is_tuned_by_the_engine_that_plays_it(pitch, fb, engine):
+    """The audio-rate FDM's dispersion makes A5 +1.9 cents sharp and 1 kHz +3.0 when tuned with the truth's ratio;
+    the range model plays its own ratio (-0.30 cents here): tuned with the engine's own, each sounds within 0.1 cent."""
+    from bowsynth import api
+    from bowsynth.metrics import cents, f0_estimate
+    from bowsynth.pitch import parse_pitch
+    from bowsynth.scene import make_scene
+
+    hz = parse_pitch(pitch)
+    base = make_scene(pitch=pitch, fb=fb, vb=0.2, duration=3.0)
+    ratio, by = api.tuning_for(base, engine)
+    assert ratio is not None, by
+    sc = make_scene(pitch=pitch, fb=fb, vb=0.2, duration=3.0, ratio=ratio)
+    r = api.render(sc, engine=engine)
+    assert abs(cents(f0_estimate(r.q[len(r.q) // 3:], sc.sample_rate, tail=1.0), hz)) < 0.1
+    if engine == "fdm":  # and the truth's tuning is measurably off there: the test can tell the two apart
+        r0 = api.render(base, engine="fdm")
+        assert abs(cents(f0_estimate(r0.q[len(r0.q) // 3:], sc.sample_rate, tail=1.0), hz)) > 1.0
