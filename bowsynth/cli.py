@@ -315,6 +315,8 @@ def compare(
     vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
     force: bool = typer.Option(False, "--force", help="Replace a read-only --plot file; run FDM references "
                                                      "estimated past a couple of minutes."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML listening report (players, harmonics, pitch, onset, spectrograms, metrics) to this file."),
+    report_notes: int = typer.Option(8, "--report-notes", help="A mix's --report: a section for each of its N worst notes (by NMSE)."),
 ):
     """Compare a render against the FDM: NMSE, NCC, pitch (cents), harmonics, spectrum, and speed."""
     import json
@@ -328,6 +330,10 @@ def compare(
         check_output_path(plot, force=force)
         if plot.suffix.lower() != ".png" and str(plot) != "-":
             raise UsageError(f"--plot writes a PNG; give a .png file name, got {plot}")
+    if report is not None:
+        from .report.compare_page import check_report_path
+
+        check_report_path(report, plot, report_notes, force)
     scene = None
     info = read_wav(wav)
     from .compare import compare_mix, format_mix_table, mix_meta
@@ -340,6 +346,9 @@ def compare(
             out.print_json(json.dumps([{"note": n, **c.to_json()} for n, c in rows]))
         else:
             out.print(format_mix_table(rows))
+        if report is not None:
+            from .report.compare_page import write_mix_report
+            write_mix_report(report, wav, rows, worst=report_notes, force=force)
         return
     if info.meta is None and other is None:
         if all(v is None for v in (preset, f0, fb, vb, a)):
@@ -357,6 +366,9 @@ def compare(
         plot_comparison(c, plot, info.sample_rate)
         if not json_out:
             say.print(f"plot written to {'standard output' if str(plot) == '-' else plot}")
+    if report is not None:
+        from .report.compare_page import write_compare_report
+        write_compare_report(report, c, info, force=force)
 
 
 @app.command()
