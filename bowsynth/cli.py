@@ -274,12 +274,20 @@ def _num(v, fmt: str) -> str:
 
 
 @app.command()
-def models():
+def models(
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write an HTML report: each model's metadata, a map of its error over its box at held-out bows, players. Renders against a x100 FDM: tens of seconds."),
+    report_grid: int = typer.Option(3, "--report-grid", help="--report: held-out bows per side of a range model's box (N x N FDM runs)."),
+    force: bool = typer.Option(False, "--force", help="Replace a read-only --report file."),
+):
     """List the operator models found in ./models and the shipped ones, with their domains and scores."""
     from rich.markup import escape
 
     from .rollout import scan_models
 
+    if report is not None:
+        from .report.models_page import check_report_path
+
+        check_report_path(report, report_grid, force)
     found = scan_models()
     if not found:
         out.print("no models found (train one with `bowsynth train --fb 100`)")
@@ -302,6 +310,11 @@ def models():
                     f"{d.window:.3g} tau; validation NMSE(p) {_num(v.get('nmse'), '.3g')}")
         out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    {escape(what)}, "
                   f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
+    if report is not None:
+        from .report.models_page import write_models_report
+
+        write_models_report(report, found, report_grid, force, progress=lambda s: err.print(s, soft_wrap=True))
+        out.print(f"report written to {report}")
 
 
 @app.command()
@@ -348,7 +361,10 @@ def compare(
             out.print(format_mix_table(rows))
         if report is not None:
             from .report.compare_page import write_mix_report
+
             write_mix_report(report, wav, rows, worst=report_notes, force=force)
+            if not json_out:
+                out.print(f"report written to {report}")
         return
     if info.meta is None and other is None:
         if all(v is None for v in (preset, f0, fb, vb, a)):
@@ -368,7 +384,10 @@ def compare(
             say.print(f"plot written to {'standard output' if str(plot) == '-' else plot}")
     if report is not None:
         from .report.compare_page import write_compare_report
+
         write_compare_report(report, c, info, force=force)
+        if not json_out:
+            say.print(f"report written to {report}")
 
 
 @app.command()
