@@ -246,9 +246,10 @@ def _players(c: Comparison, m: dict) -> str:
                               c.series[r["fdm"]][:n], sr, g))
     diff, boost = H.difference_player(x, ref, sr, g, r["ref"])
     items.append(diff)
-    level = (f"The file, the reference{' and the audio-rate FDM' if r['fdm'] else ''} play at one gain (the loudest "
-             f"peaks at -1 dBFS), so loudness differences are real; the difference is raised by "
-             f"{'+%.0f dB' % boost if boost is not None else '0 dB'}.")
+    who = "The file, the reference and the audio-rate FDM" if r["fdm"] else "The file and the reference"
+    raised = f"+{boost:.0f} dB" if boost is not None else "0 dB"
+    level = (f"{who} play at one gain (the loudest peaks at -1 dBFS), so loudness differences are real; the "
+             f"difference is raised by {raised}.")
     return (f'<p class="why">{level} Audio is embedded as 16-bit PCM WAV.</p>'
             f'<div class="players">{"".join(items)}</div>')
 

@@ -216,7 +216,7 @@ def model_section(path, m, grid: int, progress, plt) -> tuple[str, dict]:
     table_rows = [[f"{r['beta']:.4g}", f"{r['vb']:.4g}",
                    "yes" if r["speaks"] else "no (skipped)",
                    H.num(r.get("nmse"), ".3g"), H.num(r.get("cents"), "+.3f"), H.num(r.get("harm_db"), ".3f"),
-                   r.get("error", "")] for r in rows]
+                   r.get("error", "ok" if "nmse" in r else "")] for r in rows]
     picks = sorted(ok, key=lambda r: r["harm_db"])
     picks = [picks[0], picks[len(picks) // 2], picks[-1]] if len(picks) >= 3 else picks
     names = ["best", "median", "worst"] if len(picks) == 3 else ["" for _ in picks]
@@ -266,8 +266,9 @@ def models_page(found: list, grid: int = 3, progress=lambda s: None) -> str:
             'carries (its domain, training, selection and validation) and what this page measured when it was made '
             'against a x100 FDM: a point model at its own scene, a range model on held-out bows over its box. '
             'Pitch and harmonics are what a listener hears (GUIDE section 9); NMSE is the paper\'s score.</p>',
-            H.table(["model", "kind", "validation NMSE(p) (carried)", "pitch |cents| (measured; range: median)",
-                     "harmonics mean |dB| (measured; range: median)", "note"], rows, {2, 3, 4}, cls="summary"),
+            H.table(["model", "kind", "validation NMSE(p) (carried)", "pitch error, cents (measured; a range "
+                     "model: median |cents|)", "harmonics, mean |dB| (measured; a range model: median)", "note"],
+                    rows, {2, 3, 4}, cls="summary"),
             *sections]
     return H.page("bowsynth models report", "\n".join(body))
 
