@@ -145,6 +145,11 @@ def test_compare_report_point_model(browser, tmp_path, capsys, monkeypatch):
     harm = float(lt["rows"][1][1])
     assert harm < 0.1
     assert not list(tmp_path.glob(".*tmp")), "a temp file was left beside the report"
+    # self-contained: the only addresses in the page are the SVG namespaces (names, never fetched)
+    import re
+
+    urls = set(re.findall(r"https?://[^\"'<> ]+", page.read_text()))
+    assert urls <= {"http://www.w3.org/2000/svg", "http://www.w3.org/1999/xlink"}, urls
 
 
 def test_compare_report_range_model_crescendo(browser, tmp_path, capsys, monkeypatch):

@@ -104,7 +104,8 @@ def svg(fig) -> str:
     fig.savefig(buf, format="svg", bbox_inches="tight")
     plt.close(fig)
     text = buf.getvalue()
-    return text[text.index("<svg"):]
+    # matplotlib's RDF block names web addresses (never fetched, but a page that opens offline should not name them)
+    return re.sub(r"<metadata>.*?</metadata>", "", text[text.index("<svg"):], flags=re.S)
 
 
 def figure(svg_text: str, caption: str) -> str:
