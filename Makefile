@@ -5,7 +5,7 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models bench bench-quick clean
+.PHONY: setup demo test models bench bench-quick clean chromium
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	$(PY) -c 'from bowsynth.kernels import warm; warm()'
 	touch $(STAMP)
 
-setup: $(STAMP)
+setup: $(STAMP) chromium
 
 demo: $(STAMP)
 	mkdir -p $(OUTDIR)
@@ -31,7 +31,7 @@ demo: $(STAMP)
 	$(BOW) render --fb 50@0,200@2 --vb 0.15 -d 2 $(OUTDIR)/crescendo.wav
 	$(BOW) compare $(OUTDIR)/crescendo.wav
 
-test: $(STAMP)
+test: $(STAMP) chromium
 	$(PY) -m pytest
 
 # The shipped operators: one command each, on a 2-core CPU at most 15 minutes for each point model and 60 for each
@@ -44,6 +44,10 @@ models: $(STAMP)
 	$(BOW) train --preset paper-fb1000 --minutes 12 --out bowsynth/models/paper-fb1000.safetensors --force
 	$(BOW) train --preset scratch-g2 --rest-linear --minutes 20 --out bowsynth/models/scratch-g2.safetensors --force
 	$(BOW) train --f0 100 --fb 9.42:251.4 --vb 0.05:0.3 --minutes 30 --out bowsynth/models/soft-range.safetensors --force
+
+# The report tests open pages in Debian's chromium, driven by playwright (the test extra) with no browser download.
+chromium:
+	@command -v chromium >/dev/null || { S=$$([ "$$(id -u)" = 0 ] || echo sudo); $$S apt-get update && $$S apt-get install -y chromium; } || echo "chromium could not be installed: the browser tests will skip"
 
 bench: $(STAMP)
 	$(BOW) bench --out docs/bench

@@ -279,12 +279,20 @@ def _num(v, fmt: str) -> str:
 
 
 @app.command()
-def models():
+def models(
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write an HTML report: each model's metadata, a map of its error over its box at held-out bows, players. Renders against a x100 FDM: tens of seconds."),
+    report_grid: int = typer.Option(3, "--report-grid", help="--report: held-out bows per side of a range model's box (N x N FDM runs)."),
+    force: bool = typer.Option(False, "--force", help="Replace a read-only --report file."),
+):
     """List the operator models found in ./models and the shipped ones, with their domains and scores."""
     from rich.markup import escape
 
     from .rollout import scan_models
 
+    if report is not None:
+        from .report.models_page import check_report_path
+
+        check_report_path(report, report_grid, force)
     found = scan_models()
     if not found:
         out.print("no models found (train one with `bowsynth train --fb 100`)")
@@ -307,6 +315,11 @@ def models():
                     f"{d.window:.3g} tau; validation NMSE(p) {_num(v.get('nmse'), '.3g')}")
         out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    {escape(what)}, "
                   f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
+    if report is not None:
+        from .report.models_page import write_models_report
+
+        write_models_report(report, found, report_grid, force, progress=lambda s: err.print(s, soft_wrap=True))
+        out.print(f"report written to {report}")
 
 
 @app.command()
@@ -320,6 +333,8 @@ def compare(
     vb: Optional[str] = VbOpt, a: Optional[float] = AOpt, q0: Optional[float] = Q0Opt, p0: Optional[float] = P0Opt,
     force: bool = typer.Option(False, "--force", help="Replace a read-only --plot file; run FDM references "
                                                      "estimated past a couple of minutes."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML listening report (players, harmonics, pitch, onset, spectrograms, metrics) to this file."),
+    report_notes: int = typer.Option(8, "--report-notes", help="A mix's --report: a section for each of its N worst notes (by NMSE)."),
 ):
     """Compare a render against the FDM: NMSE, NCC, pitch (cents), harmonics, spectrum, and speed."""
     import json
@@ -333,6 +348,10 @@ def compare(
         check_output_path(plot, force=force)
         if plot.suffix.lower() != ".png" and str(plot) != "-":
             raise UsageError(f"--plot writes a PNG; give a .png file name, got {plot}")
+    if report is not None:
+        from .report.compare_page import check_report_path
+
+        check_report_path(report, plot, report_notes, force)
     scene = None
     info = read_wav(wav)
     from .compare import compare_mix, format_mix_table, mix_meta
@@ -345,6 +364,12 @@ def compare(
             out.print_json(json.dumps([{"note": n, **c.to_json()} for n, c in rows]))
         else:
             out.print(format_mix_table(rows))
+        if report is not None:
+            from .report.compare_page import write_mix_report
+
+            write_mix_report(report, wav, rows, worst=report_notes, force=force)
+            if not json_out:
+                out.print(f"report written to {report}")
         return
     if info.meta is not None and other is None and any(v is not None for v in (preset, f0, fb, vb, a, q0, p0)):
         raise UsageError(f"{wav} carries its scene in its metadata; the scene flags are for files without it")
@@ -364,6 +389,12 @@ def compare(
         plot_comparison(c, plot, info.sample_rate)
         if not json_out:
             say.print(f"plot written to {'standard output' if str(plot) == '-' else plot}")
+    if report is not None:
+        from .report.compare_page import write_compare_report
+
+        write_compare_report(report, c, info, force=force)
+        if not json_out:
+            say.print(f"report written to {report}")
 
 
 @app.command()
