@@ -22,7 +22,7 @@ setup: $(STAMP) chromium
 demo: $(STAMP)
 	mkdir -p $(OUTDIR)
 	$(BOW) render --preset paper-fb100 $(OUTDIR)/demo.wav
-	$(BOW) compare $(OUTDIR)/demo.wav --plot $(OUTDIR)/demo.png
+	$(BOW) compare $(OUTDIR)/demo.wav --plot $(OUTDIR)/demo.png --report $(OUTDIR)/demo-report.html
 	$(BOW) render --preset scratch-g2 $(OUTDIR)/scratch-g2.wav
 	$(BOW) compare $(OUTDIR)/scratch-g2.wav
 	$(BOW) render --preset violin-a4 $(OUTDIR)/violin-a4.flac

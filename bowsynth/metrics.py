@@ -116,10 +116,10 @@ HARMONICS = 10
 AUDIBLE_DB = -50.0  # harmonics of the truth below this (re its fundamental) are not scored
 
 
-def harmonic_levels(x, sample_rate: float, n: int = HARMONICS, f0: float | None = None) -> np.ndarray:
-    """Levels of harmonics 1..n in dB re the fundamental, fitted by least squares at the signal's own pitch (f0, or
-    measured by f0_estimate over all of x). Fitting each signal at its own pitch matters: at a shared pitch a 0.16 %
-    pitch difference smears harmonic 10 over 1.6 cycles and reads as -17 dB. NaN where x has no pitch."""
+def harmonic_amplitudes(x, sample_rate: float, n: int = HARMONICS, f0: float | None = None) -> np.ndarray:
+    """Amplitudes of harmonics 1..n, fitted by least squares at the signal's own pitch (f0, or measured by
+    f0_estimate over all of x). Fitting each signal at its own pitch matters: at a shared pitch a 0.16 % pitch
+    difference smears harmonic 10 over 1.6 cycles and reads as -17 dB. NaN at or above Nyquist or with no pitch."""
     x = np.asarray(x, float)
     f0 = f0_estimate(x, sample_rate, tail=1.0) if f0 is None else f0
     out = np.full(n, np.nan)
@@ -132,18 +132,26 @@ def harmonic_levels(x, sample_rate: float, n: int = HARMONICS, f0: float | None 
     ph = 2 * np.pi * f0 * t[:, None] * np.arange(1, m + 1)[None, :]
     A = np.concatenate([np.ones((len(x), 1)), np.cos(ph), np.sin(ph)], axis=1)
     c, *_ = np.linalg.lstsq(A, x, rcond=None)
-    amp = np.hypot(c[1:m + 1], c[m + 1:])
-    if not amp[0] > 0:
-        return out
-    out[:m] = 20 * np.log10(np.maximum(amp, 1e-300) / amp[0])
+    out[:m] = np.hypot(c[1:m + 1], c[m + 1:])
     return out
 
 
-def onset_time(x, sample_rate: float, f0: float | None = None) -> float:
-    """The first time (s) a one-period RMS of x reaches half its final value (the RMS over the last tenth of x); NaN
-    for silence. The period is the signal's own (measured over its last half), the RMS window ends at the time
-    reported."""
+def harmonic_levels(x, sample_rate: float, n: int = HARMONICS, f0: float | None = None) -> np.ndarray:
+    """Levels of harmonics 1..n in dB re the signal's own fundamental (harmonic_amplitudes). NaN where x has no
+    pitch."""
+    amp = harmonic_amplitudes(x, sample_rate, n, f0)
+    if not amp[0] > 0:
+        return np.full(n, np.nan)
+    return 20 * np.log10(np.maximum(amp, 1e-300) / amp[0])
+
+
+def onset_time(x, sample_rate: float, f0: float | None = None, end: int | None = None) -> float:
+    """The first time (s) a one-period RMS of x reaches half its final value (the RMS over the last tenth of x, or
+    of x[:end] when the note's sustain ends at sample `end`, before a release); NaN for silence. The period is the
+    signal's own (measured over its last half) unless f0 is given; the RMS window ends at the time reported."""
     x = np.asarray(x, float)
+    if end is not None:
+        x = x[:max(1, min(len(x), end))]
     f0 = f0_estimate(x, sample_rate) if f0 is None else f0
     if not f0 > 0:
         return float("nan")

@@ -308,7 +308,8 @@ def test_harmonic_levels_each_at_its_own_pitch():
 
 
 def test_onset_and_pitch_track():
-    from bowsynth.report.listen import cents, onset_time, pitch_track
+    from bowsynth.metrics import onset_time
+    from bowsynth.report.listen import cents, pitch_track
 
     t = np.arange(SR) / SR
     env = np.clip(t / 0.2, 0, 1)  # a linear swell to full level at 0.2 s: half level at 0.1 s

@@ -12,6 +12,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ..compare import HIGH_OVERSAMPLE, ROWS, Comparison
+from ..metrics import onset_time
 from . import html as H
 from . import listen as L
 
@@ -80,7 +81,7 @@ def listener(c: Comparison, k: int | None = None) -> dict:
     out["track_x"] = L.pitch_track(x[:n], sr, hint)[1]
     if r["fdm"]:
         out["track_fdm"] = L.pitch_track(c.series[r["fdm"]][:n], sr, hint)[1]
-    out["onset"] = {lab: L.onset_time(c.series[lab][:n], sr, hint, st.stop)
+    out["onset"] = {lab: onset_time(c.series[lab][:n], sr, hint, end=st.stop)
                     for lab in (r["file"], r["ref"], r["fdm"]) if lab}
     return out
 

@@ -1,8 +1,8 @@
 """What a listener hears, measured for the report (GUIDE section 9): harmonic levels each at the signal's own pitch,
 a pitch track, the onset.
 
-These are private to the report until the listener metrics land in bowsynth.metrics; then the report calls those
-and this module shrinks to the track and the envelope, which only the report draws.
+The measurements themselves are bowsynth.metrics'; this module holds what only the report draws: levels re the
+truth's fundamental, the pitch track and the envelope.
 """
 
 from __future__ import annotations
@@ -11,41 +11,18 @@ import math
 
 import numpy as np
 
-from ..metrics import f0_estimate
+from ..metrics import f0_estimate, harmonic_amplitudes
 
 N_HARMONICS = 10
 FLOOR_DB = -60.0  # harmonics this far below the truth's fundamental are noise for the mean |dB| (as metrics uses)
-
-
-# TODO(merge): use metrics.harmonic_levels
-def _harmonic_amplitudes(x, sample_rate: float, n: int = N_HARMONICS) -> tuple[float, np.ndarray]:
-    """(pitch Hz, amplitudes of harmonics 1..n) by least squares at the signal's own pitch over the whole of x.
-
-    Each signal gets its own pitch: at a shared one a 0.16 % pitch difference smears harmonic 10 over 1.6 cycles and
-    reads as -17 dB (GUIDE section 9). Harmonics at or above Nyquist are nan."""
-    x = np.asarray(x, float)
-    f0 = f0_estimate(x, sample_rate, tail=1.0)
-    amps = np.full(n, np.nan)
-    if not f0 > 0 or len(x) < 8:
-        return f0, amps
-    t = np.arange(len(x)) / sample_rate
-    hs = [h for h in range(1, n + 1) if h * f0 < sample_rate / 2]
-    cols = [np.ones_like(t)]
-    for h in hs:
-        w = 2 * np.pi * h * f0 * t
-        cols += [np.cos(w), np.sin(w)]
-    coef, *_ = np.linalg.lstsq(np.stack(cols, axis=1), x, rcond=None)
-    for i, h in enumerate(hs):
-        amps[h - 1] = math.hypot(coef[1 + 2 * i], coef[2 + 2 * i])
-    return f0, amps
 
 
 def harmonic_levels_db(x, ref, sample_rate: float, n: int = N_HARMONICS) -> dict:
     """Harmonics 1..n of x and of ref, each fitted at its own pitch, in dB relative to ref's fundamental (so a level
     difference of the whole note shows too), their difference, and the mean |difference| over the harmonics within
     60 dB of ref's fundamental."""
-    fx, ax = _harmonic_amplitudes(x, sample_rate, n)
-    fr, ar = _harmonic_amplitudes(ref, sample_rate, n)
+    fx, fr = (f0_estimate(np.asarray(v, float), sample_rate, tail=1.0) for v in (x, ref))
+    ax, ar = harmonic_amplitudes(x, sample_rate, n, fx), harmonic_amplitudes(ref, sample_rate, n, fr)
     top = ar[0] if ar[0] > 0 else np.nan
     with np.errstate(divide="ignore", invalid="ignore"):
         lx, lr = 20 * np.log10(ax / top), 20 * np.log10(ar / top)
@@ -80,20 +57,6 @@ def rms_envelope(x, sample_rate: float, f0: float) -> np.ndarray:
     i = np.arange(1, len(x) + 1)
     lo = np.maximum(0, i - period)
     return np.sqrt((c[i] - c[lo]) / (i - lo))
-
-
-# TODO(merge): use metrics.onset_time
-def onset_time(x, sample_rate: float, f0: float, end: int | None = None) -> float:
-    """The first time (s) a one-period RMS reaches half its final value (its value one period before `end`, the end
-    of the sustain; default the end of x). nan when the note never speaks."""
-    x = np.asarray(x, float)
-    end = len(x) if end is None else max(1, min(len(x), end))
-    env = rms_envelope(x[:end], sample_rate, f0)
-    final = env[-1]
-    if not final > 0:
-        return float("nan")
-    hit = np.flatnonzero(env >= 0.5 * final)
-    return float((hit[0] + 1) / sample_rate) if len(hit) else float("nan")
 
 
 def cents(f, f_ref):
