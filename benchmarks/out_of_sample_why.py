@@ -8,9 +8,9 @@ import numpy as np
 from scipy import signal as sps
 
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth.bench import REF_OVERSAMPLE
-from bowsynth.metrics import nmse
-from bowsynth.rollout import SHIPPED_DIR
+from bowsynth.analysis.bench import REF_OVERSAMPLE
+from bowsynth.analysis.metrics import nmse
+from bowsynth.engines.operator.rollout import SHIPPED_DIR
 
 
 def onset_shift():
@@ -34,7 +34,7 @@ def onset_shift():
 
 def onset_windows():
     """fb 10: one-window NMSE(p) from states of the rest trajectory at t = (m + f) T."""
-    from bowsynth.bench import window_errors
+    from bowsynth.analysis.bench import window_errors
 
     m = load_model(SHIPPED_DIR / "paper-fb10.safetensors")
     sc = make_scene("paper-fb10")
@@ -67,7 +67,7 @@ def spectrum_bands():
 
 def margin_states():
     """One-window NMSE(p) of held-out states by their distance from the band (fraction of the domain's box)."""
-    from bowsynth.bench import band_distance, band_states, window_errors
+    from bowsynth.analysis.bench import band_distance, band_states, window_errors
 
     print("\nOne-window NMSE(p) of 64 held-out states (seed 1) by distance from the band:")
     print("| model | distance (of the box) | states | median | worst |")

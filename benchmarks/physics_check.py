@@ -17,8 +17,8 @@ import time
 import numpy as np
 
 from bowsynth import Scene
-from bowsynth import rollout as R
-from bowsynth.model import load_model
+from bowsynth.engines.operator import rollout as R
+from bowsynth.engines.operator.modelfile import load_model
 
 PITCHES = (50, 100, 200, 400, 800)
 

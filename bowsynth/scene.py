@@ -186,7 +186,7 @@ def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, b
     """A Scene from an optional preset, with the non-None overrides applied on top.
 
     pitch (Hz or a note name such as "A4", tuned to a4, default 440 Hz) replaces f0 by the f0 that sounds at that
-    pitch with the scene's bow (see `bowsynth.pitch`); a preset's f0 gives way to it, an explicit f0 conflicts.
+    pitch with the scene's bow (see `bowsynth.music.pitch`); a preset's f0 gives way to it, an explicit f0 conflicts.
     beta (F_B / w, a number or a curve) replaces fb by beta 2 pi f0: the same timbre at every pitch. A preset may
     itself say pitch = "A3" and beta = ... instead of f0 and fb. ratio: the sounding ratio of the engine that will
     play the note (`pitch.tune`; `api.tuning_for` gives it), else the truth's."""
@@ -210,7 +210,7 @@ def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, b
         if beta is not None:
             fields["fb"] = _times(beta, physics.omega(fields.get("f0", Scene.f0)))
         return Scene.from_dict(fields)
-    from . import pitch as P
+    from .music import pitch as P
 
     hz = P.parse_pitch(pitch, P.A4_HZ if a4 is None else a4)
     probe = {**fields, "f0": hz}

@@ -22,7 +22,7 @@ import pytest
 
 import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth.metrics import nmse
+from bowsynth.analysis.metrics import nmse
 
 MODELS = Path(os.environ.get("BOWSYNTH_TEST_MODELS") or Path(bowsynth.__file__).parent / "models")
 DURATION = 0.25

@@ -8,8 +8,8 @@ import pytest
 
 import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth import bench as B
-from bowsynth.metrics import nmse
+from bowsynth.analysis import bench as B
+from bowsynth.analysis.metrics import nmse
 
 
 @pytest.fixture(scope="module")

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from bowsynth.cli import app
+from bowsynth.cli.main.main import app
 from conftest import run_main
-from bowsynth.wav import read_wav
+from bowsynth.io.audio import read_wav
 
 runner = CliRunner()
 
@@ -36,9 +36,9 @@ def test_train_render_compare(tmp_path, monkeypatch, capsys):
     assert info.scene.fb == 100 and info.sample_rate == 44100
     # the file holds what the API renders (float32 samples scaled to their peak)
     from bowsynth import load_model, render_fdm, render_operator
-    from bowsynth.metrics import nmse
+    from bowsynth.analysis.metrics import nmse
 
-    from bowsynth.wav import remove_dc
+    from bowsynth.io.audio import remove_dc
 
     assert info.dc_removed  # the default: the static offset is not sound
     expect = remove_dc(render_operator(info.scene, model=load_model(model), fallback="fdm").u, info.sample_rate)
@@ -72,7 +72,7 @@ def test_fdm_wav_compares_to_zero(tmp_path, monkeypatch, capsys):
 
 def test_metadata_round_trip_after_move(tmp_path):
     from bowsynth import Scene, render_fdm
-    from bowsynth.wav import remove_dc, write_wav
+    from bowsynth.io.audio import remove_dc, write_wav
 
     sc = Scene(fb=30, vb=0.15, f0=123.5, duration=0.2, sample_rate=48000, q0=0.01)
     r = render_fdm(sc)
@@ -92,7 +92,7 @@ def test_metadata_round_trip_after_move(tmp_path):
 
 def test_no_model_covers_scene(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
+    monkeypatch.setattr("bowsynth.engines.operator.rollout.SHIPPED_DIR", tmp_path / "none")
     code, _, err = run_main(["render", "--fb", "123", "--vb", "0.3", str(tmp_path / "x.wav")], capsys, monkeypatch)
     assert code == 1
     assert "no model covers" in err and "bowsynth train --fb 123 --f0 100 --vb 0.3 --a 100" in err
@@ -125,7 +125,7 @@ def test_model_by_name(tmp_path, tiny_model, monkeypatch, capsys):
 
 def test_rollout_forced_out_of_domain_stops_cleanly(tmp_path, tiny_model, monkeypatch, capsys):
     from bowsynth import Scene, render_operator
-    from bowsynth.model import load_model
+    from bowsynth.engines.operator.modelfile import load_model
 
     m = load_model(tiny_model)
     # shrink the domain around the start so the rollout leaves it within the first windows
@@ -142,7 +142,7 @@ def test_rollout_forced_out_of_domain_stops_cleanly(tmp_path, tiny_model, monkey
     code, out, err = run_main(["render", "--fb", "100", "-d", "0.2", "--model", str(small), "--fallback", "fdm",
                                str(wav)], capsys, monkeypatch)
     assert code == 0 and "finished with the FDM" in out
-    from bowsynth.wav import remove_dc
+    from bowsynth.io.audio import remove_dc
 
     expect = remove_dc(render_operator(Scene(fb=100, duration=0.2), model=small, fallback="fdm").u, 44100)
     np.testing.assert_allclose(read_wav(wav).physical, expect, rtol=0, atol=1e-6 * np.abs(expect).max())

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from bowsynth import Scene, load_model, render_fdm, render_operator
-from bowsynth.rollout import BATCH_FROM, rollout_states
-from bowsynth.wav import read_wav
+from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
+from bowsynth.io.audio import read_wav
 
 
 def thin(model):
@@ -82,7 +82,7 @@ def test_cli_fallback_writes_the_continuation(tmp_path, tiny_model):
     sc = Scene(fb=100, duration=0.1)
     expect = render_operator(sc, model=load_model(small), fallback="fdm")
     info = read_wav(wav)
-    from bowsynth.wav import remove_dc
+    from bowsynth.io.audio import remove_dc
 
     assert info.dc_removed  # the default; the continuation is compared through the same filter
     want = remove_dc(expect.p, sc.sample_rate)

@@ -12,9 +12,9 @@ import pytest
 import torch
 
 from bowsynth import ModelFileError, Scene
-from bowsynth import npnet
-from bowsynth.model import OperatorModel, digest, load_model
-from bowsynth.rollout import SHIPPED_DIR, available_models, check_physics, render_operator
+from bowsynth.engines.operator import npnet
+from bowsynth.engines.operator.modelfile import OperatorModel, digest, load_model
+from bowsynth.engines.operator.rollout import SHIPPED_DIR, available_models, check_physics, render_operator
 from conftest import run_main
 
 FB100 = SHIPPED_DIR / "paper-fb100.safetensors"
@@ -67,7 +67,7 @@ def test_numpy_network_matches_torch():
 def test_rollout_from_a_file_equals_the_torch_built_model(tmp_path):
     from safetensors.torch import load_file
 
-    from bowsynth.network import DeepONet, NetConfig
+    from bowsynth.engines.operator.network import DeepONet, NetConfig
 
     loaded = load_model(FB100)
     tensors = load_file(str(FB100))
@@ -188,7 +188,7 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
     import math
 
     from bowsynth import physics
-    from bowsynth.rollout import CHECK_FLOOR, CHECK_STEPS, CHECK_WINDOWS, _operator, reference_tau
+    from bowsynth.engines.operator.rollout import CHECK_FLOOR, CHECK_STEPS, CHECK_WINDOWS, _operator, reference_tau
 
     m = load_model(SHIPPED_DIR / f"{name}.safetensors")
     op, d = _operator(m), m.domain
@@ -207,7 +207,7 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
                                   ["score", "--score", "s.toml", "--mix", "m.wav"]], ids=["render-pitch", "score"])
 def test_a_repeated_pitch_and_an_operator_score_load_no_numba(tmp_path, args):
     """The first `--pitch` measures the sounding pitch with the compiled FDM; the same note again reads the on-disk
-    table (bowsynth.cache) and loads no numba. An operator score (its releases in the numpy FDM batch) loads none
+    table (bowsynth.io.cache) and loads no numba. An operator score (its releases in the numpy FDM batch) loads none
     from the first run on."""
     (tmp_path / "s.toml").write_text('[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.2\n'
                                      '[[voice]]\nname = "w"\nf0 = 150.0\nbeta = 0.159155\nduration = 0.3\n')
@@ -251,7 +251,7 @@ def rewrite_weights(src, dst, edit):
 def test_an_honest_but_inaccurate_model_is_told_from_a_mislabelled_one(tmp_path):
     """Over the check's limit, a model whose windows still fit its claimed bow best renders with a note (an inaccurate
     onset); one whose file claims a bow 10 % off is refused, naming the bow its weights fit as well."""
-    from bowsynth.rollout import PHYSICS_MAX_ERROR
+    from bowsynth.engines.operator.rollout import PHYSICS_MAX_ERROR
 
     honest = load_model(rewrite_weights(FB100, tmp_path / "noisy.safetensors", noisy_branch))
     assert check_physics(honest) > PHYSICS_MAX_ERROR

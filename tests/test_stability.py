@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from bowsynth import Scene, render_fdm
-from bowsynth.metrics import cents, f0_estimate, nmse
-from bowsynth.rollout import SHIPPED_DIR, render_operator, rollout_states
-from bowsynth.model import load_model
+from bowsynth.analysis.metrics import cents, f0_estimate, nmse
+from bowsynth.engines.operator.rollout import SHIPPED_DIR, render_operator, rollout_states
+from bowsynth.engines.operator.modelfile import load_model
 
 SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.endswith(".ckpt.safetensors"))
 

@@ -1,6 +1,6 @@
 """`bowsynth compare X --report R.html`: the comparison `compare` already computed, made audible and visible.
 
-Everything here is drawn from a Comparison (bowsynth.compare): its series are the file and the references compare
+Everything here is drawn from a Comparison (bowsynth.analysis.compare): its series are the file and the references compare
 rendered, so no reference is computed twice. A mix gets a table of its notes and a section for each of its worst
 notes (through the stems, as compare_mix measures them)."""
 
@@ -11,8 +11,8 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from ..compare import HIGH_OVERSAMPLE, ROWS, Comparison
-from ..metrics import onset_time
+from ..analysis.compare import HIGH_OVERSAMPLE, ROWS, Comparison
+from ..analysis.metrics import onset_time
 from . import html as H
 from . import listen as L
 
@@ -256,7 +256,7 @@ def _players(c: Comparison, m: dict) -> str:
 
 
 def _scene_card(c: Comparison, meta: dict | None, name: str) -> str:
-    from ..rollout import scan_models
+    from ..engines.operator.rollout import scan_models
 
     items = [("file", name)]
     if c.scene is not None:
@@ -333,7 +333,7 @@ def compare_page(c: Comparison, meta: dict | None, name: str) -> str:
 
 
 def write_compare_report(path, c: Comparison, info, force: bool = False) -> None:
-    """The page for one compared file (info: its bowsynth.wav.WavInfo)."""
+    """The page for one compared file (info: its bowsynth.io.audio.WavInfo)."""
     H.write_page(path, compare_page(c, info.meta, info.path.name), force=force)
 
 
@@ -342,9 +342,9 @@ def mix_page(mix_path, rows: list, worst: int = 8) -> str:
     reference (the first column compare prints)."""
     from pathlib import Path
 
-    from ..compare import mix_stems
-    from ..pitch import note_name
-    from ..wav import read_wav
+    from ..analysis.compare import mix_stems
+    from ..music.pitch import note_name
+    from ..io.audio import read_wav
 
     mix_path = Path(mix_path)
     d, _ = mix_stems(mix_path)
@@ -390,10 +390,10 @@ def write_mix_report(path, mix_path, rows: list, worst: int = 8, force: bool = F
 
 
 def check_report_path(path, plot=None, notes: int = 8, force: bool = False) -> None:
-    """Refuse a report path before any work, by the rules of every output (bowsynth.outfile), plus: a page to open
+    """Refuse a report path before any work, by the rules of every output (bowsynth.io.outfile), plus: a page to open
     is an .html file, not standard output, and not the --plot file."""
     from ..errors import UsageError
-    from ..outfile import check_output_path, is_stdout
+    from ..io.outfile import check_output_path, is_stdout
 
     if is_stdout(path):
         raise UsageError("--report writes a page to open in a browser; give an .html file, not - (standard output)")

@@ -141,9 +141,9 @@ def page(title: str, body: str) -> str:
 
 
 def write_page(path, text: str, force: bool = False) -> None:
-    """Through the project's output rules (bowsynth.outfile): a temp file renamed into place, so a failure leaves
+    """Through the project's output rules (bowsynth.io.outfile): a temp file renamed into place, so a failure leaves
     no half page; a symlink is written through, a FIFO written to, a read-only file refused without force."""
-    from ..outfile import atomic_write
+    from ..io.outfile import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), force=force)
 

@@ -35,10 +35,10 @@ def measure(model, scene) -> dict:
     """The model's render of `scene` against the x100 FDM, on p (as the validation the file carries): NMSE, pitch
     (cents, steady half), harmonics 1-10 each at its own pitch (mean |dB|); and u as a file would hold it, to play."""
     from ..errors import DomainError
-    from ..fdm import render_fdm
-    from ..metrics import cents, f0_estimate, nmse
-    from ..rollout import render_operator
-    from ..wav import remove_dc
+    from ..engines.fdm import render_fdm
+    from ..analysis.metrics import cents, f0_estimate, nmse
+    from ..engines.operator.rollout import render_operator
+    from ..io.audio import remove_dc
 
     t0 = time.perf_counter()
     ref = render_fdm(scene, oversample=REF_OVERSAMPLE)
@@ -279,7 +279,7 @@ def write_models_report(path, found: list, grid: int = 3, force: bool = False, p
 
 def check_report_path(path, grid: int, force: bool = False) -> None:
     from ..errors import UsageError
-    from ..outfile import check_output_path, is_stdout
+    from ..io.outfile import check_output_path, is_stdout
 
     if is_stdout(path):
         raise UsageError("--report writes a page to open in a browser; give an .html file, not - (standard output)")

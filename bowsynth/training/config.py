@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..errors import UsageError
-from ..npnet import NetConfig  # torch-free: model files are read without torch
+from ..engines.operator.npnet import NetConfig  # torch-free: model files are read without torch
 
 MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
 MAX_STEPS = 10_000_000
@@ -118,7 +118,7 @@ def check_refine(init, cfg: TrainConfig, scene, box) -> None:
     and the network options it fixes are not given again."""
     import math
 
-    from ..model import REL_TOL
+    from ..engines.operator.modelfile import REL_TOL
 
     what = init.path or init.meta.name
     if not init.domain.is_range:

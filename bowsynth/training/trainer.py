@@ -12,8 +12,8 @@ import numpy as np
 import torch
 
 from ..errors import UsageError
-from ..model import ModelMeta, OperatorModel
-from ..network import DeepONet, NetConfig
+from ..engines.operator.modelfile import ModelMeta, OperatorModel
+from ..engines.operator.network import DeepONet, NetConfig
 from ..scene import Scene
 from . import checkpoint
 from .config import TrainConfig, check_net_options, default_model_name  # noqa: F401

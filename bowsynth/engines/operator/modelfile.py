@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .errors import ModelFileError
+from ... import __version__
+from ...errors import ModelFileError
 from .npnet import NetConfig, weight_shapes
-from .scene import Scene
+from ...scene import Scene
 
 FORMAT = "bowsynth-operator"
 FORMAT_VERSION = 2  # 2: a digest binds the metadata to the weights
@@ -302,7 +302,7 @@ class OperatorModel:
         """Write the model (format version FORMAT_VERSION, with its digest); sets meta.id and meta.digest."""
         from safetensors.numpy import save_file
 
-        from .wav import atomic_write
+        from ...io.audio import atomic_write
 
         path = Path(path)
         tensors = dict(self.weights)

@@ -309,10 +309,10 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
 def warm() -> None:
     """Compile and cache every compiled path once (`make setup` runs this), so that no user command compiles: the
     FDM, and both rollout loops on a shipped model, at two pitches."""
-    from .fdm import render_fdm
-    from .model import load_model
+    from ..fdm import render_fdm
+    from .modelfile import load_model
     from .rollout import BATCH_FROM, SHIPPED_DIR, rollout_states
-    from .scene import Scene
+    from ...scene import Scene
 
     render_fdm(Scene(duration=0.01))
     m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")

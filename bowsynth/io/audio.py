@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 import soundfile as sf
 
-from .errors import UsageError
+from ..errors import UsageError
 from .outfile import atomic_write, check_output_path, is_stdout, resolve  # noqa: F401  (re-exported)
-from .render import Render
-from .scene import Scene
+from ..render import Render
+from ..scene import Scene
 
 META_KEY = "bowsynth"
 META_VERSION = 2  # 2: "dc" says whether the DC was removed; version 1 files (DC kept) are still read
@@ -215,7 +215,7 @@ def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_
 
 
 def mix_meta(names: list[str], gain: float, dc: str, **fields) -> dict:
-    """A mix's metadata: the voice count, `fields` (bowsynth.score: notes, signal, stems) and as many voice names as
+    """A mix's metadata: the voice count, `fields` (bowsynth.music.score: notes, signal, stems) and as many voice names as
     fit in a WAV comment (a 1000-voice mix still fits)."""
     meta = {"bowsynth_mix": 1, "voices": len(names), **fields, "gain": gain, "dc": DC_TAG if dc == "remove" else "kept"}
     kept, size = [], len(json.dumps(meta)) + 40
@@ -232,7 +232,7 @@ def mix_meta(names: list[str], gain: float, dc: str, **fields) -> dict:
 
 def write_mix(path, x: np.ndarray, names: list[str], sample_rate: int, dc: str = "remove",
               gain_db: float | None = None, force: bool = True, **fields) -> dict:
-    """Write a mix, `x` being the notes already summed at their starts (bowsynth.score.mix_notes): the DC removed
+    """Write a mix, `x` being the notes already summed at their starts (bowsynth.music.score.mix_notes): the DC removed
     once, from the sum, then peak-normalised to PEAK (never clips) or the fixed gain `gain_db` (refused if it would
     clip)."""
     check_dc(dc)

@@ -1,4 +1,4 @@
-"""Scores: notes in time, from a TOML score (docs/score.md), a MIDI file (`bowsynth.midi`) or a list of presets,
+"""Scores: notes in time, from a TOML score (docs/score.md), a MIDI file (`bowsynth.music.midi`) or a list of presets,
 rendered in one batched rollout and mixed with each note at its start.
 
     # score.toml (docs/score.md has the whole format)
@@ -41,11 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import physics
-from .controls import Curve, as_control
-from .errors import BowsynthError, DomainError, SceneError, UsageError
-from .render import Render
-from .scene import Scene, load_preset
+from .. import physics
+from ..controls import Curve, as_control
+from ..errors import BowsynthError, DomainError, SceneError, UsageError
+from ..render import Render
+from ..scene import Scene, load_preset
 
 RELEASE = 0.05  # s: default bow-stop time
 TAIL = 0.03  # s: the shortest render after the bow stops
@@ -324,7 +324,7 @@ class ScoreNotes(list):
 
 
 def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
-    """The notes of a MIDI file with the bow of `bowsynth.midi`'s mapping; a track's channel is a voice."""
+    """The notes of a MIDI file with the bow of `bowsynth.music.midi`'s mapping; a track's channel is a voice."""
     from . import midi as M
 
     piece = read_midi_checked(path)
@@ -371,7 +371,7 @@ def load_score(path, a4: float | None = None) -> list[Note]:
 
 
 def voices_from_presets(names: list[str], **overrides) -> list[Note]:
-    from .scene import make_scene
+    from ..scene import make_scene
 
     seen: dict[str, int] = {}
     out = []
@@ -399,13 +399,13 @@ def score_box(notes: list[Note]) -> dict:
 
 def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
     """The notes no operator model can play (their sustain), each with the reason."""
-    from .rollout import _resolve, available_models
+    from ..engines.operator.rollout import _resolve, available_models
 
     models = None
     if model is None:
         models = available_models()
     else:
-        from .rollout import as_model
+        from ..engines.operator.rollout import as_model
 
         model = as_model(model)
     out = []
@@ -439,7 +439,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
     of the sustains, each release then by the FDM from the sustain's last state. Notes no model covers are
     refused before anything renders (fallback 'fdm': rendered by the FDM instead, noted in info['notes'])."""
-    from .engines import Engine, Fallback, parse_choice, render
+    from ..engines import Engine, Fallback, parse_choice, render
 
     engine = parse_choice(Engine, method, "--method")
     fb_mode = parse_choice(Fallback, fallback, "--fallback")
@@ -474,7 +474,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
 def _plays_whole(note: Note, model=None) -> bool:
     """Does the model that would play the note (the one given, else the lookup's pick) cover the whole note, its bow
     stop and tail included?"""
-    from .rollout import as_model, find_model
+    from ..engines.operator.rollout import as_model, find_model
 
     try:
         m = find_model(note.scene) if model is None else as_model(model)
@@ -501,8 +501,8 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
     Where numba is already loaded (a long piece's compiled rollout paid for it), each release runs `render_fdm`'s
     compiled loop instead: the 8 releases of 0.1 s of a 60 s piece took 0.37 s in numpy and 4-5 ms compiled.
     loop: 'auto' (that choice, rollout.numba_loaded), 'numpy' or 'numba'."""
-    from .fdm import check_oversample, fdm_batch, render_fdm
-    from .rollout import numba_loaded
+    from ..engines.fdm import check_oversample, fdm_batch, render_fdm
+    from ..engines.operator.rollout import numba_loaded
 
     if loop == "auto":
         loop = "numba" if numba_loaded() else "numpy"
@@ -598,7 +598,7 @@ _WORST_MODEL = "x" * 64
 def check_stems_fit(notes: list[Note], signal: str = "u", dc: str = "remove") -> None:
     """Before rendering: every note's stem metadata (wav.render_meta, scene and curves included) fits a WAV comment
     (else a one-line ScoreError naming the note)."""
-    from .wav import META_LIMIT, render_meta
+    from ..io.audio import META_LIMIT, render_meta
 
     for n in notes:
         meta = render_meta(n.scene, _WORST_METHOD, signal, _WORST_FLOAT, _WORST_FLOAT, _WORST_MODEL, dc)
@@ -613,12 +613,12 @@ def check_outputs_fit(notes: list[Note], mix: Path | str | None = None, stems: P
                       signal: str = "u", dc: str = "remove") -> None:
     """The one metadata check before rendering: each stem's (when stems are written) and the mix's (when a mix is
     written, in its format: `wav.check_meta_fits`)."""
-    from .wav import check_meta_fits
+    from ..io.audio import check_meta_fits
 
     if stems is not None:
         check_stems_fit(notes, signal, dc)
     if mix is not None:
-        from .wav import mix_meta
+        from ..io.audio import mix_meta
 
         check_meta_fits(mix_meta(_voice_names(notes), _WORST_FLOAT, dc, **_mix_extra(notes, mix, stems, signal)), mix)
 
@@ -646,8 +646,8 @@ def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove"
     stems), notes.json last. A stem path that is a symlink, FIFO or device is written through at that point."""
     import shutil
 
-    from .outfile import signals_held
-    from .wav import DC_TAG, write_wav
+    from ..io.outfile import signals_held
+    from ..io.audio import DC_TAG, write_wav
 
     out.mkdir(parents=True, exist_ok=True)
     stage = out / f".staging-{os.getpid()}-{secrets.token_hex(3)}"
@@ -702,7 +702,7 @@ def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u", stems
     starts, filtered once. The filter (wav.remove_dc) is zero-phase with a mean subtraction, so it does not commute
     with placing notes at other starts: the mix equals remove_dc(sum of the notes as rendered), not the sum of the
     filtered stems (tests/test_midi.py checks the first exactly)."""
-    from .wav import write_mix
+    from ..io.audio import write_mix
 
     if not mix:
         return write_stems(voices, renders, out, signal, dc=dc, gain_db=gain_db, force=force)

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .fdm import fdm_batch, render_fdm
+from ..engines.fdm import fdm_batch, render_fdm
 from .metrics import nmse
-from .scene import Scene
+from ..scene import Scene
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -57,7 +57,7 @@ def fdm_table(rows: list[dict]) -> str:
 REF_OVERSAMPLE = 100
 # the paper's rollouts: the full files where this project's checkout keeps them (../shared/anchors beside the
 # repository), else the reduced copies a clone carries for its tests (tests/data, see its README)
-_ROOT = Path(__file__).resolve().parents[1]
+_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_ANCHORS = next((d for d in (_ROOT.parent / "shared" / "anchors", _ROOT / "tests" / "data") if d.is_dir()),
                        _ROOT.parent / "shared" / "anchors")
 PAPER = {  # the paper's operators over 0.5 s (shared/anchors/README.md): NMSE(p), training
@@ -82,7 +82,7 @@ def _score(r, ref) -> dict:
 
 def bench_scene(scene: Scene, models, repeats: int, oversamples=(1, 2, 4, 8)) -> list[dict]:
     """Every method on one scene: FDM at each oversampling, and each operator that covers the scene."""
-    from .rollout import render_operator
+    from ..engines.operator.rollout import render_operator
 
     ref = render_fdm(scene, oversample=REF_OVERSAMPLE)
     rows = []
@@ -121,7 +121,7 @@ def bench_batch(model, n_voices: int, duration: float, repeats: int) -> dict:
 
     The voices are a sweep of initial states along the model's band (the states of an FDM render from rest,
     so each voice starts at another point of the note): same pitch, one batch."""
-    from .rollout import render_operator
+    from ..engines.operator.rollout import render_operator
 
     sc = Scene(**{**model.meta.scene, "duration": duration})
     path = render_fdm(sc.replace(duration=0.5))
@@ -190,8 +190,8 @@ def fractional_starts(scene: Scene, window: float, periods=(2, 20), fractions=(0
 
 
 def _one_case(model, scene: Scene) -> dict:
-    from .errors import DomainError
-    from .rollout import render_operator
+    from ..errors import DomainError
+    from ..engines.operator.rollout import render_operator
 
     ref = render_fdm(scene, oversample=REF_OVERSAMPLE)
     try:
@@ -237,7 +237,7 @@ def bench_out_of_sample(model, duration: float = 1.0, n_states: int = 8, seed: i
 
 def window_errors(model, x0: np.ndarray, scene: Scene) -> np.ndarray:
     """NMSE(p) of the operator's one-window prediction from each state against an FDM x100 over the same window."""
-    from .rollout import rollout_states
+    from ..engines.operator.rollout import rollout_states
 
     dtau = scene.dtau
     n = int(math.floor(model.domain.window / dtau)) + 1  # the window's samples and the next window's first
@@ -293,8 +293,8 @@ def bench_parameter_points(model, pitches=(100.0,), n: int = 4, duration: float 
     if not model.domain.is_range:
         return None
     from .metrics import cents, f0_estimate
-    from .rollout import render_operator
-    from .training.ranges import ParamBox, speaks
+    from ..engines.operator.rollout import render_operator
+    from ..training.ranges import ParamBox, speaks
 
     b0, b1, v0, v1 = model.domain.box
     box = ParamBox(b0, b1, v0, v1, model.domain.a)
@@ -332,7 +332,7 @@ def plot_pareto(rows, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .wav import atomic_write
+    from ..io.audio import atomic_write
 
     scenes = []
     for r in rows:
@@ -432,8 +432,8 @@ def _fmt(v, fmt: str = ".2e") -> str:
 
 def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:
     """The full benchmark: FDM speed, speed against error per preset, batched voices, the paper's anchors."""
-    from .rollout import available_models
-    from .scene import make_scene
+    from ..engines.operator.rollout import available_models
+    from ..scene import make_scene
 
     models = [m for m in available_models()]
     repeats = 3 if quick else 7

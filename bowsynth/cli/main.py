@@ -13,7 +13,7 @@ import typer
 from typer.exceptions import Abort, Exit, TyperException
 from rich.console import Console
 
-from .errors import BowsynthError, Terminated, UsageError, interrupt_exit_code
+from ..errors import BowsynthError, Terminated, UsageError, interrupt_exit_code
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="bowsynth: a bowed mass-spring synthesizer driven by a physics-informed DeepONet.")
@@ -39,8 +39,8 @@ A4Opt = typer.Option(None, "--a4", help="Tuning of --pitch note names: A4 in Hz 
 
 
 def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=None, ratio=None):
-    from .controls import parse_control
-    from .scene import make_scene
+    from ..controls import parse_control
+    from ..scene import make_scene
 
     fb = None if fb is None else parse_control(fb, "fb")
     vb = None if vb is None else parse_control(vb, "vb")
@@ -49,7 +49,7 @@ def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=
 
 
 def _pitch_hz(pitch, a4) -> float:
-    from .pitch import A4_HZ, parse_pitch
+    from ..music.pitch import A4_HZ, parse_pitch
 
     return parse_pitch(pitch, A4_HZ if a4 is None else a4)
 
@@ -67,10 +67,10 @@ def _main(debug: bool = typer.Option(False, "--debug", help="Show full traceback
 @app.command()
 def presets():
     """List the preset scenes, the pitch each sounds at, and the model that plays it (or how to get one)."""
-    from .errors import DomainError
-    from .pitch import note_name, sounding_pitch
-    from .rollout import available_models, find_model, train_hint
-    from .scene import list_presets, load_preset, make_scene, preset_description
+    from ..errors import DomainError
+    from ..music.pitch import note_name, sounding_pitch
+    from ..engines.operator.rollout import available_models, find_model, train_hint
+    from ..scene import list_presets, load_preset, make_scene, preset_description
     from rich.markup import escape
 
     models = available_models()
@@ -125,9 +125,9 @@ def render(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
     """Render a scene to an audio file (WAV, FLAC, OGG, or - for stdout)."""
-    from . import api
-    from .engines import Engine, Fallback, parse_choice
-    from .wav import check_audio_output, check_dc, check_gain_db, check_meta_fits, render_meta, write_wav
+    from .. import api
+    from ..engines import Engine, Fallback, parse_choice
+    from ..io.audio import check_audio_output, check_dc, check_gain_db, check_meta_fits, render_meta, write_wav
 
     method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
 
@@ -141,7 +141,7 @@ def render(
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
     if pitch is not None:  # tuned again with the sounding ratio of the engine that plays (its own pitch)
-        from .pitch import note_name
+        from ..music.pitch import note_name
 
         ratio, by = api.tuning_for(scene, method, model, oversample)
         if ratio is not None:
@@ -202,7 +202,7 @@ def train(
     """Train a PI-DeepONet for a scene (its F_B / w, v_B, a and the states a render from its initial state visits),
     or for a playing range: --fb LO:HI and/or --vb LO:HI (at --f0), or --score FILE (the bows a score or MIDI file
     plays). A range model plays any bow inside its box and follows gestures through it."""
-    from . import api
+    from .. import api
 
     box = None
     if score is not None:
@@ -242,8 +242,8 @@ def train(
 
 def _range_box(preset, f0, fb, vb, a):
     """--fb / --vb as ranges: the ParamBox (beta = F_B / w at --f0) and the scene its band is rendered at."""
-    from . import api
-    from .training.ranges import ParamBox, parse_range
+    from .. import api
+    from ..training.ranges import ParamBox, parse_range
 
     base = _scene(preset, f0, None, None, a, None, None, None, None)
     fbr = parse_range(fb, "fb") if fb is not None else (float(base.fb),) * 2
@@ -260,10 +260,10 @@ def _range_box(preset, f0, fb, vb, a):
 def _score_box(path, a4):
     """--score: the box of bows a score or MIDI file plays (its notes' sustains), at its lowest pitch's f0 (the
     dynamics in tau depend on the bow only; the pitch sets where the windows fall)."""
-    from . import api
-    from .errors import UsageError as _U
-    from .score import load_score as load_notes, score_box
-    from .training.ranges import ParamBox
+    from .. import api
+    from ..errors import UsageError as _U
+    from ..music.score import load_score as load_notes, score_box
+    from ..training.ranges import ParamBox
 
     notes = load_notes(path, a4=a4)
     b = score_box(notes)
@@ -287,10 +287,10 @@ def models(
     """List the operator models found in ./models and the shipped ones, with their domains and scores."""
     from rich.markup import escape
 
-    from .rollout import scan_models
+    from ..engines.operator.rollout import scan_models
 
     if report is not None:
-        from .report.models_page import check_report_path
+        from ..report.models_page import check_report_path
 
         check_report_path(report, report_grid, force)
     found = scan_models()
@@ -316,7 +316,7 @@ def models(
         out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    {escape(what)}, "
                   f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
     if report is not None:
-        from .report.models_page import write_models_report
+        from ..report.models_page import write_models_report
 
         write_models_report(report, found, report_grid, force, progress=lambda s: err.print(s, soft_wrap=True))
         out.print(f"report written to {report}")
@@ -339,8 +339,8 @@ def compare(
     """Compare a render against the FDM: NMSE, NCC, pitch (cents), harmonics, spectrum, and speed."""
     import json
 
-    from .compare import compare_wav, format_table, plot_comparison
-    from .wav import check_output_path, read_wav
+    from ..analysis.compare import compare_wav, format_table, plot_comparison
+    from ..io.audio import check_output_path, read_wav
 
     if reference not in ("audio", "high"):
         raise UsageError(f"--reference must be audio or high, got {reference!r}")
@@ -349,12 +349,12 @@ def compare(
         if plot.suffix.lower() != ".png" and str(plot) != "-":
             raise UsageError(f"--plot writes a PNG; give a .png file name, got {plot}")
     if report is not None:
-        from .report.compare_page import check_report_path
+        from ..report.compare_page import check_report_path
 
         check_report_path(report, plot, report_notes, force)
     scene = None
     info = read_wav(wav)
-    from .compare import compare_mix, format_mix_table, mix_meta
+    from ..analysis.compare import compare_mix, format_mix_table, mix_meta
 
     if info.meta is None and other is None and mix_meta(wav) is not None:
         if plot is not None:
@@ -365,7 +365,7 @@ def compare(
         else:
             out.print(format_mix_table(rows))
         if report is not None:
-            from .report.compare_page import write_mix_report
+            from ..report.compare_page import write_mix_report
 
             write_mix_report(report, wav, rows, worst=report_notes, force=force)
             if not json_out:
@@ -390,7 +390,7 @@ def compare(
         if not json_out:
             say.print(f"plot written to {'standard output' if str(plot) == '-' else plot}")
     if report is not None:
-        from .report.compare_page import write_compare_report
+        from ..report.compare_page import write_compare_report
 
         write_compare_report(report, c, info, force=force)
         if not json_out:
@@ -410,12 +410,12 @@ def bench(
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
 
-    from . import bench as B
+    from ..analysis import bench as B
 
     if what not in ("fdm", "all"):
         raise UsageError(f"bench target must be fdm or all, got {what!r}")
     if out_prefix is not None:
-        from .outfile import check_output_path
+        from ..io.outfile import check_output_path
 
         for ext in (".md", ".json", ".png"):
             check_output_path(out_prefix.with_suffix(ext), force=force)
@@ -428,7 +428,7 @@ def bench(
     res = B.run_all(quick=quick, out_prefix=out_prefix, anchor_dir=anchors or B.DEFAULT_ANCHORS)
     md, js = B.to_markdown(res), json.dumps(B.to_json(res), indent=2)
     if out_prefix is not None:
-        from .outfile import atomic_write
+        from ..io.outfile import atomic_write
 
         atomic_write(out_prefix.with_suffix(".md"), lambda t: Path(t).write_text(md + "\n"), force=force)
         atomic_write(out_prefix.with_suffix(".json"), lambda t: Path(t).write_text(js + "\n"), force=force)
@@ -466,14 +466,14 @@ def score(
     """
     import time
 
-    from .limits import check_request
-    from .outfile import check_output_path
-    from .score import check_outputs_fit, load_score, render_notes, stem_paths, voices_from_presets, write_voices
-    from .wav import check_audio_output, check_dc, check_gain_db
+    from ..engines.limits import check_request
+    from ..io.outfile import check_output_path
+    from ..music.score import check_outputs_fit, load_score, render_notes, stem_paths, voices_from_presets, write_voices
+    from ..io.audio import check_audio_output, check_dc, check_gain_db
 
     if (score_file is None) == (presets_list is None):
         raise UsageError("give exactly one of --score FILE.toml|FILE.mid or --presets a,b,c")
-    from .engines import Engine, Fallback, parse_choice
+    from ..engines import Engine, Fallback, parse_choice
 
     method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
     check_dc(dc)
@@ -509,7 +509,7 @@ def score(
     check_outputs_fit(notes, output if mix else None, stems if mix else output, dc=dc)
     check_request([n.scene for n in notes], method, 1, force, extra_voices=int(mix))
     if mix:
-        from .limits import check_mix
+        from ..engines.limits import check_mix
 
         check_mix([n.start for n in notes], [n.scene for n in notes], force)
     t0 = time.perf_counter()

@@ -8,7 +8,7 @@ import numba
 import numpy as np
 from numba.extending import overload
 
-from . import physics
+from .. import physics
 from .fdm import NEWTON_MAXIT, NEWTON_TOL
 
 

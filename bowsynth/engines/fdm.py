@@ -22,10 +22,10 @@ import warnings
 
 import numpy as np
 
-from . import physics
-from .render import Render
-from .errors import SceneError
-from .scene import Scene
+from .. import physics
+from ..render import Render
+from ..errors import SceneError
+from ..scene import Scene
 
 NEWTON_TOL = 1e-14  # absolute, m/s: eta is O(0.1-1)
 NEWTON_MAXIT = 60
@@ -47,7 +47,7 @@ def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None):
     """The bare scheme from two given displacements (u^{-1}, u^0): returns (u, eta) at every `stride`-th step.
 
     fb and vb are numbers or Curves (followed per step, from t = 0 at u^0)."""
-    from .controls import breakpoints
+    from ..controls import breakpoints
 
     u_out = np.empty(n_out)
     eta_out = np.empty(n_out)

@@ -8,7 +8,7 @@ FDM_STEPS_PER_S errs on the slow side.
 
 from __future__ import annotations
 
-from .errors import UsageError
+from ..errors import UsageError
 
 FDM_STEPS_PER_S = 1.0e7
 MAX_SECONDS = 120.0  # estimated FDM wall time beyond which --force is needed

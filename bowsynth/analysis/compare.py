@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UsageError
-from .fdm import render_fdm
+from ..errors import UsageError
+from ..engines.fdm import render_fdm
 from .metrics import compare_signals
-from .scene import Scene
-from .wav import read_wav, remove_dc
+from ..scene import Scene
+from ..io.audio import read_wav, remove_dc
 
 HIGH_OVERSAMPLE = 100
 
@@ -64,7 +64,7 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
     and force it is the less accurate of the two). pitch_seconds: measure the pitch on the steady half of the first
     seconds only (a note's sustain, before its bow stop). Every FDM reference gets the file's DC treatment. FDM
     references estimated past a couple of minutes are refused unless force=True."""
-    from .limits import check_fdm
+    from ..engines.limits import check_fdm
 
     if reference not in ("audio", "high"):
         raise UsageError(f"--reference must be audio or high, got {reference!r}")
@@ -199,7 +199,7 @@ def format_mix_table(rows: list[tuple[dict, Comparison]]):
     """One row per note: the file against the truth (x100 FDM) and, beside, against the audio-rate FDM."""
     from rich.table import Table
 
-    from .pitch import note_name
+    from ..music.pitch import note_name
 
     labels = list(rows[0][1].columns) if rows else []
     short = dict(zip(labels[:2], ["x100", "FDM"] if len(labels) > 1 else ["FDM"]))
@@ -257,7 +257,7 @@ def plot_comparison(c: Comparison, path, sample_rate: int) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .wav import atomic_write
+    from ..io.audio import atomic_write
 
     labels = list(c.series)
     x, ref = c.series[labels[0]], c.series[labels[-1] if len(labels) < 3 else labels[2]]

@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from . import physics
+from ... import physics
 
 
 @dataclass

@@ -13,7 +13,7 @@ import math
 import torch
 from torch import nn
 
-from . import physics
+from ... import physics
 from .npnet import PARAM_SPAN, NetConfig, linear_part  # noqa: F401  (torch-free: model files are read without torch)
 
 

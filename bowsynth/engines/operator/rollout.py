@@ -14,13 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from . import npnet, physics
-from .errors import DomainError, ModelFileError, UsageError
-from .model import OperatorModel, load_model
-from .render import Render
-from .scene import Scene
+from . import npnet
+from ... import physics
+from ...errors import DomainError, ModelFileError, UsageError
+from .modelfile import OperatorModel, load_model
+from ...render import Render
+from ...scene import Scene
 
-SHIPPED_DIR = Path(__file__).resolve().parent / "models"  # inside the package: a wheel carries them
+SHIPPED_DIR = Path(__file__).resolve().parents[2] / "models"  # inside the package: a wheel carries them
 FAIL_NONFINITE, FAIL_DOMAIN = 1, 2  # why a voice stopped (the compiled loops in `kernels` write the same codes)
 FAIL_BOW = 3  # the bow left the model's range (found before the rollout, from the scene's curves)
 FAILURES = {FAIL_NONFINITE: "the rollout turned non-finite",
@@ -95,8 +96,8 @@ def operator_ratio(model):
     at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods. A model's
     window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached on disk
     with the model's id)."""
-    from . import pitch as P
-    from .metrics import f0_estimate
+    from ...music import pitch as P
+    from ...analysis.metrics import f0_estimate
 
     m = as_model(model)
 
@@ -124,7 +125,7 @@ def available_models() -> list[OperatorModel]:
 
 def train_hint(scene: Scene) -> str:
     """The `bowsynth train` command whose model would cover the scene (a range for a scene whose bow moves)."""
-    from .controls import bounds
+    from ...controls import bounds
 
     def arg(v):
         lo, hi = bounds(v)
@@ -469,7 +470,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     if loop == "auto":
         loop = choose_loop(model, n_samples, dt)
     if loop == "numba":
-        from . import kernels
+        from . import loops as kernels
 
         (kernels.roll_batch if B >= BATCH_FROM else kernels.roll_voices)(*args)
     elif loop == "numpy":
@@ -628,7 +629,7 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
     if fallback != "fdm":
         raise DomainError(f"{voice}{why}; the render was stopped (use --fallback "
                           f"fdm to finish with the FDM, or --method fdm)")
-    from .fdm import render_fdm
+    from ..fdm import render_fdm
 
     start = max(at - 1, 0)
     q0, p0 = (float(q[start]), float(p[start])) if at else (scene.q0, scene.p0)

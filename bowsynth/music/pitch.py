@@ -8,7 +8,7 @@ beta itself depends on f0, so playing a written pitch P means solving
     f0 * r(F_B / (2 pi f0), v_B, a) = P
 
 for f0: a 1-D root find (Brent) over log f0, each step a measurement of r by a short FDM run in tau (the same
-scheme as `bowsynth.fdm`, at w = 1). With beta held fixed instead (a model trained for one F_B / w plays every
+scheme as `bowsynth.engines.fdm`, at w = 1). With beta held fixed instead (a model trained for one F_B / w plays every
 pitch), f0 = P / r(beta) and F_B = beta w.
 
 r is the frequency of the limit cycle the bow settles into from rest (the steady state), measured on the
@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import physics
-from .cache import DiskTable
-from .errors import SceneError, UsageError
+from .. import physics
+from ..io.cache import DiskTable
+from ..errors import SceneError, UsageError
 
 A4_HZ = 440.0
 A4_MIDI = 69
@@ -149,7 +149,7 @@ class _Run:
     """The w = 1 FDM (beta, v_B, a) from rest, continued period block by period block."""
 
     def __init__(self, beta, vb, a, spp, k=None):
-        from .fdm import taylor_start
+        from ..engines.fdm import taylor_start
 
         self.beta, self.vb, self.a, self.spp = beta, vb, a, spp
         self.k = 2 * math.pi / spp if k is None else k  # an engine's own step (spp then only sizes the blocks)
@@ -157,7 +157,7 @@ class _Run:
         self.u = []
 
     def more(self, periods: int) -> np.ndarray:
-        from .fdm import run_fdm_raw
+        from ..engines.fdm import run_fdm_raw
 
         n = periods * self.spp
         u, eta = run_fdm_raw(self.state[0], self.state[1], n + 1, 1, self.k, 1.0, self.beta, self.vb, self.a,
@@ -168,7 +168,7 @@ class _Run:
 
     def r(self, first_period: int, last_period: int) -> float:
         """Sounding frequency / f0 over free periods [first, last), by interpolated zero crossings."""
-        from .metrics import f0_estimate
+        from ..analysis.metrics import f0_estimate
 
         u = np.concatenate(self.u)[first_period * self.spp:last_period * self.spp]
         return 2 * math.pi * f0_estimate(u, 1.0 / self.k, tail=1.0)  # cycles per unit tau, as an angular rate
@@ -197,7 +197,7 @@ _ratios = DiskTable("sounding-ratio", RATIO_VERSION)
 def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
     """r = sounding frequency / f0 of the note bowed from rest at (beta, v_B, a), once steady.
 
-    Cached in the process and on disk (`bowsynth.cache`; a repeated `--pitch` costs no FDM run). Raises
+    Cached in the process and on disk (`bowsynth.io.cache`; a repeated `--pitch` costs no FDM run). Raises
     SilentNoteError when the note does not speak (see the module docstring); that answer is cached too."""
     beta, vb, a = float(beta), float(vb), float(a)
     for name, v in (("F_B / w", beta), ("v_B", vb), ("a", a)):
@@ -324,7 +324,7 @@ def held_value(control, duration: float | None = None) -> float:
     """The value a bow control holds, to tune the note at: a number itself; a curve the median of its values over
     the note's first `duration` seconds (time-weighted: the value it holds when it holds one, the middle of a ramp
     that spans the note). See docs/score.md, "Pitch in gestures"."""
-    from .controls import Curve, as_control
+    from ..controls import Curve, as_control
 
     c = as_control(control)
     if not isinstance(c, Curve):
@@ -341,7 +341,7 @@ def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, 
     fixed) or, with `beta` given instead, with the force that keeps F_B / w = beta (fb = beta 2 pi f0).
 
     ratio: the engine that will play the note, as a function (beta, v_B, a, f0) -> sounding ratio (`fdm_ratio`,
-    `bowsynth.rollout.operator_ratio`); None: the truth's (sounding_ratio), which is what `compare` scores against."""
+    `bowsynth.engines.operator.rollout.operator_ratio`); None: the truth's (sounding_ratio), which is what `compare` scores against."""
     p = parse_pitch(pitch, a4)
     vb, a = float(vb), float(a)
     if ratio is not None:

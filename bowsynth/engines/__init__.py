@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from enum import Enum
 
-from .errors import UsageError
-from .render import Render
-from .scene import Scene
+from ..errors import UsageError
+from ..render import Render
+from ..scene import Scene
 
 
 class Engine(str, Enum):
@@ -49,7 +49,7 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
 
         out = [render_fdm(s, oversample=oversample) for s in scenes]
         return out if many else out[0]
-    from .rollout import render_operator
+    from .operator.rollout import render_operator
 
     return render_operator(scenes if many else scene, model=model, fallback=fallback.value)
 

@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import BowsynthError, UsageError
+from ..errors import BowsynthError, UsageError
 
 STDOUT = "-"
 

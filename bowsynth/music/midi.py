@@ -28,7 +28,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import UsageError
+from ..errors import UsageError
 
 CC_PRESSURE, CC_EXPRESSION = 2, 11
 NEUTRAL = {CC_PRESSURE: 64, CC_EXPRESSION: 127}
