@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from bowsynth.cli.main.main import main as _main
+from bowsynth.cli.main import main as _main
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 # measured pitch ratios are cached on disk (bowsynth.io.cache): the tests keep theirs out of the user's ~/.cache

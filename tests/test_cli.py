@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from bowsynth.cli.main.main import app
+from bowsynth.cli.main import app
 from conftest import run_main
 from bowsynth.io.audio import read_wav
 
