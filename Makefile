@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[test]'
 	# compile numba's cached loops now (the FDM, the rollout loops): no user command pays the ~10 s compile
-	$(PY) -c 'from bowsynth.engines.operator.loops import warm; warm()'
+	$(PY) -c 'from bowsynth.engines import warm; warm()'
 	touch $(STAMP)
 
 setup: $(STAMP) chromium

@@ -51,7 +51,8 @@ def step_curve(bows_per_window, starts, ends, sample_rate, scale=1.0):
 
 
 def gesture(m, name, fb, vb, f0=100.0, seconds=1.0):
-    from bowsynth.engines.operator.rollout import _operator, window_bounds
+    from bowsynth.engines.operator.rollout import _operator
+    from bowsynth.engines.operator.windows import window_bounds
 
     sc = Scene(f0=f0, fb=fb, vb=vb, a=m.domain.a, duration=seconds)
     r = render_operator(sc, model=m, fallback="fdm")

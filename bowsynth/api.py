@@ -37,14 +37,15 @@ def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: i
     scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it, its own
     pitch), so that the asked note sounds there whichever engine plays. (None, why) when no model covers the scene:
     the note is then tuned with the truth's ratio (what compare scores against)."""
-    from .music import pitch as P
+    from .music import tuning as P
 
     if str(getattr(engine, "value", engine)) == "fdm":
         from .engines.fdm import check_oversample
 
         os_ = check_oversample(scene, oversample, warn=False)
         return P.fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
-    from .engines.operator.rollout import as_model, find_model, operator_ratio
+    from .engines.operator.rollout import as_model, find_model
+    from .music.tuning import operator_ratio
 
     try:
         m = find_model(scene) if model is None else as_model(model)

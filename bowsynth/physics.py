@@ -16,6 +16,9 @@ import math
 import numpy as np
 
 E_HALF = math.exp(0.5)
+# the implicit friction solve of each FDM step (Newton on eta = relative velocity), in both FDM loops
+NEWTON_TOL = 1e-14  # absolute, m/s: eta is O(0.1-1)
+NEWTON_MAXIT = 60
 
 
 def _exp(x):

@@ -9,7 +9,8 @@ import torch
 from bowsynth import Scene
 from bowsynth.engines.operator import loops as kernels
 from bowsynth.engines.operator.modelfile import load_model
-from bowsynth.engines.operator.rollout import BATCH_FROM, FAILURES, render_operator, rollout_states
+from bowsynth.engines.operator.rollout import BATCH_FROM, render_operator, rollout_states
+from bowsynth.engines.operator.windows import FAILURES
 
 
 def test_tanh32_matches_tanh_and_keeps_nan():

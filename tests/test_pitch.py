@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from bowsynth import Scene, UsageError, make_scene
 from bowsynth.engines.fdm import render_fdm
 from bowsynth.analysis.metrics import cents, f0_estimate
-from bowsynth.music.pitch import SilentNoteError, held_value, midi_to_hz, note_name, note_number, parse_pitch, sounding_pitch, sounding_ratio, tune
+from bowsynth.music.notes import midi_to_hz, note_name, note_number, parse_pitch
+from bowsynth.music.tuning import SilentNoteError, held_value, sounding_pitch, sounding_ratio, tune
 from conftest import run_main
 
 
@@ -127,7 +128,7 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
     assert code == 0, err
     sc = read_wav(out).scene
     # --method fdm: tuned with the audio-rate FDM's own ratio (its dispersion), not the truth's
-    from bowsynth.music.pitch import fdm_ratio
+    from bowsynth.music.tuning import fdm_ratio
 
     assert sc.fb == 200 and math.isclose(sc.f0, tune("Bb3", 200.0, ratio=fdm_ratio(44100)).f0)
     assert not math.isclose(sc.f0, tune("Bb3", 200.0).f0, rel_tol=1e-6)
@@ -139,7 +140,7 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
 @pytest.fixture
 def fresh_cache(tmp_path, monkeypatch):
     """An empty cache directory, and no ratio remembered by this process."""
-    from bowsynth.music import pitch
+    from bowsynth.music import tuning as pitch
 
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path / "cache"))
     monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
@@ -150,7 +151,7 @@ def fresh_cache(tmp_path, monkeypatch):
 
 def _forget(monkeypatch):
     """A new process: nothing in memory, and measuring is forbidden (only the disk can answer)."""
-    from bowsynth.music import pitch
+    from bowsynth.music import tuning as pitch
 
     pitch.sounding_ratio.cache_clear()
     monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
@@ -158,7 +159,7 @@ def _forget(monkeypatch):
 
 
 def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
-    from bowsynth.music import pitch
+    from bowsynth.music import tuning as pitch
 
     first = pitch.sounding_ratio(0.159, 0.2, 100.0)
     with pytest.raises(pitch.SilentNoteError) as silent:
@@ -176,7 +177,7 @@ def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
                                      b'{"version": null, "entries": []}', b"[1, 2]"])
 def test_a_bad_cache_file_is_measured_over(fresh_cache, content):
     """Truncated, binary, foreign-version or wrong-shaped tables are ignored and replaced, never an error."""
-    from bowsynth.music import pitch
+    from bowsynth.music import tuning as pitch
 
     fresh_cache.mkdir()
     (fresh_cache / "sounding-ratio.json").write_bytes(content)
@@ -187,7 +188,7 @@ def test_a_bad_cache_file_is_measured_over(fresh_cache, content):
 
 
 def test_an_edited_entry_is_measured_again(fresh_cache, monkeypatch):
-    from bowsynth.music import pitch
+    from bowsynth.music import tuning as pitch
 
     r = pitch.sounding_ratio(0.159, 0.2, 100.0)
     path = fresh_cache / "sounding-ratio.json"
@@ -201,7 +202,7 @@ def test_an_edited_entry_is_measured_again(fresh_cache, monkeypatch):
 
 
 def test_no_cache_when_off_or_unwritable(fresh_cache, tmp_path, monkeypatch):
-    from bowsynth.music import pitch
+    from bowsynth.music import tuning as pitch
 
     monkeypatch.setenv("BOWSYNTH_CACHE", "off")
     assert pitch.sounding_ratio(0.159, 0.2, 100.0).r > 0
@@ -230,8 +231,8 @@ def test_a_note_is_tuned_by_the_engine_that_plays_it(pitch, fb, engine):
     the range model plays its own ratio (-0.30 cents here): tuned with the engine's own, each sounds within 0.1 cent."""
     from bowsynth import api
     from bowsynth.analysis.metrics import cents, f0_estimate
-    from bowsynth.music.pitch import parse_pitch
-    from bowsynth.scene import make_scene
+    from bowsynth.music.notes import parse_pitch
+    from bowsynth.music.request import make_scene
 
     hz = parse_pitch(pitch)
     base = make_scene(pitch=pitch, fb=fb, vb=0.2, duration=3.0)

@@ -10,7 +10,8 @@ import torch
 from bowsynth import Scene
 from bowsynth.errors import DomainError
 from bowsynth.engines.operator.modelfile import RANGE_VERSION, load_model
-from bowsynth.engines.operator.rollout import render_operator, rollout_states, scene_bows, window_bounds, _operator
+from bowsynth.engines.operator.rollout import render_operator, rollout_states, scene_bows, _operator
+from bowsynth.engines.operator.windows import window_bounds
 from bowsynth.training.ranges import ParamBox
 
 from conftest import run_main, tiny_config

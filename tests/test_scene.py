@@ -62,7 +62,7 @@ def test_presets_sound_at_their_names_and_name_their_model(capsys, monkeypatch):
 
 
 def test_make_scene_with_pitch_and_beta():
-    from bowsynth.music.pitch import sounding_pitch
+    from bowsynth.music.tuning import sounding_pitch
 
     s = make_scene(pitch="A3", beta=1 / (2 * math.pi))
     assert math.isclose(s.beta, 1 / (2 * math.pi), rel_tol=1e-12)

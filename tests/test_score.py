@@ -101,7 +101,8 @@ import pytest  # noqa: E402
 import soundfile as sf  # noqa: E402
 
 from bowsynth.analysis.metrics import cents, f0_estimate  # noqa: E402
-from bowsynth.music.pitch import parse_pitch, tune  # noqa: E402
+from bowsynth.music.notes import parse_pitch  # noqa: E402
+from bowsynth.music.tuning import tune  # noqa: E402
 
 SCORE = '''
 a4 = 442.0

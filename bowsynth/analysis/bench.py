@@ -433,7 +433,7 @@ def _fmt(v, fmt: str = ".2e") -> str:
 def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:
     """The full benchmark: FDM speed, speed against error per preset, batched voices, the paper's anchors."""
     from ..engines.operator.rollout import available_models
-    from ..scene import make_scene
+    from ..music.request import make_scene
 
     models = [m for m in available_models()]
     repeats = 3 if quick else 7

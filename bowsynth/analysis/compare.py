@@ -199,7 +199,7 @@ def format_mix_table(rows: list[tuple[dict, Comparison]]):
     """One row per note: the file against the truth (x100 FDM) and, beside, against the audio-rate FDM."""
     from rich.table import Table
 
-    from ..music.pitch import note_name
+    from ..music.notes import note_name
 
     labels = list(rows[0][1].columns) if rows else []
     short = dict(zip(labels[:2], ["x100", "FDM"] if len(labels) > 1 else ["FDM"]))

@@ -40,7 +40,7 @@ A4Opt = typer.Option(None, "--a4", help="Tuning of --pitch note names: A4 in Hz 
 
 def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=None, ratio=None):
     from ..controls import parse_control
-    from ..scene import make_scene
+    from ..music.request import make_scene
 
     fb = None if fb is None else parse_control(fb, "fb")
     vb = None if vb is None else parse_control(vb, "vb")
@@ -49,7 +49,7 @@ def _scene(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch=None, a4=
 
 
 def _pitch_hz(pitch, a4) -> float:
-    from ..music.pitch import A4_HZ, parse_pitch
+    from ..music.notes import A4_HZ, parse_pitch
 
     return parse_pitch(pitch, A4_HZ if a4 is None else a4)
 
@@ -68,9 +68,11 @@ def _main(debug: bool = typer.Option(False, "--debug", help="Show full traceback
 def presets():
     """List the preset scenes, the pitch each sounds at, and the model that plays it (or how to get one)."""
     from ..errors import DomainError
-    from ..music.pitch import note_name, sounding_pitch
+    from ..music.notes import note_name
+    from ..music.tuning import sounding_pitch
     from ..engines.operator.rollout import available_models, find_model, train_hint
-    from ..scene import list_presets, load_preset, make_scene, preset_description
+    from ..music.request import make_scene
+    from ..scene import list_presets, load_preset, preset_description
     from rich.markup import escape
 
     models = available_models()
@@ -141,7 +143,7 @@ def render(
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
     if pitch is not None:  # tuned again with the sounding ratio of the engine that plays (its own pitch)
-        from ..music.pitch import note_name
+        from ..music.notes import note_name
 
         ratio, by = api.tuning_for(scene, method, model, oversample)
         if ratio is not None:

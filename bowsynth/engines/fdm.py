@@ -27,8 +27,6 @@ from ..render import Render
 from ..errors import SceneError
 from ..scene import Scene
 
-NEWTON_TOL = 1e-14  # absolute, m/s: eta is O(0.1-1)
-NEWTON_MAXIT = 60
 MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: refuse instead
 DENSE_BELOW = 512  # states: below this `_solve_eta_vec` iterates densely (see _solve_eta_dense)
 CHUNK_STEPS = 2_000_000  # scheme steps per compiled call (see run_fdm_raw)
@@ -163,7 +161,7 @@ def _solve_eta_bracketed(guess, b, c, fb, a):
     hi = (-b + fb) / c
     x = np.clip(guess, lo, hi)
     active = np.ones(x.shape, dtype=bool)
-    for _ in range(NEWTON_MAXIT):
+    for _ in range(physics.NEWTON_MAXIT):
         xa, la, ha, ba, fa = x[active], lo[active], hi[active], b[active], fb[active]
         fx = c * xa + fa * physics.phi(xa, a) + ba
         pos = fx > 0.0
@@ -174,7 +172,7 @@ def _solve_eta_bracketed(guess, b, c, fb, a):
             xn = np.where(d > 0.0, xa - fx / d, 0.5 * (la + ha))
         bad = ~((la <= xn) & (xn <= ha))
         xn = np.where(bad, 0.5 * (la + ha), xn)
-        done = np.abs(xn - xa) <= NEWTON_TOL
+        done = np.abs(xn - xa) <= physics.NEWTON_TOL
         x[active], lo[active], hi[active] = xn, la, ha
         idx = np.flatnonzero(active)
         active[idx[done]] = False
@@ -194,7 +192,7 @@ def _solve_eta_dense(guess, b, c, fb, a):
     x = np.clip(guess, lo, hi)
     s2a = math.sqrt(2.0 * a)
     done = np.zeros(x.shape, dtype=bool)
-    for _ in range(NEWTON_MAXIT):
+    for _ in range(physics.NEWTON_MAXIT):
         ax = -a * x
         e = np.exp(ax * x + 0.5)
         fx = c * x + fb * (s2a * x * e) + b
@@ -206,7 +204,7 @@ def _solve_eta_dense(guess, b, c, fb, a):
         with np.errstate(divide="ignore", invalid="ignore"):
             xn = np.where(d > 0.0, x - fx / d, mid)
         xn = np.where(done | ~((lo <= xn) & (xn <= hi)), np.where(done, x, mid), xn)
-        done |= np.abs(xn - x) <= NEWTON_TOL
+        done |= np.abs(xn - x) <= physics.NEWTON_TOL
         x = xn
         if done.all():
             break

@@ -9,7 +9,6 @@ import numpy as np
 from numba.extending import overload
 
 from .. import physics
-from .fdm import NEWTON_MAXIT, NEWTON_TOL
 
 
 @overload(physics._exp)
@@ -27,7 +26,7 @@ def _solve_eta(guess, b, c, fb, a):
     lo = (-b - fb) / c
     hi = (-b + fb) / c
     x = min(max(guess, lo), hi)
-    for _ in range(NEWTON_MAXIT):
+    for _ in range(physics.NEWTON_MAXIT):
         fx = c * x + fb * _phi(x, a) + b
         if fx > 0.0:
             hi = x
@@ -37,7 +36,7 @@ def _solve_eta(guess, b, c, fb, a):
         xn = x - fx / d if d > 0.0 else 0.5 * (lo + hi)
         if not (lo <= xn <= hi):
             xn = 0.5 * (lo + hi)
-        if abs(xn - x) <= NEWTON_TOL:
+        if abs(xn - x) <= physics.NEWTON_TOL:
             return xn
         x = xn
     return x

@@ -220,7 +220,8 @@ def _merge(*layers: dict) -> dict:
 
 def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, label: str = "") -> Note:
     """A Note from merged score fields (start, duration, pitch or f0, fb or beta, vb, a, release, ...)."""
-    from . import pitch as P
+    from . import tuning as P
+    from .notes import parse_pitch
 
     d = Scene()
     start = _num(where, "start", fields.get("start", 0.0), lo=0.0)
@@ -236,7 +237,7 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
     rest = {k: fields[k] for k in ("q0", "p0") if k in fields}
     try:
         if "pitch" in fields:
-            hz = P.parse_pitch(fields["pitch"], a4)
+            hz = parse_pitch(fields["pitch"], a4)
             held = dict(vb=P.held_value(vb, hold), a=a)
             if beta is not None:
                 f0 = P.tune(hz, None, beta=P.held_value(beta, hold), a4=a4, **held).f0
@@ -274,7 +275,7 @@ def load_toml_score(path) -> list[Note]:
     if unknown:
         raise ScoreError(f"score {p}: unknown top-level key(s) {', '.join(sorted(unknown))} (known: "
                          f"{', '.join(f'{k} ({v})' for k, v in TOP_KEYS.items())})")
-    from .pitch import A4_HZ, check_a4
+    from .notes import A4_HZ, check_a4
 
     try:
         a4 = check_a4(data.get("a4", A4_HZ))
@@ -334,7 +335,7 @@ def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
         beta = _midi_control(piece, n, M.CC_PRESSURE, M.velocity_beta(n.velocity), M.pressure_factor)
         vb = _midi_control(piece, n, M.CC_EXPRESSION, M.velocity_vb(n.velocity), M.expression_factor)
         voice = n.voice
-        from .pitch import note_name, midi_to_hz
+        from .notes import midi_to_hz, note_name
 
         where = f"{Path(path).name}: {voice} note {note_name(midi_to_hz(n.number, a4), a4)} at {n.start:.3f} s"
         if not 12 <= n.number <= 119:
@@ -361,7 +362,7 @@ def _midi_control(piece, n, cc, base: float, factor):
 def load_score(path, a4: float | None = None) -> list[Note]:
     """The notes of a TOML score or a MIDI file (told apart by content and name)."""
     from .midi import is_midi
-    from .pitch import A4_HZ, check_a4
+    from .notes import A4_HZ, check_a4
 
     if is_midi(path):
         return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4))
@@ -371,7 +372,7 @@ def load_score(path, a4: float | None = None) -> list[Note]:
 
 
 def voices_from_presets(names: list[str], **overrides) -> list[Note]:
-    from ..scene import make_scene
+    from ..music.request import make_scene
 
     seen: dict[str, int] = {}
     out = []

@@ -343,7 +343,7 @@ def mix_page(mix_path, rows: list, worst: int = 8) -> str:
     from pathlib import Path
 
     from ..analysis.compare import mix_stems
-    from ..music.pitch import note_name
+    from ..music.notes import note_name
     from ..io.audio import read_wav
 
     mix_path = Path(mix_path)

@@ -21,7 +21,7 @@ import math
 import numba
 import numpy as np
 
-from .rollout import FAIL_DOMAIN, FAIL_NONFINITE  # noqa: F401  (compile-time constants here)
+from .windows import FAIL_DOMAIN, FAIL_NONFINITE  # noqa: F401  (compile-time constants here)
 
 _F = np.float32
 # tanh(x) ~ x P(x^2) / Q(x^2) on [-9, 9] (beyond, tanh is 1 to float32 precision): a rational least-squares fit made
@@ -304,18 +304,3 @@ def roll_batch(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, hal
                 m = min(window_end(win - nb + i, spw[P]) - s0, n_samples - s0)
                 _samples(X_blk[b, i, 0], X_blk[b, i, 1], O_blk[b, i], G_blk[b, i], Bq[P], Bp[P], m,
                          q_out[b, s0:s0 + m], p_out[b, s0:s0 + m])
-
-
-def warm() -> None:
-    """Compile and cache every compiled path once (`make setup` runs this), so that no user command compiles: the
-    FDM, and both rollout loops on a shipped model, at two pitches."""
-    from ..fdm import render_fdm
-    from .modelfile import load_model
-    from .rollout import BATCH_FROM, SHIPPED_DIR, rollout_states
-    from ...scene import Scene
-
-    render_fdm(Scene(duration=0.01))
-    m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")
-    dtau = [2 * math.pi * f / 44100 for f in (100.0, 200.0)]
-    for voices in (1, BATCH_FROM):
-        rollout_states(m, np.zeros((voices, 2)), 8, np.resize(dtau, voices), loop="numba")

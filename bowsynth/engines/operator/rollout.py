@@ -18,15 +18,11 @@ from . import npnet
 from ... import physics
 from ...errors import DomainError, ModelFileError, UsageError
 from .modelfile import OperatorModel, load_model
+from .windows import FAIL_BOW, FAIL_DOMAIN, FAIL_NONFINITE, FAILURES, max_windows, window_bounds, window_ends
 from ...render import Render
 from ...scene import Scene
 
 SHIPPED_DIR = Path(__file__).resolve().parents[2] / "models"  # inside the package: a wheel carries them
-FAIL_NONFINITE, FAIL_DOMAIN = 1, 2  # why a voice stopped (the compiled loops in `kernels` write the same codes)
-FAIL_BOW = 3  # the bow left the model's range (found before the rollout, from the scene's curves)
-FAILURES = {FAIL_NONFINITE: "the rollout turned non-finite",
-            FAIL_DOMAIN: "the rollout left the model's trained states",
-            FAIL_BOW: "the bow left the model's range"}
 
 
 def model_dirs() -> list[Path]:
@@ -85,32 +81,6 @@ def scan_models() -> list[tuple[Path, OperatorModel | None, str | None]]:
                 _SCANNED[key] = hit
             found.append((p, hit[1], hit[2]))
     return found
-
-
-RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain does not depend on f0, only the samples
-RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
-
-
-def operator_ratio(model):
-    """The sounding ratio of a trained operator, as `pitch.tune(ratio=...)` takes it: the model rolled out from rest
-    at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods. A model's
-    window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached on disk
-    with the model's id)."""
-    from ...music import pitch as P
-    from ...analysis.metrics import f0_estimate
-
-    m = as_model(model)
-
-    def ratio(beta: float, vb: float, a: float, f0: float) -> float:
-        def measure():
-            truth = P.sounding_ratio(beta, vb, a)
-            seconds = min((truth.settle_periods + RATIO_PERIODS / truth.r) / RATIO_F0, 60.0)
-            sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=seconds)
-            r = render_operator(sc, model=m)
-            tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
-            return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
-        return P.engine_ratio(f"operator{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
-    return ratio
 
 
 def unreadable_notes() -> list[str]:
@@ -288,7 +258,7 @@ class NumpyOperator:
     def window_basis(self, dtau: float, tf: np.ndarray | None = None):
         """The output side of the windows of a render whose samples are dtau apart in tau.
 
-        A window holds n_lo = floor(T / dtau) or n_hi = ceil(T / dtau) samples (kernels.window_end: window w starts
+        A window holds n_lo = floor(T / dtau) or n_hi = ceil(T / dtau) samples (windows.window_end: window w starts
         at the sample nearest w T; at a pitch where T / dtau is not a whole number, windows of n_lo samples alone
         would start ever earlier than the states the model trained on, measured 2.6x the error at 200 Hz). A window
         of n_hi samples runs past T by less than one sample spacing.
@@ -390,20 +360,6 @@ def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
     return "numba" if slow > NUMBA_PAYS_FROM else "numpy"
 
 
-def max_windows(n_samples: int, spw) -> int:
-    """Enough windows of spw samples (kernels.window_end) to pass n_samples, at the shortest spacing given."""
-    return int(np.ceil((n_samples + 0.5) / np.min(spw))) + 1
-
-
-def window_bounds(spw: float, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
-    """(starts, ends) in samples of the windows that cover n_samples at spw samples per window (kernels.window_end)."""
-    W = max_windows(n_samples, spw)
-    ends = np.floor(np.arange(1, W + 1) * spw + 0.5).astype(np.int64)
-    keep = int(np.searchsorted(ends, n_samples)) + 1  # the first window that reaches n_samples is the last
-    ends = ends[:keep]
-    return np.concatenate([[0], ends[:-1]]).astype(np.int64), ends
-
-
 def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
     """The bow (beta, v_B) the operator applies in each window of a render of the scene: the controls at the
     window's middle (held over the window: second order in the window length; held at its start the error of a
@@ -503,7 +459,7 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
     n_hi = np.ceil(spw).astype(np.int64)
     sp, nl = spw[vidx], n_lo[vidx]
     W = max_windows(n_samples, sp)
-    ends = np.floor(np.arange(1, W + 1)[None, :] * sp[:, None] + 0.5).astype(np.int64)  # kernels.window_end
+    ends = window_ends(sp, W)
     starts = np.concatenate([np.zeros((B, 1), np.int64), ends[:, :-1]], axis=1)
     jlen = ends - starts - nl[:, None]  # 0: a window of n_lo samples, 1: of n_hi
     n_run = (starts < n_samples).sum(axis=1)  # windows each voice needs
