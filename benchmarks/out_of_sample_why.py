@@ -10,7 +10,7 @@ from scipy import signal as sps
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
 from bowsynth.analysis.bench import REF_OVERSAMPLE
 from bowsynth.analysis.metrics import nmse
-from bowsynth.engines.operator.rollout import SHIPPED_DIR
+from bowsynth.engines.operator.choose import SHIPPED_DIR
 
 
 def onset_shift():

@@ -12,8 +12,8 @@ import math
 import time
 
 from bowsynth import Scene, render_fdm
-from bowsynth.engines import render
 from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.engines import render
 from bowsynth.music.notes import note_name, parse_pitch
 from bowsynth.music.tuning import sounding_pitch, tune
 

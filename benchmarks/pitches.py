@@ -11,8 +11,9 @@ import math
 
 from bowsynth import Scene, render_fdm
 from bowsynth.analysis.metrics import nmse
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
-from bowsynth.engines.operator.rollout import SHIPPED_DIR, render_operator
 
 PITCHES = (100, 150, 200, 300, 400)
 

@@ -28,10 +28,12 @@ import numpy as np
 
 from bowsynth import Scene, render_fdm
 from bowsynth.analysis.bench import bench_parameter_points, parameter_summary
-from bowsynth.controls import Curve
 from bowsynth.analysis.metrics import nmse
+from bowsynth.controls import Curve
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
-from bowsynth.engines.operator.rollout import SHIPPED_DIR, render_operator, rollout_states, scene_bows
+from bowsynth.engines.operator.rollout import rollout_states, scene_bows
 
 PITCHES = (65.0, 100.0, 220.0, 440.0)
 REF = 100
@@ -51,7 +53,7 @@ def step_curve(bows_per_window, starts, ends, sample_rate, scale=1.0):
 
 
 def gesture(m, name, fb, vb, f0=100.0, seconds=1.0):
-    from bowsynth.engines.operator.rollout import _operator
+    from bowsynth.engines.operator.basis import _operator
     from bowsynth.engines.operator.windows import window_bounds
 
     sc = Scene(f0=f0, fb=fb, vb=vb, a=m.domain.a, duration=seconds)

@@ -33,7 +33,7 @@ from long_score import score_text  # noqa: E402
 STUB = """
 import sys
 import numpy as np
-import bowsynth.engines.operator.rollout as r
+import bowsynth.engines.operator.engine as r  # render_operator calls rollout_states through this name
 
 real = r.rollout_states
 

@@ -44,7 +44,7 @@ def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: i
 
         os_ = check_oversample(scene, oversample, warn=False)
         return P.fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
-    from .engines.operator.rollout import as_model, find_model
+    from .engines.operator.choose import as_model, find_model
     from .music.tuning import operator_ratio
 
     try:
@@ -73,7 +73,7 @@ def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):
 
 
 def render_operator(scene, model=None, fallback: str = "none"):
-    """Render a Scene (or a list of Scenes, batched) with the operator; see `bowsynth.engines.operator.rollout.render_operator`."""
+    """Render a Scene (or a list of Scenes, batched) with the operator; see `bowsynth.engines.operator.engine.render_operator`."""
     return render(scene, engine="operator", model=model, fallback=fallback)
 
 
@@ -86,7 +86,7 @@ def load_model(path):
 
 def model_path(name) -> Path:
     """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`)."""
-    from .engines.operator.rollout import model_path as _m
+    from .engines.operator.choose import model_path as _m
 
     return _m(name)
 
@@ -112,7 +112,7 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     config = config or make_train_config(scene, **settings)
     config.validate()
     if init is not None:
-        from .engines.operator.rollout import as_model
+        from .engines.operator.choose import as_model
         from .training.ranges import ParamBox
 
         init = as_model(init)
@@ -140,7 +140,7 @@ def _train(scene, config, out, ckpt, name, force, resume, progress, console, box
 
     with Reporter(console, enabled=progress, title="train: ") as rep:
         rep.update("preparing", 0.0, "loading torch")  # before torch loads: a log shows life from the first second
-        from .training import TrainResult, Trainer, validate
+        from .training import Trainer, TrainResult, validate
 
         tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f), box=box,
                      init=init)

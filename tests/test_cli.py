@@ -5,10 +5,10 @@ import os
 
 import numpy as np
 import pytest
+from conftest import run_main
 from typer.testing import CliRunner
 
 from bowsynth.cli.main import app
-from conftest import run_main
 from bowsynth.io.audio import read_wav
 
 runner = CliRunner()
@@ -37,7 +37,6 @@ def test_train_render_compare(tmp_path, monkeypatch, capsys):
     # the file holds what the API renders (float32 samples scaled to their peak)
     from bowsynth import load_model, render_fdm, render_operator
     from bowsynth.analysis.metrics import nmse
-
     from bowsynth.io.audio import remove_dc
 
     assert info.dc_removed  # the default: the static offset is not sound
@@ -92,7 +91,7 @@ def test_metadata_round_trip_after_move(tmp_path):
 
 def test_no_model_covers_scene(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("bowsynth.engines.operator.rollout.SHIPPED_DIR", tmp_path / "none")
+    monkeypatch.setattr("bowsynth.engines.operator.choose.SHIPPED_DIR", tmp_path / "none")
     code, _, err = run_main(["render", "--fb", "123", "--vb", "0.3", str(tmp_path / "x.wav")], capsys, monkeypatch)
     assert code == 1
     assert "no model covers" in err and "bowsynth train --fb 123 --f0 100 --vb 0.3 --a 100" in err

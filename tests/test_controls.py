@@ -4,13 +4,13 @@ import json
 
 import numpy as np
 import pytest
+from conftest import run_main
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, SceneError, render_fdm
-from bowsynth.controls import Curve, parse_control
 from bowsynth.analysis.metrics import nmse
-from conftest import run_main
+from bowsynth.controls import Curve, parse_control
 
 
 @pytest.mark.parametrize("pts,needle", [

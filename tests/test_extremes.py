@@ -6,10 +6,9 @@ import math
 import numpy as np
 import pytest
 import soundfile as sf
+from conftest import run_main
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from conftest import run_main
 
 EXTREME_FLOATS = [1e-300, -1e-300, 5e-324, 1e308, -1e308, 1.7976931348623157e308, -0.0, 0.0, 1.0, -1.0, 0.5, 1e9,
                   1e-9, 15000.0, 18000.0, 22049.0, 22050.0, 22051.0, 3600.0, 3600.0001, 1e6]
@@ -39,7 +38,7 @@ RENDER_FLOATS = ["--f0", "--fb", "--vb", "--a", "--q0", "--p0", "--duration", "-
 @pytest.fixture
 def no_shipped_models(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("bowsynth.engines.operator.rollout.SHIPPED_DIR", tmp_path / "none")
+    monkeypatch.setattr("bowsynth.engines.operator.choose.SHIPPED_DIR", tmp_path / "none")
 
 
 @SETTINGS

@@ -2,8 +2,8 @@
 (sample at - 1, `at` the first sample of the window where the rollout left), and the samples before it are the
 operator's; single voices, both rollout loops, and through the CLI."""
 
-import sys
 import subprocess
+import sys
 
 import numpy as np
 import pytest

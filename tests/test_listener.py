@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from bowsynth import Scene, physics
-from bowsynth.engines.fdm import render_fdm
 from bowsynth.analysis.metrics import harmonic_levels, listener_errors, onset_time
+from bowsynth.engines.fdm import render_fdm
 
 SR = 44100
 LEVELS = np.array([0.0, -10.0, -20.0, -26.0, -35.0, -38.0, -45.0, -48.0, -55.0, -60.0])
@@ -67,9 +67,9 @@ def test_derivative_target_is_the_true_trajectorys_slope():
 
 
 def test_range_weights_carry_the_derivative_term_and_it_trains():
+    from bowsynth.engines.operator.network import DeepONet, NetConfig
     from bowsynth.training import ParamBox
     from bowsynth.training.losses import default_weights, loss_terms
-    from bowsynth.engines.operator.network import DeepONet, NetConfig
 
     box = ParamBox(0.1, 0.3, 0.1, 0.25, 100.0)
     w = default_weights(Scene(), hybrid=True, beta_max=box.beta_hi)

@@ -8,13 +8,13 @@ import mido
 import numpy as np
 import pytest
 import soundfile as sf
+from conftest import run_main
 
 from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.errors import UsageError
+from bowsynth.io.audio import read_wav, remove_dc
 from bowsynth.music.midi import read_midi, velocity_beta, velocity_vb
 from bowsynth.music.score import load_score
-from bowsynth.io.audio import read_wav, remove_dc
-from bowsynth.errors import UsageError
-from conftest import run_main
 
 TPB = 480
 
@@ -310,6 +310,7 @@ def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys
 
 def test_timing_matches_mido_through_tempo_changes(tmp_path):
     import mido
+
     from bowsynth.music.midi import _timed_events
 
     mid = mido.MidiFile(_chorale(tmp_path / "c.mid"))

@@ -10,12 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import run_main
 
 from bowsynth import ModelFileError, Scene
 from bowsynth.engines.operator import npnet
+from bowsynth.engines.operator.check import check_physics
+from bowsynth.engines.operator.choose import SHIPPED_DIR, available_models
+from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import OperatorModel, digest, load_model
-from bowsynth.engines.operator.rollout import SHIPPED_DIR, available_models, check_physics, render_operator
-from conftest import run_main
 
 FB100 = SHIPPED_DIR / "paper-fb100.safetensors"
 ROOT = Path(__file__).resolve().parents[1]
@@ -188,7 +190,8 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
     import math
 
     from bowsynth import physics
-    from bowsynth.engines.operator.rollout import CHECK_FLOOR, CHECK_STEPS, CHECK_WINDOWS, _operator, reference_tau
+    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.check import CHECK_FLOOR, CHECK_STEPS, CHECK_WINDOWS, reference_tau
 
     m = load_model(SHIPPED_DIR / f"{name}.safetensors")
     op, d = _operator(m), m.domain
@@ -251,7 +254,7 @@ def rewrite_weights(src, dst, edit):
 def test_an_honest_but_inaccurate_model_is_told_from_a_mislabelled_one(tmp_path):
     """Over the check's limit, a model whose windows still fit its claimed bow best renders with a note (an inaccurate
     onset); one whose file claims a bow 10 % off is refused, naming the bow its weights fit as well."""
-    from bowsynth.engines.operator.rollout import PHYSICS_MAX_ERROR
+    from bowsynth.engines.operator.check import PHYSICS_MAX_ERROR
 
     honest = load_model(rewrite_weights(FB100, tmp_path / "noisy.safetensors", noisy_branch))
     assert check_physics(honest) > PHYSICS_MAX_ERROR
@@ -294,7 +297,8 @@ def test_a_damaged_model_in_models_is_skipped_and_breaks_no_other(tmp_path, monk
     assert code != 0 and "damaged" in err and len(err.strip().splitlines()) == 1
 
 
-from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st  # noqa: E402
 
 _ODD = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**30, 10**30), st.none(),
                  st.text(max_size=5), st.lists(st.floats(-10, 10), max_size=5), st.booleans())

@@ -3,14 +3,14 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import tiny_config
 
 from bowsynth import DomainError, ModelFileError, Scene, render_fdm
 from bowsynth.analysis.metrics import nmse
+from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.network import DeepONet, NetConfig
-from bowsynth.engines.operator.rollout import render_operator
 from bowsynth.training import Trainer, default_weights, loss_terms
-from conftest import tiny_config
 
 
 def _net():

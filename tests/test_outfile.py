@@ -9,16 +9,16 @@ import sys
 import threading
 
 import numpy as np
-from hypothesis import given, settings
-from hypothesis import strategies as st
 import pytest
 import soundfile as sf
+from conftest import run_main
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bowsynth import Scene, render_fdm
 from bowsynth.errors import UsageError
-from bowsynth.io.outfile import atomic_write, resolve
 from bowsynth.io.audio import read_wav, remove_dc, write_wav
-from conftest import run_main
+from bowsynth.io.outfile import atomic_write, resolve
 
 FDM = ["render", "--method", "fdm", "-d", "0.2"]
 

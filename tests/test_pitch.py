@@ -5,15 +5,15 @@ import math
 
 import numpy as np
 import pytest
+from conftest import run_main
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, UsageError, make_scene
-from bowsynth.engines.fdm import render_fdm
 from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.engines.fdm import render_fdm
 from bowsynth.music.notes import midi_to_hz, note_name, note_number, parse_pitch
 from bowsynth.music.tuning import SilentNoteError, held_value, sounding_pitch, sounding_ratio, tune
-from conftest import run_main
 
 
 def et(semitones_from_a4, a4=440.0):

@@ -6,15 +6,16 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import run_main, tiny_config
 
 from bowsynth import Scene
-from bowsynth.errors import DomainError
+from bowsynth.engines.operator.basis import _operator
+from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import RANGE_VERSION, load_model
-from bowsynth.engines.operator.rollout import render_operator, rollout_states, scene_bows, _operator
+from bowsynth.engines.operator.rollout import rollout_states, scene_bows
 from bowsynth.engines.operator.windows import window_bounds
+from bowsynth.errors import DomainError
 from bowsynth.training.ranges import ParamBox
-
-from conftest import run_main, tiny_config
 
 BOX = ParamBox(0.1, 0.3, 0.15, 0.25, 100.0)
 
@@ -110,8 +111,8 @@ def test_batched_and_single_voice_loops_agree_on_gestures(which, request):
 def test_bow_scaling_follows_the_playing_amplitude(scaled_range_model):
     """A stick-slip limit cycle grows with F_B / w (q's half-range ~0.63 at 0.6, ~1.13 at 1.1): the fitted scaling
     follows the renders' own amplitudes at both ends of the box, where one scaling for the box cannot."""
-    from bowsynth.engines.operator import npnet
     from bowsynth.engines.fdm import render_fdm
+    from bowsynth.engines.operator import npnet
 
     m = load_model(scaled_range_model)
     assert m.cfg.bow_scaled
@@ -248,8 +249,8 @@ def test_bench_scores_held_out_bows_of_a_range_model(range_model):
     """bench: a range model's held-out bows are the grid of cell centres of its box, each scored against the FDM
     x100 where the note speaks (nmse is the metrics' NMSE of p), reported finite where it does not."""
     from bowsynth.analysis.bench import bench_parameter_points, parameter_summary
-    from bowsynth.engines.fdm import render_fdm
     from bowsynth.analysis.metrics import nmse
+    from bowsynth.engines.fdm import render_fdm
 
     m = load_model(range_model)
     rows = bench_parameter_points(m, n=2, duration=0.1)

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import run_main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -216,7 +215,7 @@ def test_models_report(browser, tmp_path, capsys, monkeypatch):
     code, out, err = run_main(["models", "--report", str(page), "--report-grid", "2"], capsys, monkeypatch)
     assert code == 0, err
     assert "models report: soft-range.safetensors: bow 4/4" in err  # progress lines
-    from bowsynth.engines.operator.rollout import scan_models
+    from bowsynth.engines.operator.choose import scan_models
 
     found = [(p, m) for p, m, _ in scan_models()]
     points = [p for p, m in found if m is not None and not m.domain.is_range]

@@ -52,8 +52,8 @@ def test_presets_sound_at_their_names_and_name_their_model(capsys, monkeypatch):
             assert "model: paper-fb100.safetensors" in line
             assert f"({name[-2:].upper()})" in line  # sounds at the named note
         # the model named is the one a render picks; none only where no model covers the preset (curves included)
+        from bowsynth.engines.operator.choose import find_model, train_hint
         from bowsynth.errors import DomainError
-        from bowsynth.engines.operator.rollout import find_model, train_hint
 
         try:
             assert f"model: {find_model(make_scene(name)).path.name}" in line

@@ -1,13 +1,13 @@
 """Many voices: a batched rollout equals the voices rendered one by one; scores and mixes from the CLI."""
 
 import numpy as np
+from conftest import run_main
 
 from bowsynth import Scene
+from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
-from bowsynth.engines.operator.rollout import render_operator
-from bowsynth.music.score import load_score
 from bowsynth.io.audio import read_wav
-from conftest import run_main
+from bowsynth.music.score import load_score
 
 
 def test_batched_rollout_equals_single_voices(tiny_model):
@@ -93,9 +93,8 @@ def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch,
 
 # --- the score format (docs/score.md) -----------------------------------------------------------------------------
 
-import math  # noqa: E402
-
 import json  # noqa: E402
+import math  # noqa: E402
 
 import pytest  # noqa: E402
 import soundfile as sf  # noqa: E402
@@ -276,8 +275,8 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
     pitches, bow forces, speeds and release times, one of them needing the FDM oversampled, and a note without a
     release passes through untouched."""
     from bowsynth.engines.fdm import check_oversample, render_fdm
-    from bowsynth.render import Render
     from bowsynth.music.score import _release_scene, finish_releases, note_from_fields
+    from bowsynth.render import Render
 
     fields = [{"pitch": "C2", "beta": 0.637, "release": 0.02}, {"pitch": "A4", "beta": 0.159, "vb": 0.3},
               {"f0": 150.0, "fb": 150.0, "vb": 0.1, "release": 0.08}, {"pitch": "G3", "fb": 12000.0},

@@ -8,8 +8,10 @@ import pytest
 
 from bowsynth import Scene, render_fdm
 from bowsynth.analysis.metrics import cents, f0_estimate, nmse
-from bowsynth.engines.operator.rollout import SHIPPED_DIR, render_operator, rollout_states
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.rollout import rollout_states
 
 SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.endswith(".ckpt.safetensors"))
 

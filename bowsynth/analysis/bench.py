@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from ..engines.fdm import fdm_batch, render_fdm
-from .metrics import nmse
 from ..scene import Scene
+from .metrics import nmse
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -82,7 +82,7 @@ def _score(r, ref) -> dict:
 
 def bench_scene(scene: Scene, models, repeats: int, oversamples=(1, 2, 4, 8)) -> list[dict]:
     """Every method on one scene: FDM at each oversampling, and each operator that covers the scene."""
-    from ..engines.operator.rollout import render_operator
+    from ..engines.operator.engine import render_operator
 
     ref = render_fdm(scene, oversample=REF_OVERSAMPLE)
     rows = []
@@ -121,7 +121,7 @@ def bench_batch(model, n_voices: int, duration: float, repeats: int) -> dict:
 
     The voices are a sweep of initial states along the model's band (the states of an FDM render from rest,
     so each voice starts at another point of the note): same pitch, one batch."""
-    from ..engines.operator.rollout import render_operator
+    from ..engines.operator.engine import render_operator
 
     sc = Scene(**{**model.meta.scene, "duration": duration})
     path = render_fdm(sc.replace(duration=0.5))
@@ -190,8 +190,8 @@ def fractional_starts(scene: Scene, window: float, periods=(2, 20), fractions=(0
 
 
 def _one_case(model, scene: Scene) -> dict:
+    from ..engines.operator.engine import render_operator
     from ..errors import DomainError
-    from ..engines.operator.rollout import render_operator
 
     ref = render_fdm(scene, oversample=REF_OVERSAMPLE)
     try:
@@ -292,9 +292,9 @@ def bench_parameter_points(model, pitches=(100.0,), n: int = 4, duration: float 
     point model (one bow: nothing to hold out)."""
     if not model.domain.is_range:
         return None
-    from .metrics import cents, f0_estimate
-    from ..engines.operator.rollout import render_operator
+    from ..engines.operator.engine import render_operator
     from ..training.ranges import ParamBox, speaks
+    from .metrics import cents, f0_estimate
 
     b0, b1, v0, v1 = model.domain.box
     box = ParamBox(b0, b1, v0, v1, model.domain.a)
@@ -432,7 +432,7 @@ def _fmt(v, fmt: str = ".2e") -> str:
 
 def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:
     """The full benchmark: FDM speed, speed against error per preset, batched voices, the paper's anchors."""
-    from ..engines.operator.rollout import available_models
+    from ..engines.operator.choose import available_models
     from ..music.request import make_scene
 
     models = [m for m in available_models()]

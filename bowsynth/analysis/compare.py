@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UsageError
 from ..engines.fdm import render_fdm
-from .metrics import compare_signals
-from ..scene import Scene
+from ..errors import UsageError
 from ..io.audio import read_wav, remove_dc
+from ..scene import Scene
+from .metrics import compare_signals
 
 HIGH_OVERSAMPLE = 100
 

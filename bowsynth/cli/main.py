@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from typer.exceptions import Abort, Exit, TyperException
 from rich.console import Console
+from typer.exceptions import Abort, Exit, TyperException
 
 from ..errors import BowsynthError, Terminated, UsageError, interrupt_exit_code
 
@@ -67,13 +67,14 @@ def _main(debug: bool = typer.Option(False, "--debug", help="Show full traceback
 @app.command()
 def presets():
     """List the preset scenes, the pitch each sounds at, and the model that plays it (or how to get one)."""
+    from rich.markup import escape
+
+    from ..engines.operator.choose import available_models, find_model, train_hint
     from ..errors import DomainError
     from ..music.notes import note_name
-    from ..music.tuning import sounding_pitch
-    from ..engines.operator.rollout import available_models, find_model, train_hint
     from ..music.request import make_scene
+    from ..music.tuning import sounding_pitch
     from ..scene import list_presets, load_preset, preset_description
-    from rich.markup import escape
 
     models = available_models()
     for name in list_presets():
@@ -264,7 +265,8 @@ def _score_box(path, a4):
     dynamics in tau depend on the bow only; the pitch sets where the windows fall)."""
     from .. import api
     from ..errors import UsageError as _U
-    from ..music.score import load_score as load_notes, score_box
+    from ..music.score import load_score as load_notes
+    from ..music.score import score_box
     from ..training.ranges import ParamBox
 
     notes = load_notes(path, a4=a4)
@@ -289,7 +291,7 @@ def models(
     """List the operator models found in ./models and the shipped ones, with their domains and scores."""
     from rich.markup import escape
 
-    from ..engines.operator.rollout import scan_models
+    from ..engines.operator.choose import scan_models
 
     if report is not None:
         from ..report.models_page import check_report_path
@@ -469,9 +471,9 @@ def score(
     import time
 
     from ..engines.limits import check_request
+    from ..io.audio import check_audio_output, check_dc, check_gain_db
     from ..io.outfile import check_output_path
     from ..music.score import check_outputs_fit, load_score, render_notes, stem_paths, voices_from_presets, write_voices
-    from ..io.audio import check_audio_output, check_dc, check_gain_db
 
     if (score_file is None) == (presets_list is None):
         raise UsageError("give exactly one of --score FILE.toml|FILE.mid or --presets a,b,c")

@@ -49,7 +49,7 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
 
         out = [render_fdm(s, oversample=oversample) for s in scenes]
         return out if many else out[0]
-    from .operator.rollout import render_operator
+    from .operator.engine import render_operator
 
     return render_operator(scenes if many else scene, model=model, fallback=fallback.value)
 
@@ -65,8 +65,9 @@ def warm() -> None:
     import numpy as np
 
     from .fdm import render_fdm
+    from .operator.choose import SHIPPED_DIR
     from .operator.modelfile import load_model
-    from .operator.rollout import BATCH_FROM, SHIPPED_DIR, rollout_states
+    from .operator.rollout import BATCH_FROM, rollout_states
 
     render_fdm(Scene(duration=0.01))
     m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")

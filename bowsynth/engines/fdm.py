@@ -23,8 +23,8 @@ import warnings
 import numpy as np
 
 from .. import physics
-from ..render import Render
 from ..errors import SceneError
+from ..render import Render
 from ..scene import Scene
 
 MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: refuse instead

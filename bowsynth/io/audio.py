@@ -27,9 +27,9 @@ import numpy as np
 import soundfile as sf
 
 from ..errors import UsageError
-from .outfile import atomic_write, check_output_path, is_stdout, resolve  # noqa: F401  (re-exported)
 from ..render import Render
 from ..scene import Scene
+from .outfile import atomic_write, check_output_path, is_stdout, resolve  # noqa: F401  (re-exported)
 
 META_KEY = "bowsynth"
 META_VERSION = 2  # 2: "dc" says whether the DC was removed; version 1 files (DC kept) are still read

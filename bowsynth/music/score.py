@@ -400,13 +400,14 @@ def score_box(notes: list[Note]) -> dict:
 
 def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
     """The notes no operator model can play (their sustain), each with the reason."""
-    from ..engines.operator.rollout import _resolve, available_models
+    from ..engines.operator.choose import available_models
+    from ..engines.operator.engine import _resolve
 
     models = None
     if model is None:
         models = available_models()
     else:
-        from ..engines.operator.rollout import as_model
+        from ..engines.operator.choose import as_model
 
         model = as_model(model)
     out = []
@@ -475,7 +476,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
 def _plays_whole(note: Note, model=None) -> bool:
     """Does the model that would play the note (the one given, else the lookup's pick) cover the whole note, its bow
     stop and tail included?"""
-    from ..engines.operator.rollout import as_model, find_model
+    from ..engines.operator.choose import as_model, find_model
 
     try:
         m = find_model(note.scene) if model is None else as_model(model)
@@ -647,8 +648,8 @@ def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove"
     stems), notes.json last. A stem path that is a symlink, FIFO or device is written through at that point."""
     import shutil
 
-    from ..io.outfile import signals_held
     from ..io.audio import DC_TAG, write_wav
+    from ..io.outfile import signals_held
 
     out.mkdir(parents=True, exist_ok=True)
     stage = out / f".staging-{os.getpid()}-{secrets.token_hex(3)}"

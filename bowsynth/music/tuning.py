@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import physics
-from ..io.cache import DiskTable
 from ..errors import SceneError, UsageError
+from ..io.cache import DiskTable
 from ..scene import Scene
 from .notes import A4_HZ, parse_pitch
 
@@ -268,7 +268,7 @@ def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, 
     fixed) or, with `beta` given instead, with the force that keeps F_B / w = beta (fb = beta 2 pi f0).
 
     ratio: the engine that will play the note, as a function (beta, v_B, a, f0) -> sounding ratio (`fdm_ratio`,
-    `bowsynth.engines.operator.rollout.operator_ratio`); None: the truth's (sounding_ratio), which is what `compare` scores against."""
+    `operator_ratio` below); None: the truth's (sounding_ratio), which is what `compare` scores against."""
     p = parse_pitch(pitch, a4)
     vb, a = float(vb), float(a)
     if ratio is not None:
@@ -371,7 +371,8 @@ def operator_ratio(model):
     window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached on disk
     with the model's id)."""
     from ..analysis.metrics import f0_estimate
-    from ..engines.operator.rollout import as_model, render_operator
+    from ..engines.operator.choose import as_model
+    from ..engines.operator.engine import render_operator
 
     m = as_model(model)
 

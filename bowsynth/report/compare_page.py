@@ -256,7 +256,7 @@ def _players(c: Comparison, m: dict) -> str:
 
 
 def _scene_card(c: Comparison, meta: dict | None, name: str) -> str:
-    from ..engines.operator.rollout import scan_models
+    from ..engines.operator.choose import scan_models
 
     items = [("file", name)]
     if c.scene is not None:
@@ -343,8 +343,8 @@ def mix_page(mix_path, rows: list, worst: int = 8) -> str:
     from pathlib import Path
 
     from ..analysis.compare import mix_stems
-    from ..music.notes import note_name
     from ..io.audio import read_wav
+    from ..music.notes import note_name
 
     mix_path = Path(mix_path)
     d, _ = mix_stems(mix_path)

@@ -6,8 +6,8 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..errors import UsageError
 from ..engines.operator.npnet import NetConfig  # torch-free: model files are read without torch
+from ..errors import UsageError
 
 MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
 MAX_STEPS = 10_000_000

@@ -13,9 +13,9 @@ import warnings
 
 import numpy as np
 
-from ..errors import BowsynthError, DomainError
-from ..engines.fdm import render_fdm
 from ..analysis.metrics import compare_signals, listener_errors, nmse
+from ..engines.fdm import render_fdm
+from ..errors import BowsynthError, DomainError
 from ..scene import Scene
 from .data import window_starts
 
@@ -49,7 +49,7 @@ class Selector:
         self.best: dict = {"score": math.inf, "step": None, "state": None, "scored": 0}
 
     def score(self, model) -> float:
-        from ..engines.operator.rollout import render_operator
+        from ..engines.operator.engine import render_operator
 
         try:
             if self._ref is None:
@@ -103,7 +103,7 @@ class RangeSelector(Selector):
         self._refs = None
 
     def score(self, model) -> float:
-        from ..engines.operator.rollout import render_operator
+        from ..engines.operator.engine import render_operator
 
         try:
             if self._refs is None:
@@ -155,7 +155,7 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
 
 def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = REF_OVERSAMPLE) -> dict:
     """NMSE etc. of a rollout from the scene's initial state against a high-rate FDM, over `seconds`."""
-    from ..engines.operator.rollout import render_operator
+    from ..engines.operator.engine import render_operator
 
     s = scene.replace(duration=seconds)
     ref = render_fdm(s, oversample=ref_oversample)

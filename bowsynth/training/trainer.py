@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import UsageError
 from ..engines.operator.modelfile import ModelMeta, OperatorModel
 from ..engines.operator.network import DeepONet, NetConfig
+from ..errors import UsageError
 from ..scene import Scene
 from . import checkpoint
 from .config import TrainConfig, check_net_options, default_model_name  # noqa: F401

@@ -18,8 +18,8 @@ import numpy as np
 
 from ... import __version__
 from ...errors import ModelFileError
-from .npnet import NetConfig, weight_shapes
 from ...scene import Scene
+from .npnet import NetConfig, weight_shapes
 
 FORMAT = "bowsynth-operator"
 FORMAT_VERSION = 2  # 2: a digest binds the metadata to the weights
@@ -31,8 +31,6 @@ REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the n
 # A model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above this is
 # not picked by default: the shipped models score 1e-7 to 3e-4; 0.1 is a note visibly off in phase or pitch.
 MAX_VALIDATION_NMSE = 0.1
-
-
 MAX_BETA = 1e3  # F_B / w: the playing space ends at 2, the FDM's uniqueness bound at audio rate near 16
 MAX_A = 1e6
 MAX_WINDOW = 100 * math.pi  # 50 free periods, as TrainConfig.validate allows
@@ -371,7 +369,7 @@ def load_model(path) -> OperatorModel:
         if d.get("format_version") not in READ_VERSIONS:
             raise ModelFileError(f"{path} has model format version {d.get('format_version')}, this bowsynth reads "
                                  f"versions {', '.join(map(str, READ_VERSIONS))}; retrain it with `bowsynth train`")
-        # version 1 files carry no digest: the physics check at render time (rollout.check_physics) still catches
+        # version 1 files carry no digest: the physics check at render time (operator.check) still catches
         # metadata that lies about the weights
         if d["format_version"] >= 2 and d.get("digest") != digest(d, tensors):
             raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited (digest mismatch)")

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 FAIL_NONFINITE, FAIL_DOMAIN = 1, 2  # why a voice stopped (the compiled loops write the same codes)
 FAIL_BOW = 3  # the bow left the model's range (found before the rollout, from the scene's curves)
 FAILURES = {FAIL_NONFINITE: "the rollout turned non-finite",
