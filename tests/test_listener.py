@@ -113,7 +113,8 @@ def test_a_model_that_reaches_v_b_0_plays_a_notes_release_too(tmp_path):
     from conftest import tiny_config
 
     from bowsynth import api
-    from bowsynth.music.score import note_from_fields, render_notes
+    from bowsynth.music.perform import render_notes
+    from bowsynth.music.score import note_from_fields
     from bowsynth.training import ParamBox
 
     box = ParamBox(0.1, 0.3, 0.0, 0.25, 100.0)

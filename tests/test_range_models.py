@@ -224,7 +224,8 @@ def test_train_score_refuses_flags_it_replaces(capsys, monkeypatch, tmp_path):
 def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_path):
     """`train --score`: the model's box is the bows the notes' sustains visit (a gesture's whole curve included), and
     the model then covers every note of the score (the coverage check before rendering finds nothing missing)."""
-    from bowsynth.music.score import load_score, uncovered
+    from bowsynth.music.perform import uncovered
+    from bowsynth.music.score import load_score
 
     score = tmp_path / "s.toml"
     score.write_text('[[voice]]\n[[voice.note]]\nstart = 0\nduration = 0.4\nf0 = 100\nfb = [[0.0, 80.0], [0.3, 160.0]]\n'

@@ -275,7 +275,8 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
     pitches, bow forces, speeds and release times, one of them needing the FDM oversampled, and a note without a
     release passes through untouched."""
     from bowsynth.engines.fdm import check_oversample, render_fdm
-    from bowsynth.music.score import _release_scene, finish_releases, note_from_fields
+    from bowsynth.music.perform import _release_scene, finish_releases
+    from bowsynth.music.score import note_from_fields
     from bowsynth.render import Render
 
     fields = [{"pitch": "C2", "beta": 0.637, "release": 0.02}, {"pitch": "A4", "beta": 0.159, "vb": 0.3},

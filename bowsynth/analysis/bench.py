@@ -60,9 +60,6 @@ REF_OVERSAMPLE = 100
 _ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_ANCHORS = next((d for d in (_ROOT.parent / "shared" / "anchors", _ROOT / "tests" / "data") if d.is_dir()),
                        _ROOT.parent / "shared" / "anchors")
-PAPER = {  # the paper's operators over 0.5 s (shared/anchors/README.md): NMSE(p), training
-    10: ("2.5e-4", "36.6 h GPU"), 100: ("9.5e-7", "21.4 h GPU"), 1000: ("2.81 (hybrid 1.72)", "14.2 h GPU"),
-}
 
 
 def _score(r, ref) -> dict:

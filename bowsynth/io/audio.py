@@ -232,7 +232,7 @@ def mix_meta(names: list[str], gain: float, dc: str, **fields) -> dict:
 
 def write_mix(path, x: np.ndarray, names: list[str], sample_rate: int, dc: str = "remove",
               gain_db: float | None = None, force: bool = True, **fields) -> dict:
-    """Write a mix, `x` being the notes already summed at their starts (bowsynth.music.score.mix_notes): the DC removed
+    """Write a mix, `x` being the notes already summed at their starts (bowsynth.music.mix.mix_notes): the DC removed
     once, from the sum, then peak-normalised to PEAK (never clips) or the fixed gain `gain_db` (refused if it would
     clip)."""
     check_dc(dc)

@@ -29,43 +29,15 @@ same way with either engine.
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import re
-import secrets
-import time
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
 
 from .. import physics
 from ..controls import Curve, as_control
-from ..errors import BowsynthError, DomainError, SceneError, UsageError
-from ..render import Render
+from ..errors import SceneError, UsageError
 from ..scene import Scene, load_preset
-
-RELEASE = 0.05  # s: default bow-stop time
-TAIL = 0.03  # s: the shortest render after the bow stops
-TAIL_TIME_CONSTANTS = 10.0  # e^-10 by the linear rate; the saturated friction of the first ms is slower
-MAX_TAIL = 2.0
-MAX_RELEASE = 10.0
-
-
-def stop_tail(fb: float, f0: float, a: float) -> float:
-    """Seconds to render after the bow has stopped (v_B = 0) for the mass to come to rest (-60 dB).
-
-    On a stopped bow the friction is a damper of rate c = F_B phi'(0): the mass rings down at c / 2 when c < 2w;
-    above that it creeps back to rest at the slow root (c - sqrt(c^2 - 4 w^2)) / 2 (a pressed bow holds the mass
-    aside: measured at F_B / w 0.64, C2, 19 % of the peak was left 30 ms after the stop)."""
-    c = fb * physics.dphi(0.0, a)
-    if c <= 0:
-        return MAX_TAIL
-    w = physics.omega(f0)
-    rate = 0.5 * (c - math.sqrt(max(c * c - 4 * w * w, 0.0)))
-    return float(min(MAX_TAIL, max(TAIL, TAIL_TIME_CONSTANTS / rate)))
+from .note import MAX_RELEASE, RELEASE, Note, _scale, _with_release, stop_tail
 
 TOP_KEYS = {"defaults": "table of note defaults", "voice": "array of voice tables", "a4": "tuning, Hz",
             "title": "text"}
@@ -78,88 +50,6 @@ EXCLUSIVE = (("pitch", "f0"), ("fb", "beta"))
 
 class ScoreError(UsageError):
     """A score (TOML or MIDI) that cannot be played as written."""
-
-
-@dataclass
-class Note:
-    """One note: its own bowed mass from rest, starting `start` s into the piece.
-
-    `scene` is the whole note (its sustain of `hold` s, then the bow stop of `release` s and the tail); `name` is
-    its voice. `pitch` is the asked pitch in Hz (None for a note given by f0)."""
-
-    name: str
-    scene: Scene
-    start: float = 0.0
-    hold: float | None = None
-    release: float = 0.0
-    pitch: float | None = None
-    label: str = ""
-    extra: dict = field(default_factory=dict)
-
-    def __post_init__(self):
-        if self.hold is None:
-            self.hold = self.scene.duration
-
-    @property
-    def end(self) -> float:
-        return self.start + self.scene.duration
-
-    @property
-    def gesture(self) -> bool:
-        """Does the bow change during the sustain (before the release)?"""
-        return self.sustain_scene().varying
-
-    def sustain_scene(self, extra_samples: int = 0) -> Scene:
-        """The note without its release: the controls over [0, hold], constant ones as numbers."""
-        sc = self.scene
-        n = self.hold_samples + extra_samples
-        return sc.replace(fb=_clip(sc.fb, self.hold), vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
-
-    @property
-    def hold_samples(self) -> int:
-        return int(round(self.hold * self.scene.sample_rate))
-
-    def rollout_scene(self) -> Scene:
-        """What the operator plays: the sustain, its bow held to the note's end when there is a release (the release
-        then overwrites the samples after the hold in place: copying a 60 s voice into a new array cost more than
-        rolling the sustain on through its release)."""
-        return self.sustain_scene(self.scene.n_samples - self.hold_samples if self.release > 0 else 0)
-
-    def describe(self) -> str:
-        return self.label or self.name
-
-
-# legacy name: a voice of the round-1 format is one note from 0
-Voice = Note
-
-
-def _clip(control, end: float):
-    """A control over [0, end] only (what it does after `end` dropped), as a number if constant there."""
-    if not isinstance(control, Curve):
-        return control
-    t = np.concatenate([[0.0], control.times[(control.times > 0) & (control.times < end)], [end]])
-    pts = [(float(a), float(b)) for a, b in zip(t, control.at(t))]
-    dedup = [pts[0]] + [p for prev, p in zip(pts, pts[1:]) if p[0] > prev[0]]
-    return as_control(dedup)
-
-
-def _with_release(vb, hold: float, release: float):
-    """vb over [0, hold], then a linear fall to 0 over `release` seconds."""
-    held = _clip(vb, hold)
-    at_hold = float(held.at(hold)) if isinstance(held, Curve) else float(held)
-    pts = held.to_list() if isinstance(held, Curve) else [[0.0, at_hold], [hold, at_hold]]
-    if pts[-1][0] < hold:
-        pts.append([hold, at_hold])
-    if pts[0][0] == hold == 0.0:
-        pts = [[0.0, at_hold]]
-    pts.append([hold + release, 0.0])
-    return as_control(pts)
-
-
-def _scale(control, k: float):
-    if isinstance(control, Curve):
-        return Curve(tuple((t, v * k) for t, v in control.points))
-    return float(control) * k
 
 
 def _num(where: str, key: str, v, lo=None, hi=None) -> float:
@@ -327,8 +217,9 @@ class ScoreNotes(list):
 def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
     """The notes of a MIDI file with the bow of `bowsynth.music.midi`'s mapping; a track's channel is a voice."""
     from . import midi as M
+    from .midi import read_midi
 
-    piece = read_midi_checked(path)
+    piece = read_midi(path)
     notes = ScoreNotes(remarks=piece.remarks)
     for n in piece.notes:
         hold = n.end - n.start
@@ -344,12 +235,6 @@ def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
                                               "beta": beta, "vb": vb}, where, a4, label=where.split(": ", 1)[1]))
         notes[-1].extra = {"midi_note": n.number, "velocity": n.velocity}
     return notes
-
-
-def read_midi_checked(path):
-    from .midi import read_midi
-
-    return read_midi(path)
 
 
 def _midi_control(piece, n, cc, base: float, factor):
@@ -385,333 +270,10 @@ def voices_from_presets(names: list[str], **overrides) -> list[Note]:
 
 # --- what the models cover ----------------------------------------------------------------------------------------
 
-def score_box(notes: list[Note]) -> dict:
-    """The box of dimensionless physics the notes visit during their sustains (the release is the FDM's):
-    {'beta': (lo, hi), 'vb': (lo, hi), 'a': (lo, hi), 'f0': (lo, hi), 'notes': n, 'gestures': n with curves}."""
-    if not notes:
-        raise ScoreError("no notes")
-    sus = [n.sustain_scene() for n in notes]
-    bl = [s.beta_range for s in sus]
-    vl = [s.vb_range for s in sus]
-    return {"beta": (min(b[0] for b in bl), max(b[1] for b in bl)), "vb": (min(v[0] for v in vl), max(v[1] for v in vl)),
-            "a": (min(s.a for s in sus), max(s.a for s in sus)), "f0": (min(s.f0 for s in sus), max(s.f0 for s in sus)),
-            "notes": len(notes), "gestures": sum(s.varying for s in sus)}
-
-
-def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
-    """The notes no operator model can play (their sustain), each with the reason."""
-    from ..engines.operator.choose import available_models
-    from ..engines.operator.engine import _resolve
-
-    models = None
-    if model is None:
-        models = available_models()
-    else:
-        from ..engines.operator.choose import as_model
-
-        model = as_model(model)
-    out = []
-    for n in notes:
-        sc = n.rollout_scene()
-        try:
-            _resolve(sc, model, models)
-        except DomainError:
-            (blo, bhi), (vlo, vhi) = sc.beta_range, sc.vb_range
-            b = f"{blo:.4g}" if blo == bhi else f"{blo:.4g}..{bhi:.4g}"
-            v = f"{vlo:g}" if vlo == vhi else f"{vlo:g}..{vhi:g}"
-            out.append((n, f"F_B / w = {b}, v_B = {v}, a = {sc.a:g}"))
-    return out
-
-
-def coverage_message(notes: list[Note], missing: list[tuple[Note, str]], source=None) -> str:
-    box = score_box(notes)
-    shown = "; ".join(f"{n.describe()} ({why})" for n, why in missing[:3])
-    more = f"; and {len(missing) - 3} more" if len(missing) > 3 else ""
-    train = f"bowsynth train --score {source}" if source else "bowsynth train"
-    return (f"{len(missing)} of {len(notes)} notes fall outside every model's range: {shown}{more}. The piece spans "
-            f"F_B / w {box['beta'][0]:.4g}..{box['beta'][1]:.4g}, v_B {box['vb'][0]:g}..{box['vb'][1]:g}, "
-            f"a {box['a'][0]:g}..{box['a'][1]:g}: train a model that covers it with `{train}`, or render with "
-            f"--method fdm (or --fallback fdm for these notes only)")
-
 
 # --- rendering ----------------------------------------------------------------------------------------------------
-
-def render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
-                 source=None) -> list[Render]:
-    """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
-    of the sustains, each release then by the FDM from the sustain's last state. Notes no model covers are
-    refused before anything renders (fallback 'fdm': rendered by the FDM instead, noted in info['notes'])."""
-    from ..engines import Engine, Fallback, parse_choice, render
-
-    engine = parse_choice(Engine, method, "--method")
-    fb_mode = parse_choice(Fallback, fallback, "--fallback")
-    if engine is Engine.fdm:
-        return render([n.scene for n in notes], engine="fdm")
-    missing = {id(n): why for n, why in uncovered(notes, model)}
-    if missing and fb_mode is not Fallback.fdm:
-        raise ScoreError(coverage_message(notes, [(n, missing[id(n)]) for n in notes if id(n) in missing], source))
-    out: list = [None] * len(notes)
-    op = [i for i, n in enumerate(notes) if id(n) not in missing]
-    for i, n in enumerate(notes):
-        if id(n) in missing:
-            r = render(n.scene, engine="fdm")
-            r.info.setdefault("notes", []).append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
-            out[i] = r
-    # a note whose bow stop and tail a model covers too (a box reaching v_B = 0) is played whole by the operator
-    whole = [i for i in op if notes[i].release > 0 and _plays_whole(notes[i], model)]
-    if whole:
-        for i, r in zip(whole, render([notes[i].scene for i in whole], engine="operator", model=model,
-                                      fallback=fallback)):
-            r.info["release"] = "operator"
-            out[i] = r
-    part = [i for i in op if i not in set(whole)]
-    if part:
-        sustains = [notes[i].rollout_scene() for i in part]
-        rs = render(sustains, engine="operator", model=model, fallback=fallback)
-        for i, r in zip(part, finish_releases([notes[i] for i in part], rs)):
-            out[i] = r
-    return out
-
-
-def _plays_whole(note: Note, model=None) -> bool:
-    """Does the model that would play the note (the one given, else the lookup's pick) cover the whole note, its bow
-    stop and tail included?"""
-    from ..engines.operator.choose import as_model, find_model
-
-    try:
-        m = find_model(note.scene) if model is None else as_model(model)
-    except DomainError:
-        return False
-    return m.covers(note.scene)
-
-
-def _release_scene(note: Note, sus: Render) -> Scene:
-    """The note after its sustain: v_B falls to 0 over the release, from the sustain's state at the hold."""
-    sc, h = note.scene, note.hold_samples
-    return Scene(f0=sc.f0, fb=float(sc.fb_at(note.hold)), vb=[[0.0, float(sc.vb_at(note.hold))], [note.release, 0.0]],
-                 a=sc.a, duration=(sc.n_samples - h) / sc.sample_rate, sample_rate=sc.sample_rate,
-                 q0=float(sus.q[h]), p0=float(sus.p[h]))
-
-
-def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto") -> list[Render]:
-    """Each note's release by the FDM from its sustain's state at the hold, written over the sustain's samples from
-    there on (`sustains` rendered from `Note.rollout_scene`, so they already span the whole note).
-
-    The releases run together in one numpy FDM (`fdm.fdm_batch`, one batch per sample rate and oversampling): a few
-    thousand steps of a few small array operations, where the compiled loop would first cost numba's import and load
-    (~1 s, more than a 100-note score's whole rollout). Same scheme, start and Newton iteration as `render_fdm`.
-    Where numba is already loaded (a long piece's compiled rollout paid for it), each release runs `render_fdm`'s
-    compiled loop instead: the 8 releases of 0.1 s of a 60 s piece took 0.37 s in numpy and 4-5 ms compiled.
-    loop: 'auto' (that choice, rollout.numba_loaded), 'numpy' or 'numba'."""
-    from ..engines.fdm import check_oversample, fdm_batch, render_fdm
-    from ..engines.operator.rollout import numba_loaded
-
-    if loop == "auto":
-        loop = "numba" if numba_loaded() else "numpy"
-    if loop not in ("numpy", "numba"):
-        raise ValueError(f"loop must be auto, numpy or numba, got {loop!r}")
-
-    out = [None] * len(notes)
-    groups: dict[tuple, list[int]] = {}
-    scenes = {}
-    for i, (n, sus) in enumerate(zip(notes, sustains)):
-        if n.release <= 0:
-            out[i] = Render(n.scene, sus.t, sus.q, sus.p, sus.method, sus.seconds, sus.info)
-            continue
-        if len(sus.q) != n.scene.n_samples:
-            raise ValueError(f"{n.describe()}: the sustain has {len(sus.q)} samples, the note "
-                             f"{n.scene.n_samples} (render Note.rollout_scene)")
-        scenes[i] = rel = _release_scene(n, sus)
-        os_ = check_oversample(rel, 1, warn=False)
-        groups.setdefault((rel.sample_rate, os_, rel.a), []).append(i)
-    for (sr, os_, a), idx in groups.items():
-        rel = [scenes[i] for i in idx]
-        if loop == "numba":
-            for i, r in zip(idx, rel):
-                f = render_fdm(r, os_)
-                out[i] = _join_release(notes[i], sustains[i], f.q, f.p, f.seconds)
-            continue
-        vb0 = np.array([r.vb_at(0.0) for r in rel])
-        span = np.array([notes[i].release for i in idx])
-        k = 1.0 / (sr * os_)
-        n_out = max(r.n_samples for r in rel)
-        t0 = time.perf_counter()
-        # the ramp as controls.Curve evaluates it (v0 + (v1 - v0) (t - t0) / (t1 - t0)), held at 0 after it
-        q, p = fdm_batch([r.q0 for r in rel], [r.p0 for r in rel], n_out, os_, k, np.array([r.omega for r in rel]),
-                         np.array([float(r.fb_at(0.0)) for r in rel]),
-                         lambda t: np.where(t >= span, 0.0, vb0 + (0.0 - vb0) * t / span), a)
-        secs = (time.perf_counter() - t0) / len(idx)
-        for row, i in enumerate(idx):
-            m = scenes[i].n_samples
-            out[i] = _join_release(notes[i], sustains[i], q[row, :m], p[row, :m], secs)
-    return out
-
-
-def _join_release(n: Note, sus: Render, q: np.ndarray, p: np.ndarray, secs: float) -> Render:
-    """The note: its sustain up to the hold, the release's samples written over the rest."""
-    h = n.hold_samples
-    sus.q[h:] = q
-    sus.p[h:] = p
-    info = dict(sus.info)
-    info["release"] = "fdm"
-    return Render(n.scene, sus.t, sus.q, sus.p, method=f"{sus.method} + fdm release", seconds=sus.seconds + secs,
-                  info=info)
-
-
-def render_voices(voices, method: str = "operator", model=None, fallback: str = "none") -> list[Render]:
-    return render_notes(voices, method=method, model=model, fallback=fallback)
 
 
 # --- writing ------------------------------------------------------------------------------------------------------
 
-def safe_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "voice"
 
-
-def stem_names(notes: list[Note]) -> list[str]:
-    """File names of the notes' stems: `voice.wav` for a voice of one note, else `voice-001.wav`, ... in time order
-    (voices of the same name, a preset listed twice, get `name-2.wav`, ...)."""
-    per_voice: dict[str, list[int]] = {}
-    for i, n in enumerate(notes):
-        per_voice.setdefault(n.name, []).append(i)
-    names = [""] * len(notes)
-    seen: dict[str, int] = {}
-    for voice, idx in per_voice.items():
-        stem = safe_name(voice)
-        idx = sorted(idx, key=lambda i: (notes[i].start, i))
-        for k, i in enumerate(idx):
-            base = stem if len(idx) == 1 else f"{stem}-{k + 1:03d}"
-            seen[base] = seen.get(base, 0) + 1
-            names[i] = f"{base}.wav" if seen[base] == 1 else f"{base}-{seen[base]}.wav"
-    return names
-
-
-def stem_paths(notes: list[Note], out: Path) -> list[Path]:
-    """Every file a stems directory `out` will hold: one WAV per note, then notes.json."""
-    return [Path(out) / f for f in stem_names(notes)] + [Path(out) / "notes.json"]
-
-
-# the longest method, gain, time and model id a stem's metadata can hold: the size check runs before rendering
-_WORST_METHOD = "operator+fdm + fdm release"
-_WORST_FLOAT = 1 / 3
-_WORST_MODEL = "x" * 64
-
-
-def check_stems_fit(notes: list[Note], signal: str = "u", dc: str = "remove") -> None:
-    """Before rendering: every note's stem metadata (wav.render_meta, scene and curves included) fits a WAV comment
-    (else a one-line ScoreError naming the note)."""
-    from ..io.audio import META_LIMIT, render_meta
-
-    for n in notes:
-        meta = render_meta(n.scene, _WORST_METHOD, signal, _WORST_FLOAT, _WORST_FLOAT, _WORST_MODEL, dc)
-        size = len(json.dumps(meta, separators=(",", ":")))
-        if size > META_LIMIT["WAV"]:
-            raise ScoreError(f"{n.describe()}: its bow curves are too long to store in a stem's metadata ({size} "
-                             f"characters, at most {META_LIMIT['WAV']}); use fewer breakpoints, or write only the mix "
-                             f"(--mix without --stems)")
-
-
-def check_outputs_fit(notes: list[Note], mix: Path | str | None = None, stems: Path | None = None,
-                      signal: str = "u", dc: str = "remove") -> None:
-    """The one metadata check before rendering: each stem's (when stems are written) and the mix's (when a mix is
-    written, in its format: `wav.check_meta_fits`)."""
-    from ..io.audio import check_meta_fits
-
-    if stems is not None:
-        check_stems_fit(notes, signal, dc)
-    if mix is not None:
-        from ..io.audio import mix_meta
-
-        check_meta_fits(mix_meta(_voice_names(notes), _WORST_FLOAT, dc, **_mix_extra(notes, mix, stems, signal)), mix)
-
-
-def _voice_names(notes) -> list[str]:
-    return list(dict.fromkeys(n.name for n in notes))
-
-
-def _mix_extra(notes, out, stems, signal) -> dict:
-    """A mix's own metadata fields beside wav.mix_meta's: the note count, the signal and where its stems are."""
-    extra = {"notes": len(notes), "signal": signal}
-    if stems is not None:  # relative to the mix's directory, so `compare` finds them from the mix
-        extra["stems"] = os.path.relpath(Path(stems).resolve(), Path(out).resolve().parent)
-    return extra
-
-
-def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove", gain_db: float | None = None,
-                force: bool = True) -> list[Path]:
-    """One audio file per note into the directory `out` (each with its own scene, so `compare` reads it; its DC
-    removed on its own, as `render` would), and `out/notes.json`: each note's file, voice, start, written duration
-    and pitch.
-
-    All or none: the stems are written into a hidden staging directory inside `out` (a Ctrl-C or SIGTERM there
-    removes it and leaves `out` as it was), then moved into place by renames with the signals held (a few ms for 150
-    stems), notes.json last. A stem path that is a symlink, FIFO or device is written through at that point."""
-    import shutil
-
-    from ..io.audio import DC_TAG, write_wav
-    from ..io.outfile import signals_held
-
-    out.mkdir(parents=True, exist_ok=True)
-    stage = out / f".staging-{os.getpid()}-{secrets.token_hex(3)}"
-    stage.mkdir()
-    paths, index = [], []
-    try:
-        for n, r, fname in zip(notes, renders, stem_names(notes)):
-            write_wav(stage / fname, r, signal=signal, dc=dc, gain_db=gain_db, force=True)
-            paths.append(out / fname)
-            index.append({"file": fname, "voice": n.name, "start": n.start, "duration": n.hold, "release": n.release,
-                          "pitch": n.pitch, "label": n.describe(), "method": r.method, **n.extra})
-        text = json.dumps({"bowsynth_stems": 1, "signal": signal, "dc": DC_TAG if dc == "remove" else "kept",
-                           "notes": index}, indent=1)
-        (stage / "notes.json").write_text(text + "\n")
-        with signals_held():
-            for fname in [p.name for p in paths] + ["notes.json"]:
-                dst = out / fname
-                if dst.is_symlink() or (dst.exists() and not dst.is_file()):
-                    with open(stage / fname, "rb") as src, open(dst, "wb") as sink:
-                        shutil.copyfileobj(src, sink)
-                else:
-                    os.replace(stage / fname, dst)
-    except OSError as e:
-        raise BowsynthError(f"could not write the stems into {out}: {e.strerror or e}") from None
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-    return paths
-
-
-def mix_notes(notes, renders, signal: str = "u") -> tuple[np.ndarray, int]:
-    """The notes summed, each placed at its start sample (as rendered: the DC is removed once, from the sum, by
-    `wav.write_mix`). A displacement is mixed as q = w u (the same waveform), so a note's loudness does not grow
-    with its period; velocity p is mixed as is."""
-    rates = {r.scene.sample_rate for r in renders}
-    if len(rates) != 1:
-        raise ScoreError(f"a mix needs one sample rate; the notes use {sorted(rates)}")
-    rate = rates.pop()
-    starts = [int(round(n.start * rate)) for n in notes]
-    x = np.zeros(max(s + len(r.q) for s, r in zip(starts, renders)))
-    for s, r in zip(starts, renders):
-        sig = np.asarray(r.q if signal == "u" else r.signal(signal), float)
-        x[s:s + len(sig)] += sig
-    return x, rate
-
-
-def write_voices(voices, renders, out: Path, mix: bool, signal: str = "u", stems: Path | None = None,
-                 dc: str = "remove", gain_db: float | None = None, force: bool = True) -> list[Path]:
-    """Stems (one file per note) into the directory `out`, or (mix=True) the mix into the file `out` (and, with
-    `stems`, the stems into that directory; the mix's metadata points to them for `compare`).
-
-    DC (dc='remove'): each stem is filtered on its own, and the mix is the sum of the unfiltered notes at their
-    starts, filtered once. The filter (wav.remove_dc) is zero-phase with a mean subtraction, so it does not commute
-    with placing notes at other starts: the mix equals remove_dc(sum of the notes as rendered), not the sum of the
-    filtered stems (tests/test_midi.py checks the first exactly)."""
-    from ..io.audio import write_mix
-
-    if not mix:
-        return write_stems(voices, renders, out, signal, dc=dc, gain_db=gain_db, force=force)
-    paths = []
-    if stems is not None:
-        paths += write_stems(voices, renders, stems, signal, dc=dc, gain_db=gain_db, force=force)
-    x, rate = mix_notes(voices, renders, signal)
-    write_mix(out, x, _voice_names(voices), rate, dc=dc, gain_db=gain_db, force=force,
-              **_mix_extra(voices, out, stems, signal))
-    return [out] + paths
