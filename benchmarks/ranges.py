@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from bowsynth import Scene, render_fdm
-from bowsynth.analysis.bench import bench_parameter_points, parameter_summary
 from bowsynth.analysis.metrics import nmse
+from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
 from bowsynth.controls import Curve
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.engine import render_operator

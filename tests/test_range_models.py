@@ -249,8 +249,8 @@ def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_pat
 def test_bench_scores_held_out_bows_of_a_range_model(range_model):
     """bench: a range model's held-out bows are the grid of cell centres of its box, each scored against the FDM
     x100 where the note speaks (nmse is the metrics' NMSE of p), reported finite where it does not."""
-    from bowsynth.analysis.bench import bench_parameter_points, parameter_summary
     from bowsynth.analysis.metrics import nmse
+    from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
     from bowsynth.engines.fdm import render_fdm
 
     m = load_model(range_model)

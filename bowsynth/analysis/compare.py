@@ -8,13 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engines.fdm import render_fdm
+from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import UsageError
 from ..io.audio import read_wav, remove_dc
 from ..scene import Scene
 from .metrics import compare_signals
-
-HIGH_OVERSAMPLE = 100
 
 
 @dataclass
@@ -99,7 +97,7 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
     sig = (a.meta or {}).get("signal", "u")
     check_fdm(sc, 1, force, "the FDM reference")
     if reference == "high":
-        check_fdm(sc, HIGH_OVERSAMPLE, force, f"the x{HIGH_OVERSAMPLE} FDM reference")
+        check_fdm(sc, TRUTH_OVERSAMPLE, force, f"the x{TRUTH_OVERSAMPLE} FDM reference")
     x = a.physical
     fdm, fdm_s = _fdm_signal(sc, sig, 1, a.dc_removed)
     if not np.any(fdm):  # e.g. v_B = 0 from rest: no metric has anything to measure against
@@ -118,13 +116,13 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
         return compare_signals(u, v, sc.sample_rate, pitch_signal_x=u[:k], pitch_signal_ref=v[:k])
 
     if reference == "high":
-        hi, hi_s = _fdm_signal(sc, sig, HIGH_OVERSAMPLE, a.dc_removed)
+        hi, hi_s = _fdm_signal(sc, sig, TRUTH_OVERSAMPLE, a.dc_removed)
         hi = hi[:n]
-        c.columns[f"file vs FDM x{HIGH_OVERSAMPLE} (truth)"] = cmp(x, hi)
+        c.columns[f"file vs FDM x{TRUTH_OVERSAMPLE} (truth)"] = cmp(x, hi)
         c.columns["file vs FDM"] = cmp(x, fdm)
-        c.columns[f"FDM vs FDM x{HIGH_OVERSAMPLE}"] = cmp(fdm, hi)
-        c.seconds[f"fdm_x{HIGH_OVERSAMPLE}"] = hi_s
-        c.series[f"FDM x{HIGH_OVERSAMPLE}"] = hi
+        c.columns[f"FDM vs FDM x{TRUTH_OVERSAMPLE}"] = cmp(fdm, hi)
+        c.seconds[f"fdm_x{TRUTH_OVERSAMPLE}"] = hi_s
+        c.series[f"FDM x{TRUTH_OVERSAMPLE}"] = hi
     else:
         c.columns["file vs FDM"] = cmp(x, fdm)
     return c
@@ -203,7 +201,7 @@ def format_mix_table(rows: list[tuple[dict, Comparison]]):
 
     labels = list(rows[0][1].columns) if rows else []
     short = dict(zip(labels[:2], ["x100", "FDM"] if len(labels) > 1 else ["FDM"]))
-    t = Table(title=f"each note against the FDM of its own scene (x100: the FDM at {HIGH_OVERSAMPLE}x the rate, the "
+    t = Table(title=f"each note against the FDM of its own scene (x100: the FDM at {TRUTH_OVERSAMPLE}x the rate, the "
                     f"truth; FDM: at the file's rate)")
     t.add_column("note")
     t.add_column("start s", justify="right")

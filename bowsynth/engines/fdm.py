@@ -27,6 +27,8 @@ from ..errors import SceneError
 from ..render import Render
 from ..scene import Scene
 
+# the truth every accuracy figure is measured against: this FDM at 100x the sample rate (GUIDE section 2)
+TRUTH_OVERSAMPLE = 100
 MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: refuse instead
 DENSE_BELOW = 512  # states: below this `_solve_eta_vec` iterates densely (see _solve_eta_dense)
 CHUNK_STEPS = 2_000_000  # scheme steps per compiled call (see run_fdm_raw)

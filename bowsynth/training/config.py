@@ -118,7 +118,7 @@ def check_refine(init, cfg: TrainConfig, scene, box) -> None:
     and the network options it fixes are not given again."""
     import math
 
-    from ..engines.operator.modelfile import REL_TOL
+    from ..engines.operator.domain import REL_TOL
 
     what = init.path or init.meta.name
     if not init.domain.is_range:

@@ -11,7 +11,7 @@ from scipy import ndimage
 
 from .. import physics
 from ..engines.fdm import fdm_batch, render_fdm
-from ..engines.operator.modelfile import Domain
+from ..engines.operator.domain import Domain
 from ..engines.operator.npnet import NetConfig, linear_part
 from ..scene import Scene
 from .config import TrainConfig

@@ -59,7 +59,7 @@ class ParamBox:
 
     def contains(self, beta, vb) -> np.ndarray:
         """Elementwise: is the bow inside the box (the same test as a model file's, model.within)?"""
-        from ..engines.operator.modelfile import within
+        from ..engines.operator.domain import within
 
         return within(beta, self.beta_lo, self.beta_hi) & within(vb, self.vb_lo, self.vb_hi)
 

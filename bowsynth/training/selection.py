@@ -14,12 +14,11 @@ import warnings
 import numpy as np
 
 from ..analysis.metrics import compare_signals, listener_errors, nmse
-from ..engines.fdm import render_fdm
+from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import BowsynthError, DomainError
 from ..scene import Scene
 from .data import window_starts
 
-REF_OVERSAMPLE = 100
 SELECT_OFFSET_S = 0.3  # into the note (past the onset), then 0.37 of a window further: between two window starts
 
 
@@ -55,7 +54,7 @@ class Selector:
             if self._ref is None:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    self._ref = render_fdm(self.scene, oversample=REF_OVERSAMPLE).p
+                    self._ref = render_fdm(self.scene, oversample=TRUTH_OVERSAMPLE).p
             s = float(nmse(render_operator(self.scene, model=model).p, self._ref))
         except BowsynthError:  # the rollout left its domain
             return math.inf
@@ -109,7 +108,7 @@ class RangeSelector(Selector):
             if self._refs is None:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    self._refs = [render_fdm(s, oversample=REF_OVERSAMPLE).p for s in self.scenes]
+                    self._refs = [render_fdm(s, oversample=TRUTH_OVERSAMPLE).p for s in self.scenes]
             rs = render_operator(self.scenes, model=model)
             s = float(np.mean([listener_score(r.p, ref, sc.sample_rate)
                                for r, ref, sc in zip(rs, self._refs, self.scenes)]))
@@ -124,7 +123,7 @@ class RangeSelector(Selector):
 
 
 def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
-                   ref_oversample: int = REF_OVERSAMPLE) -> dict:
+                   ref_oversample: int = TRUTH_OVERSAMPLE) -> dict:
     """validate() at the n x n grid of the box (from rest, the scene's pitch) where the note speaks: the median
     NMSE(p) is the model's score ('nmse'), the worst beside it; the silent corners must stay finite."""
     from .ranges import distinct, speaks
@@ -153,7 +152,7 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
     return out
 
 
-def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = REF_OVERSAMPLE) -> dict:
+def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = TRUTH_OVERSAMPLE) -> dict:
     """NMSE etc. of a rollout from the scene's initial state against a high-rate FDM, over `seconds`."""
     from ..engines.operator.engine import render_operator
 

@@ -11,6 +11,7 @@ import numpy as np
 from ...errors import DomainError, ModelFileError
 from ...scene import Scene
 from .basis import _operator
+from .domain import span_text
 from .modelfile import OperatorModel, load_model
 from .rollout import scene_bows
 from .windows import window_bounds
@@ -156,13 +157,9 @@ def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> Opera
                 o for o in out if not o.startswith(("F_B", "v_B"))]
         return ", ".join(out)
     lines = "; ".join(f"{m.path.name if m.path else m.meta.name} ({why(m)})" for m in near) or "none found"
-    bow = (f"F_B / w = {_span(blo, bhi)}, v_B = {_span(vlo, vhi)}")
+    bow = (f"F_B / w = {span_text(blo, bhi)}, v_B = {span_text(vlo, vhi)}")
     raise DomainError(f"no model covers this scene ({bow}, a = {scene.a:g}); nearest: {lines}. Train one with "
                       f"`{train_hint(scene)}`, or render with --method fdm (or --fallback fdm)")
-
-
-def _span(lo: float, hi: float) -> str:
-    return f"{lo:.4g}" if lo == hi else f"{lo:.4g}..{hi:.4g}"
 
 
 def partial_model(scene: Scene, models: list[OperatorModel] | None = None):
