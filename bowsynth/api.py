@@ -7,6 +7,7 @@ import math
 import os
 from pathlib import Path
 
+from . import physics
 from .errors import BowsynthError, DomainError, UsageError, interrupt_exit_code
 from .scene import Scene
 
@@ -240,7 +241,7 @@ def _alive(pid: int) -> bool:
 def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: float = 1.0) -> Scene:
     """The scene a range model trains at: the box's centre bow (geometric in beta) at this pitch and rate."""
     beta = math.sqrt(max(box.beta_lo, 1e-12) * max(box.beta_hi, 1e-12))
-    return Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=(box.vb_lo + box.vb_hi) / 2, a=box.a, duration=duration,
+    return Scene(f0=f0, fb=beta * physics.omega(f0), vb=(box.vb_lo + box.vb_hi) / 2, a=box.a, duration=duration,
                  sample_rate=sample_rate)
 
 

@@ -144,3 +144,16 @@ def test_module_is_small(name):
 def test_top_level_is_short():
     top = sorted(p.name for p in PKG_DIR.glob("*.py"))
     assert len(top) <= MAX_TOP_MODULES, top
+
+
+def test_missing_numbers_are_written_one_way():
+    import math
+
+    from bowsynth.text import jsonable, num
+
+    assert num(None) == num(float("nan")) == num(math.inf) == "n/a"
+    assert num(0.000123, ".2e") == "1.23e-04" and num(3.14159, "{:.3g}") == "3.14"
+    np = pytest.importorskip("numpy")
+    out = jsonable({"a": [1.0, float("nan")], "b": (np.float32(2.5), -math.inf), "c": np.int64(3)})
+    assert out == {"a": [1.0, None], "b": [2.5, None], "c": 3}
+    assert isinstance(out["c"], int) and isinstance(out["b"][0], float)

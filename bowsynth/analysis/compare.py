@@ -12,6 +12,7 @@ from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import UsageError
 from ..io.audio import read_wav, remove_dc
 from ..scene import Scene
+from ..text import jsonable, num
 from .metrics import compare_signals
 
 
@@ -27,15 +28,12 @@ class Comparison:
     notes: list = field(default_factory=list)  # what a reader of the scores must know (lossy file, DC handling)
 
     def to_json(self) -> dict:
-        def clean(v):
-            return None if isinstance(v, float) and not math.isfinite(v) else v
-
         speed = None
         a, f = self.seconds.get("file"), self.seconds.get("fdm")
         if a and f:
             speed = f / a
         return {"scene": self.scene.to_dict() if self.scene else None, "signal": self.signal,
-                "metrics": {k: {m: clean(v) for m, v in d.items()} for k, d in self.columns.items()},
+                "metrics": jsonable(self.columns),
                 "render_seconds": self.seconds, "speed_ratio_fdm_over_file": speed, "notes": self.notes}
 
 
@@ -214,7 +212,7 @@ def format_mix_table(rows: list[tuple[dict, Comparison]]):
             d = c.columns[label]
             for key, _, fmt in MIX_ROWS:
                 v = d.get(key)
-                vals.append("n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v))
+                vals.append(num(v, fmt))
         name = f"{n.get('voice', '')} {note_name(n['pitch']) if n.get('pitch') else n['file']}"
         t.add_row(name, f"{n['start']:.3f}", *vals)
     return t
@@ -237,7 +235,7 @@ def format_table(c: Comparison):
         vals = []
         for d in c.columns.values():
             v = d.get(key)
-            vals.append("n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v))
+            vals.append(num(v, fmt))
         t.add_row(name, *vals)
     for label, s in c.seconds.items():
         if s is not None:

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from .. import physics
 from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..scene import Scene
 from .bench import _score
@@ -80,7 +81,7 @@ def bench_out_of_sample(model, duration: float = 1.0, n_states: int = 8, seed: i
                              [_one_case(model, s.replace(q0=q, p0=p)) for q, p in x0], "from rest + 2 band states"))
     cases = []
     for f0 in (130.0, 200.0):  # T / dtau = 339.2 and 220.5 samples at 44.1 kHz: windows of two lengths
-        s = sc.replace(f0=f0, fb=model.domain.beta * 2 * math.pi * f0)
+        s = sc.replace(f0=f0, fb=model.domain.beta * physics.omega(f0))
         cases += [_one_case(model, s)] + [_one_case(model, s.replace(q0=q, p0=p)) for q, p in band_states(model, 1, rng)]
     rows.append(_summary("other pitches, T / dtau not whole", cases, "f0 130, 200 (same F_B / w): rest + 1 band state"))
     return rows
@@ -152,7 +153,7 @@ def bench_parameter_points(model, pitches=(100.0,), n: int = 4, duration: float 
     rows = []
     for f0 in pitches:
         for beta, vb in box.grid(n):
-            sc = Scene(f0=f0, fb=float(beta) * 2 * math.pi * f0, vb=float(vb), a=box.a, duration=duration)
+            sc = Scene(f0=f0, fb=float(beta) * physics.omega(f0), vb=float(vb), a=box.a, duration=duration)
             ref = render_fdm(sc, oversample=TRUTH_OVERSAMPLE)
             r = render_operator(sc, model=model, fallback="fdm")
             row = {"f0": f0, "beta": float(beta), "vb": float(vb), "speaks": bool(speaks(beta, vb, box.a, f0, duration)),

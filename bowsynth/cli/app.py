@@ -5,6 +5,8 @@ from __future__ import annotations
 import typer
 from rich.console import Console
 
+from ..text import num
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="bowsynth: a bowed mass-spring synthesizer driven by a physics-informed DeepONet.")
 
@@ -80,4 +82,4 @@ def console_for(output) -> Console:
 
 
 def fmt_num(v, fmt: str) -> str:
-    return "n/a" if v is None else format(v, fmt)
+    return num(v, fmt)

@@ -7,6 +7,7 @@ from typing import Optional
 
 import typer
 
+from .. import physics
 from .app import app, err, fmt_num, out
 
 
@@ -69,7 +70,7 @@ def models(
         fmt = "" if m.meta.format_version >= 2 else " (format 1: no digest; checked by its physics at render time)"
         if d.is_range:
             b0, b1, v0, v1 = d.box
-            w = 2 * 3.141592653589793 * sc["f0"]
+            w = physics.omega(sc["f0"])
             what = (f"range model: F_B/w {b0:.4g}..{b1:.4g} (F_B {b0 * w:.4g}..{b1 * w:.4g} at f0 {sc['f0']:g}), "
                     f"vb {v0:g}..{v1:g}, a={d.a:g}, any pitch, follows gestures; window {d.window:.3g} tau; validation "
                     f"median NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, worst {fmt_num(v.get('nmse_max'), '.3g')}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from enum import Enum
 
+from .. import physics
 from ..errors import UsageError
 from ..render import Render
 from ..scene import Scene
@@ -60,7 +61,6 @@ __all__ = ["Engine", "Fallback", "Render", "parse_choice", "render"]
 def warm() -> None:
     """Compile and cache every compiled path once (`make setup` runs this), so that no user command compiles: the
     FDM, and both rollout loops on a shipped model, at two pitches."""
-    import math
 
     import numpy as np
 
@@ -71,6 +71,6 @@ def warm() -> None:
 
     render_fdm(Scene(duration=0.01))
     m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")
-    dtau = [2 * math.pi * f / 44100 for f in (100.0, 200.0)]
+    dtau = [physics.dtau(f, 44100) for f in (100.0, 200.0)]
     for voices in (1, BATCH_FROM):
         rollout_states(m, np.zeros((voices, 2)), 8, np.resize(dtau, voices), loop="numba")

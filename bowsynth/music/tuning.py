@@ -200,7 +200,7 @@ def fdm_ratio(sample_rate: float, oversample: int = 1):
     k w = 2 pi f0 / (sample_rate oversample), dispersion included (about (w k)^2 / 24: +2.2 cents at A5 at 44.1 kHz
     if tuned with the truth's ratio). Cached in the process and on disk like sounding_ratio."""
     def ratio(beta: float, vb: float, a: float, f0: float) -> float:
-        k = 2 * math.pi * f0 / (sample_rate * oversample)
+        k = physics.dtau(f0, sample_rate * oversample)
         return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: _measure_ratio(beta, vb, a, k=k).r)
     return ratio
 

@@ -10,6 +10,7 @@ from ..analysis.bench import bench_batch, bench_fdm, bench_paper_anchors, bench_
 from ..analysis.out_of_sample import bench_out_of_sample, bench_parameter_points, bench_windows, parameter_summary
 from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..scene import Scene
+from ..text import jsonable, num
 
 
 def fdm_table(rows: list[dict]) -> str:
@@ -72,7 +73,7 @@ def plot_pareto(rows, path) -> None:
 
 
 def _g(v, fmt="{:.2e}") -> str:
-    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)
+    return num(v, fmt)
 
 
 def speed_table(rows) -> str:
@@ -133,7 +134,7 @@ def out_of_sample_tables(oos: list[dict]) -> str:
 
 
 def _fmt(v, fmt: str = ".2e") -> str:
-    return "n/a" if v is None else format(v, fmt)
+    return num(v, fmt)
 
 
 def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:
@@ -176,18 +177,14 @@ def run_all(quick: bool = False, out_prefix=None, anchor_dir=None) -> dict:
 
 
 def to_json(result: dict) -> dict:
-    def conv(v):
+    def scenes(v):
         if isinstance(v, Scene):
             return v.to_dict()
         if isinstance(v, dict):
-            return {k: conv(x) for k, x in v.items()}
-        if isinstance(v, list):
-            return [conv(x) for x in v]
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        return v
+            return {k: scenes(x) for k, x in v.items()}
+        return [scenes(x) for x in v] if isinstance(v, list) else v
 
-    return conv(result)
+    return jsonable(scenes(result))
 
 
 def to_markdown(result: dict) -> str:

@@ -17,14 +17,10 @@ from ..analysis.metrics import compare_signals, listener_errors, nmse
 from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import BowsynthError, DomainError
 from ..scene import Scene
+from ..text import jsonable
 from .data import window_starts
 
 SELECT_OFFSET_S = 0.3  # into the note (past the onset), then 0.37 of a window further: between two window starts
-
-
-def json_number(x: float):
-    """x for JSON metadata: inf and NaN (no score) become null."""
-    return x if math.isfinite(x) else None
 
 
 def selection_scene(scene: Scene, band: np.ndarray, window: float, contains) -> Scene:
@@ -68,7 +64,7 @@ class Selector:
 
     def record(self) -> dict:
         return {"step": self.best["step"], "scored": self.best["scored"],
-                "score_nmse_p": json_number(self.best["score"]),
+                "score_nmse_p": jsonable(self.best["score"]),
                 "from_state": [self.scene.q0, self.scene.p0]}
 
 
@@ -118,7 +114,7 @@ class RangeSelector(Selector):
 
     def record(self) -> dict:
         return {"step": self.best["step"], "scored": self.best["scored"],
-                "score_mean_listener": json_number(self.best["score"]),
+                "score_mean_listener": jsonable(self.best["score"]),
                 "bows": [[s.beta, s.vb] for s in self.scenes]}
 
 
@@ -169,4 +165,4 @@ def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = TR
     m["nmse_q"] = float(np.mean((r.q - ref.q) ** 2) / np.var(ref.q))
     m["seconds"] = seconds
     m["ref_oversample"] = ref_oversample
-    return {k: (json_number(v) if isinstance(v, float) else v) for k, v in m.items()}
+    return {k: (jsonable(v) if isinstance(v, float) else v) for k, v in m.items()}

@@ -13,7 +13,7 @@ from ...scene import Scene
 REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the network does not take them as input
 MAX_BETA = 1e3  # F_B / w: the playing space ends at 2, the FDM's uniqueness bound at audio rate near 16
 MAX_A = 1e6
-MAX_WINDOW = 100 * math.pi  # 50 free periods, as TrainConfig.validate allows
+MAX_WINDOW = 100 * math.pi  # 50 free periods: what training allows (TrainConfig.validate) and a file may claim
 
 
 def within(x, lo: float, hi: float, rel_tol: float = REL_TOL) -> np.ndarray:
