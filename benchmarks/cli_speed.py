@@ -84,7 +84,7 @@ def in_process(runs: int) -> tuple[float, float]:
     to, tf = [], []
     for _ in range(runs):
         t0 = time.perf_counter()
-        loop = render_operator(sc).info["loop"]
+        loop = render_operator(sc).info.loop
         to.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         render_fdm(sc)

@@ -57,7 +57,7 @@ def test_single_voice_continuation_is_the_fdm_from_the_hand_off_state(tiny_model
     sc = Scene(fb=100, duration=0.1)
     r = render_operator(sc, model=m, fallback="fdm")
     [at] = check_continuations(m, [sc], [r])
-    assert r.method == "operator+fdm" and f"t = {at / sc.sample_rate:.4f} s" in r.info["notes"][0]
+    assert r.method == "operator+fdm" and f"t = {at / sc.sample_rate:.4f} s" in r.info.notes[0]
 
 
 @pytest.mark.parametrize("voices", [2, BATCH_FROM + 1], ids=["voice-loop", "batch-loop"])

@@ -63,10 +63,10 @@ def test_uniqueness_bound_raises_oversampling():
     assert 1 / 44100 > physics.max_stable_step(10_000, 100)
     with pytest.warns(OversampleWarning, match="oversampling raised from 1 to 2"):
         r = render_fdm(s)
-    assert r.info["oversample"] == 2 and np.all(np.isfinite(r.p))
+    assert r.info.oversample == 2 and np.all(np.isfinite(r.p))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert render_fdm(s, oversample=4).info["oversample"] == 4
+        assert render_fdm(s, oversample=4).info.oversample == 4
     with pytest.raises(SceneError, match="limit is x1024"):
         render_fdm(Scene(fb=1e6, a=1e6, duration=0.01))
     with pytest.raises(ValueError, match="uniqueness"):

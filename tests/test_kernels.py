@@ -102,7 +102,7 @@ def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path
         render_operator(scenes, model=m)
     renders = render_operator(scenes, model=m, fallback="fdm")
     for r in renders:
-        assert r.method == "operator+fdm" and "finished with the FDM" in r.info["notes"][0]
+        assert r.method == "operator+fdm" and "finished with the FDM" in r.info.notes[0]
         assert len(r.q) == r.scene.n_samples  # what the continuation holds: tests/test_fallback.py
 
 

@@ -157,3 +157,13 @@ def test_missing_numbers_are_written_one_way():
     out = jsonable({"a": [1.0, float("nan")], "b": (np.float32(2.5), -math.inf), "c": np.int64(3)})
     assert out == {"a": [1.0, None], "b": [2.5, None], "c": 3}
     assert isinstance(out["c"], int) and isinstance(out["b"][0], float)
+
+
+def test_played_is_typed_and_reads_as_before():
+    from bowsynth.render import Played
+
+    p = Played("operator", fdm_fallback=True).with_fdm_release()
+    assert p == "operator+fdm + fdm release" and p.engine == "operator" and p.fdm_fallback and p.fdm_release
+    assert Played("fdm", 4) == "fdm x4" and Played("fdm", 4).oversample == 4 and not Played("fdm").fdm_release
+    with pytest.raises(ValueError):
+        Played("telepathy")

@@ -124,8 +124,8 @@ def test_a_model_that_reaches_v_b_0_plays_a_notes_release_too(tmp_path):
     note = note_from_fields("v", {"f0": 100.0, "beta": 0.2, "vb": 0.2, "duration": 0.2}, "test")
     assert note.release > 0 and note.scene.vb_at(note.scene.duration) == 0.0
     (r,) = render_notes([note], model=path, fallback="fdm")
-    assert r.info["release"] == "operator" and len(r.q) == note.scene.n_samples
+    assert r.info.release == "operator" and len(r.q) == note.scene.n_samples
     paper = api.model_path("paper-fb100")  # a point model: its v_B is 0.2 only, the release is the FDM's
     (r2,) = render_notes([note_from_fields("v", {"f0": 100.0, "beta": 0.159155, "vb": 0.2, "duration": 0.2},
                                            "test")], model=paper)
-    assert r2.info["release"] == "fdm"
+    assert r2.info.release == "fdm"

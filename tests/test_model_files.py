@@ -155,13 +155,13 @@ def test_the_best_validated_covering_model_wins(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     rewrite(FB100, models / "worse.safetensors", lambda m: m["validation"].update(nmse=1e-3))
     sc = Scene(fb=100, duration=0.05)
-    assert render_operator(sc).info["model_path"] == str(FB100)  # shipped 9.9e-7 beats 1e-3
+    assert render_operator(sc).info.model_path == str(FB100)  # shipped 9.9e-7 beats 1e-3
     rewrite(FB100, models / "better.safetensors", lambda m: m["validation"].update(nmse=1e-9))
-    assert render_operator(sc).info["model_path"] == str(models / "better.safetensors")
+    assert render_operator(sc).info.model_path == str(models / "better.safetensors")
     rewrite(FB100, models / "broken.safetensors", lambda m: m["validation"].update(nmse=None, error="diverged"))
     rewrite(FB100, models / "poor.safetensors", lambda m: m["validation"].update(nmse=0.5))
     rewrite(FB100, models / "nan.safetensors", lambda m: m["validation"].update(nmse=float("nan")))
-    assert render_operator(sc).info["model_path"] == str(models / "better.safetensors")
+    assert render_operator(sc).info.model_path == str(models / "better.safetensors")
     failed = {m.path.name: m.failure for m in available_models() if m.failure}
     assert set(failed) == {"broken.safetensors", "poor.safetensors", "nan.safetensors"}
 
@@ -259,7 +259,7 @@ def test_an_honest_but_inaccurate_model_is_told_from_a_mislabelled_one(tmp_path)
     honest = load_model(rewrite_weights(FB100, tmp_path / "noisy.safetensors", noisy_branch))
     assert check_physics(honest) > PHYSICS_MAX_ERROR
     r = render_operator(Scene(fb=100, duration=0.2), model=honest)
-    assert any("not a mislabelled file" in n for n in r.info["notes"])
+    assert any("not a mislabelled file" in n for n in r.info.notes)
 
     def claim_more_force(meta):
         meta["domain"]["beta"] *= 1.1

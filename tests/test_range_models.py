@@ -183,7 +183,7 @@ def test_a_bow_that_leaves_the_range_is_named_with_its_time(range_model):
     # --fallback fdm: the operator plays until the bow leaves, the FDM from there, following the same curve
     r = render_operator(sc, model=m, fallback="fdm")
     assert r.method == "operator+fdm" and np.isfinite(r.p).all()
-    assert any("bow left the model's range" in n for n in r.info["notes"])
+    assert any("bow left the model's range" in n for n in r.info.notes)
     from bowsynth.engines.fdm import render_fdm
 
     ref = render_fdm(sc)

@@ -89,10 +89,10 @@ def test_existing_wav_is_replaced_atomically_and_kept_on_failure(tmp_path, monke
 
 def test_no_nan_reaches_a_wav(tmp_path):
     from bowsynth.io.audio import write_wav
-    from bowsynth.render import Render
+    from bowsynth.render import Played, Render
 
     sc = Scene(duration=0.01)
-    r = Render(sc, np.zeros(441), np.full(441, np.nan), np.zeros(441), method="x")
+    r = Render(sc, np.zeros(441), np.full(441, np.nan), np.zeros(441), method=Played("fdm"))
     with pytest.raises(ValueError, match="non-finite"):
         write_wav(tmp_path / "n.wav", r)
     assert not list(tmp_path.iterdir())

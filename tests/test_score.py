@@ -64,8 +64,8 @@ def test_score_file_and_mix(tmp_path, tiny_model, monkeypatch, capsys):
 def test_voices_without_a_named_model_share_one_rollout(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # no ./models: the shipped paper-fb100 covers both (same F_B / w, other pitches)
     renders = render_operator([Scene(fb=100, duration=0.02), Scene(fb=150, f0=150, duration=0.02, q0=0.001)])
-    assert [r.info["batched"] for r in renders] == [2, 2]
-    assert all(r.info["model_path"].endswith("paper-fb100.safetensors") for r in renders)
+    assert [r.info.batched for r in renders] == [2, 2]
+    assert all(r.info.model_path.endswith("paper-fb100.safetensors") for r in renders)
 
 
 def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch, capsys):
@@ -277,7 +277,7 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
     from bowsynth.engines.fdm import check_oversample, render_fdm
     from bowsynth.music.perform import _release_scene, finish_releases
     from bowsynth.music.score import note_from_fields
-    from bowsynth.render import Render
+    from bowsynth.render import Played, Render
 
     fields = [{"pitch": "C2", "beta": 0.637, "release": 0.02}, {"pitch": "A4", "beta": 0.159, "vb": 0.3},
               {"f0": 150.0, "fb": 150.0, "vb": 0.1, "release": 0.08}, {"pitch": "G3", "fb": 12000.0},
@@ -289,7 +289,7 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
         sc = n.rollout_scene()
         assert sc.n_samples == n.scene.n_samples or n.release <= 0
         q, p = rng.uniform(-0.5, 0.5, sc.n_samples), rng.uniform(-0.5, 0.5, sc.n_samples)
-        sustains.append(Render(sc, np.arange(sc.n_samples) / sc.sample_rate, q, p, "operator", 0.0, {}))
+        sustains.append(Render(sc, np.arange(sc.n_samples) / sc.sample_rate, q, p, Played("operator")))
         before.append((q.copy(), p.copy()))
     refs = [render_fdm(_release_scene(n, s)) if n.release > 0 else None for n, s in zip(notes, sustains)]
     out = finish_releases(notes, sustains, loop=loop)

@@ -79,19 +79,19 @@ def render(
              console_for(output))
     r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force)
     write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
-    model_note = f", model {r.info['model_id']}" if r.info.get("model_id") else ""
-    if r.info.get("model_path"):
-        model_note += f" ({r.info['model_path']})"
-    setup = r.info.get("setup_seconds")
+    model_note = f", model {r.info.model_id}" if r.info.model_id else ""
+    if r.info.model_path:
+        model_note += f" ({r.info.model_path})"
+    setup = r.info.setup_seconds
     setup_note = f" after {setup * 1e3:.0f} ms of start-up" if setup else ""
     say = console_for(output)
     if not quiet:
         say.print(f"wrote {'standard output' if str(output) == '-' else output}: {scene.duration:g} s at "
                   f"{scene.sample_rate} Hz, method {r.method}{model_note}; rendered in {r.seconds * 1e3:.1f} ms "
                   f"({r.realtime_factor:.0f}x real time){setup_note}", soft_wrap=True)
-        for note in r.info.get("notes", []):
+        for note in r.info.notes:
             say.print(note, soft_wrap=True)
-        rv = r.info.get("range_validation")
+        rv = r.info.range_validation
         if rv and rv.get("nmse") is not None:
             say.print(f"note: a range model; its validation (1 s from rest on a {rv.get('grid')} x {rv.get('grid')} "
                       f"grid of its box vs FDM x100): median NMSE(p) {rv['nmse']:.2g}, worst "

@@ -24,7 +24,7 @@ import numpy as np
 
 from .. import physics
 from ..errors import SceneError
-from ..render import Render
+from ..render import Played, Render, RenderInfo
 from ..scene import Scene
 
 # the truth every accuracy figure is measured against: this FDM at 100x the sample rate (GUIDE section 2)
@@ -106,8 +106,8 @@ def render_fdm(scene: Scene, oversample: int = 1) -> Render:
     q = w * u
     q[0] = scene.q0  # exact by construction; avoid the w * (q0 / w) rounding
     vb = scene.vb_at(t)
-    return Render(scene, t, q, eta + vb, method="fdm" if os_ == 1 else f"fdm x{os_}",
-                  seconds=secs, info={"oversample": os_})
+    return Render(scene, t, q, eta + vb, method=Played("fdm", os_),
+                  seconds=secs, info=RenderInfo(oversample=os_))
 
 
 def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None):

@@ -209,7 +209,7 @@ def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_
     if dc == "remove":
         x = remove_dc(x, render.scene.sample_rate)
     gain = gain_for(x, gain_db)
-    meta = render_meta(render.scene, render.method, signal, gain, render.seconds, render.info.get("model_id"), dc)
+    meta = render_meta(render.scene, render.method, signal, gain, render.seconds, render.info.model_id, dc)
     write_float_wav(path, x * gain, render.scene.sample_rate, meta, force=force)
     return meta
 

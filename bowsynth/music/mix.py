@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BowsynthError
+from ..render import Played
 from .note import Note
 from .score import ScoreError
 
@@ -44,7 +45,7 @@ def stem_paths(notes: list[Note], out: Path) -> list[Path]:
 
 
 # the longest method, gain, time and model id a stem's metadata can hold: the size check runs before rendering
-_WORST_METHOD = "operator+fdm + fdm release"
+_WORST_METHOD = str(Played("operator", fdm_fallback=True, fdm_release=True))  # the longest method text
 _WORST_FLOAT = 1 / 3
 _WORST_MODEL = "x" * 64
 

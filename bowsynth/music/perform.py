@@ -3,6 +3,7 @@ releases played by the operator where its model reaches v_B = 0, else by the FDM
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -67,7 +68,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
                  source=None) -> list[Render]:
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
     of the sustains, each release then by the FDM from the sustain's last state. Notes no model covers are
-    refused before anything renders (fallback 'fdm': rendered by the FDM instead, noted in info['notes'])."""
+    refused before anything renders (fallback 'fdm': rendered by the FDM instead, noted in info.notes)."""
     from ..engines import Engine, Fallback, parse_choice, render
 
     engine = parse_choice(Engine, method, "--method")
@@ -82,14 +83,14 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     for i, n in enumerate(notes):
         if id(n) in missing:
             r = render(n.scene, engine="fdm")
-            r.info.setdefault("notes", []).append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
+            r.info.notes.append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
             out[i] = r
     # a note whose bow stop and tail a model covers too (a box reaching v_B = 0) is played whole by the operator
     whole = [i for i in op if notes[i].release > 0 and _plays_whole(notes[i], model)]
     if whole:
         for i, r in zip(whole, render([notes[i].scene for i in whole], engine="operator", model=model,
                                       fallback=fallback)):
-            r.info["release"] = "operator"
+            r.info.release = "operator"
             out[i] = r
     part = [i for i in op if i not in set(whole)]
     if part:
@@ -179,7 +180,6 @@ def _join_release(n: Note, sus: Render, q: np.ndarray, p: np.ndarray, secs: floa
     h = n.hold_samples
     sus.q[h:] = q
     sus.p[h:] = p
-    info = dict(sus.info)
-    info["release"] = "fdm"
-    return Render(n.scene, sus.t, sus.q, sus.p, method=f"{sus.method} + fdm release", seconds=sus.seconds + secs,
+    info = dataclasses.replace(sus.info, notes=list(sus.info.notes), release="fdm")
+    return Render(n.scene, sus.t, sus.q, sus.p, method=sus.method.with_fdm_release(), seconds=sus.seconds + secs,
                   info=info)

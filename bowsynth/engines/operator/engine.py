@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from ...errors import DomainError, ModelFileError, UsageError
-from ...render import Render
+from ...render import Played, Render, RenderInfo
 from ...scene import Scene
 from .basis import _operator
 from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_fits_best
@@ -106,7 +106,7 @@ def render_operator(scene, model=None, fallback: str = "none"):
     model: an OperatorModel, a path, or None to pick the best validated model that covers the scene (see
     find_model). A range model follows the scene's bow curves window by window (scene_bows); a point model plays
     scenes of its one bow. fallback='fdm' finishes a rollout that leaves the model's domain, or a bow that leaves
-    every model's range, with the FDM (and says so in info['notes']); 'none' raises DomainError. Every render first
+    every model's range, with the FDM (and says so in info.notes); 'none' raises DomainError. Every render first
     checks the model's physics (check_physics) and raises ModelFileError if the model does not do what its metadata
     claims. The arrays of an operator render are float32, the network's precision.
     """
@@ -161,7 +161,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         par, bows, leave = _voice_bows(m, group)
         loop = choose_loop(m, n, dtau)
         # warm-up: converts the weights, computes the trunk features at these sample offsets and loads the compiled
-        # loop if it is used, so that `seconds` measures the rollout itself (start-up: info["setup_seconds"])
+        # loop if it is used, so that `seconds` measures the rollout itself (start-up: info.setup_seconds)
         rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
         t0 = time.perf_counter()
         q, p, fail = rollout_states(m, x0, n, dtau, loop=loop, params=par)
@@ -182,13 +182,11 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             ns = sc.n_samples
             if sc.sample_rate not in t_all:
                 t_all[sc.sample_rate] = np.arange(n) / sc.sample_rate
-            info = {"model_id": m.id, "model_path": str(m.path) if m.path else None, "notes": notes[i], "loop": loop,
-                    "setup_seconds": t0 - t_setup}
-            if not _single:
-                info["batched"] = len(idx)
+            info = RenderInfo(model_id=m.id, model_path=str(m.path) if m.path else None, notes=notes[i], loop=loop,
+                              setup_seconds=t0 - t_setup, batched=None if _single else len(idx))
             if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
                 v = m.meta.validation or {}
-                info["range_validation"] = {k: v.get(k) for k in ("nmse", "nmse_max", "grid")}
+                info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid")}
             ctrl = None
             if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
                 ctrl = applied_controls(sc, op.samples_per_window(sc.dtau), bows[row])
@@ -197,6 +195,6 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                     tt = np.arange(at, ns) / sc.sample_rate
                     ctrl["fb"][at:], ctrl["vb"][at:] = sc.fb_at(tt), sc.vb_at(tt)
             out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns],
-                            method="operator" + ("+fdm" if len(notes[i]) > len(checked) else ""), seconds=secs,
+                            method=Played("operator", fdm_fallback=len(notes[i]) > len(checked)), seconds=secs,
                             info=info, **({"controls": ctrl} if ctrl is not None else {}))
     return out
