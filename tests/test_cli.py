@@ -2,6 +2,7 @@
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,3 +163,36 @@ def test_rest_linear_is_refused_where_it_cannot_apply(args, why, tmp_path, capsy
                             monkeypatch)
     assert code == 2 and why in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
+    from bowsynth.training.recipe import load_recipe
+
+    models = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
+    recipes = sorted(models.glob("*.toml"))
+    assert {r.stem for r in recipes} == {m.stem for m in models.glob("*.safetensors")}
+    for r in recipes:
+        rec = load_recipe(r)
+        assert rec["out"] == r.with_suffix(".safetensors") and 0 < rec["minutes"] <= 45
+
+
+def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monkeypatch):
+    bad = tmp_path / "bad.toml"
+    for text, what in [("fb = 100\nminute = 5\n", "unknown key 'minute'"), ("minutes = \"ten\"\n", "minutes must be"),
+                       ("fb = [1, 2\n", "not valid TOML")]:
+        bad.write_text(text)
+        code, out, err = run_main(["train", "--config", str(bad)], capsys, monkeypatch)
+        assert code == 2 and what in err and "Traceback" not in err, err
+    code, out, err = run_main(["train", "--config", str(tmp_path / "none.toml")], capsys, monkeypatch)
+    assert code == 2 and "no such file" in err
+
+
+def test_train_config_fills_flags_and_flags_override(tmp_path, capsys, monkeypatch):
+    rec = tmp_path / "r.toml"
+    rec.write_text('preset = "paper-fb100"\nsteps = 3\nseed = 1\nout = "m.safetensors"\n')
+    code, out, err = run_main(["train", "--config", str(rec), "--steps", "2", "-q"], capsys, monkeypatch)
+    assert code == 0, err
+    from bowsynth.engines.operator.modelfile import load_model
+
+    m = load_model(tmp_path / "m.safetensors")  # out resolved against the recipe's folder
+    assert m.meta.scene["fb"] == 100 and m.meta.training["steps_done"] == 2

@@ -35,12 +35,23 @@ def train(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress (a bar in a terminal, a line every 10 s elsewhere)."),
     score: Optional[Path] = typer.Option(None, "--score", help="Train a range model for the bows this score (.toml) or MIDI file (.mid) plays."),
     a4: Optional[float] = typer.Option(None, "--a4", help="With --score: the pitch of A4 in Hz (default 440)."),
+    config: Optional[Path] = typer.Option(None, "--config", help="A training recipe (TOML: these flags' names as keys, "
+                                          "e.g. the shipped models' bowsynth/models/*.toml); flags given override it."),
 ):
     """Train a PI-DeepONet for a scene (its F_B / w, v_B, a and the states a render from its initial state visits),
     or for a playing range: --fb LO:HI and/or --vb LO:HI (at --f0), or --score FILE (the bows a score or MIDI file
     plays). A range model plays any bow inside its box and follows gestures through it."""
     from .. import api
+    from ..training.recipe import load_recipe
 
+    if config is not None:
+        given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
+                     rest_linear=rest_linear or None, out=out_path)
+        r = load_recipe(config)
+        merged = {k: (v if v is not None else r.get(k)) for k, v in given.items()}
+        preset, f0, fb, vb, a = (merged[k] for k in ("preset", "f0", "fb", "vb", "a"))
+        minutes, steps, seed, out_path = merged["minutes"], merged["steps"], merged["seed"], merged["out"]
+        rest_linear = bool(merged["rest_linear"])
     box = None
     if score is not None:
         if fb is not None or vb is not None or preset is not None:
