@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from . import physics
-from .errors import BowsynthError, DomainError, UsageError, interrupt_exit_code
+from .errors import BowsynthError, UsageError, interrupt_exit_code
 from .scene import Scene
 
 
@@ -34,33 +34,11 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
 
 
 def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1):
-    """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
-    scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it, its own
-    pitch), so that the asked note sounds there whichever engine plays. (None, why) when no model covers the scene:
-    the note is then tuned with the truth's ratio (what compare scores against)."""
-    from .music import tuning as P
+    """(ratio, what): the sounding ratio of the engine that will play the scene, for `make_scene(pitch=...,
+    ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
+    from .music.engine_tuning import ratio_for_engine
 
-    if str(getattr(engine, "value", engine)) == "fdm":
-        from .engines.fdm import check_oversample
-
-        os_ = check_oversample(scene, oversample, warn=False)
-        return P.fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
-    from .engines.operator.choose import as_model, find_model
-    from .music.tuning import operator_ratio
-
-    try:
-        m = find_model(scene) if model is None else as_model(model)
-    except DomainError as e:
-        return None, str(e).split(";")[0]
-    if not m.covers(scene):
-        return None, f"model {m.id} does not cover the scene"
-
-    def ratio(beta, vb, a, f0):
-        try:
-            return operator_ratio(m)(beta, vb, a, f0)
-        except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
-            return P.sounding_ratio(beta, vb, a).r
-    return ratio, f"model {m.id}"
+    return ratio_for_engine(scene, engine, model, oversample)
 
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):

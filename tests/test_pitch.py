@@ -128,11 +128,34 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
     assert code == 0, err
     sc = read_wav(out).scene
     # --method fdm: tuned with the audio-rate FDM's own ratio (its dispersion), not the truth's
-    from bowsynth.music.tuning import fdm_ratio
+    from bowsynth.music.engine_tuning import fdm_ratio
 
     assert sc.fb == 200 and math.isclose(sc.f0, tune("Bb3", 200.0, ratio=fdm_ratio(44100)).f0)
     assert not math.isclose(sc.f0, tune("Bb3", 200.0).f0, rel_tol=1e-6)
     assert "233.08 Hz (A#3)" in so and "tuned for the FDM at x1" in so
+
+
+def test_score_notes_are_tuned_for_the_engine_that_plays_them(tmp_path, capsys, monkeypatch):
+    """An A5 in a score played by the audio-rate FDM sounds at 880 Hz: tuned with the FDM's own ratio (its dispersion
+    made it +2.2 cents sharp when tuned with the truth's). Measured on the written mix, in a real score run."""
+    from bowsynth.analysis.metrics import cents, f0_estimate
+    from bowsynth.io.audio import read_wav
+
+    (tmp_path / "a5.toml").write_text('[[voice]]\nname = "v"\n[[voice.note]]\npitch = "A5"\nfb = 553.0\n'
+                                      'duration = 2.0\nrelease = 0.0\n')
+    out = tmp_path / "a5.wav"
+    code, so, err = run_main(["score", "--score", str(tmp_path / "a5.toml"), "--method", "fdm", "--mix", str(out)],
+                             capsys, monkeypatch)
+    assert code == 0, err
+    x = read_wav(out).samples
+    sr = 44100
+    heard = cents(f0_estimate(x[int(0.8 * sr):int(1.5 * sr)], sr, tail=1.0), 880.0)
+    assert abs(heard) < 0.3, heard
+    # the same note tuned with the truth's ratio is the sharp one this replaced
+    from bowsynth.music.engine_tuning import fdm_ratio
+    from bowsynth.music.tuning import tune
+
+    assert cents(tune("A5", 553.0).f0, tune("A5", 553.0, ratio=fdm_ratio(44100)).f0) > 1.5
 
 
 # --- the on-disk table of sounding ratios ---------------------------------------------------------------------------

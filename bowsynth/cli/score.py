@@ -61,7 +61,10 @@ def score(
     if score_file is not None:
         if duration is not None:
             raise UsageError("--duration applies to --presets; a score gives each note its duration")
-        notes = load_score(score_file, a4=a4)
+        from ..music.engine_tuning import ratio_for_engine
+
+        # each pitch tuned for the engine that plays it (the FDM's dispersion, the operator model's own ratio)
+        notes = load_score(score_file, a4=a4, ratio_for=lambda sc: ratio_for_engine(sc, method, model)[0])
     else:
         if a4 is not None:
             raise UsageError("--a4 retunes MIDI files; presets have their own f0")

@@ -108,8 +108,10 @@ def _merge(*layers: dict) -> dict:
     return out
 
 
-def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, label: str = "") -> Note:
-    """A Note from merged score fields (start, duration, pitch or f0, fb or beta, vb, a, release, ...)."""
+def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, label: str = "", ratio_for=None) -> Note:
+    """A Note from merged score fields (start, duration, pitch or f0, fb or beta, vb, a, release, ...). A pitch is
+    tuned with ratio_for(scene)'s sounding ratio (the engine that will play it: `engine_tuning.ratio_for_engine`), else the
+    truth's."""
     from . import tuning as P
     from .notes import parse_pitch
 
@@ -129,10 +131,14 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
         if "pitch" in fields:
             hz = parse_pitch(fields["pitch"], a4)
             held = dict(vb=P.held_value(vb, hold), a=a)
+            ratio = None
+            if ratio_for is not None:
+                probe_fb = _scale(beta, physics.omega(hz)) if beta is not None else fb
+                ratio = ratio_for(Scene(f0=hz, fb=probe_fb, vb=vb, a=a, duration=hold, sample_rate=rate))
             if beta is not None:
-                f0 = P.tune(hz, None, beta=P.held_value(beta, hold), a4=a4, **held).f0
+                f0 = P.tune(hz, None, beta=P.held_value(beta, hold), a4=a4, ratio=ratio, **held).f0
             else:
-                f0 = P.tune(hz, P.held_value(fb, hold), a4=a4, **held).f0
+                f0 = P.tune(hz, P.held_value(fb, hold), a4=a4, ratio=ratio, **held).f0
         else:
             hz = None
             f0 = _num(where, "f0", fields.get("f0", d.f0))
@@ -150,7 +156,7 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
                 label=label or where)
 
 
-def load_toml_score(path) -> list[Note]:
+def load_toml_score(path, ratio_for=None) -> list[Note]:
     p = Path(path)
     if not p.is_file():
         raise ScoreError(f"score file {p} not found")
@@ -190,7 +196,7 @@ def load_toml_score(path) -> list[Note]:
         layer = _layer(where, v, VOICE_KEYS)
         note_tables = v.get("note")
         if note_tables is None:  # the round-1 form: the voice is one note from its start (default 0)
-            notes.append(note_from_fields(name, _merge(base, layer), where, a4, label=name))
+            notes.append(note_from_fields(name, _merge(base, layer), where, a4, label=name, ratio_for=ratio_for))
             continue
         if not isinstance(note_tables, list) or not note_tables:
             raise ScoreError(f"{where}: note must be an array of tables ([[voice.note]])")
@@ -200,7 +206,7 @@ def load_toml_score(path) -> list[Note]:
             w = f"{where}, note {j + 1}"
             if not isinstance(nt, dict):
                 raise ScoreError(f"{w} is not a table")
-            notes.append(note_from_fields(name, _merge(base, layer, _layer(w, nt, NOTE_KEYS)), w, a4,
+            notes.append(note_from_fields(name, _merge(base, layer, _layer(w, nt, NOTE_KEYS)), w, a4, ratio_for=ratio_for,
                                           label=f"{name} #{j + 1}"))
     return notes
 
@@ -214,7 +220,7 @@ class ScoreNotes(list):
         self.remarks = list(remarks)
 
 
-def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
+def load_midi_score(path, a4: float = 440.0, ratio_for=None) -> ScoreNotes:
     """The notes of a MIDI file with the bow of `bowsynth.music.midi`'s mapping; a track's channel is a voice."""
     from . import midi as M
     from .midi import read_midi
@@ -232,7 +238,8 @@ def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
         if not 12 <= n.number <= 119:
             raise ScoreError(f"{where}: MIDI note {n.number} is outside C0..B8")
         notes.append(note_from_fields(voice, {"start": n.start, "duration": hold, "pitch": midi_to_hz(n.number, a4),
-                                              "beta": beta, "vb": vb}, where, a4, label=where.split(": ", 1)[1]))
+                                              "beta": beta, "vb": vb}, where, a4, label=where.split(": ", 1)[1],
+                                      ratio_for=ratio_for))
         notes[-1].extra = {"midi_note": n.number, "velocity": n.velocity}
     return notes
 
@@ -244,16 +251,17 @@ def _midi_control(piece, n, cc, base: float, factor):
     return as_control([(t, float(f"{base * factor(v):.7g}")) for t, v in pts])
 
 
-def load_score(path, a4: float | None = None) -> list[Note]:
-    """The notes of a TOML score or a MIDI file (told apart by content and name)."""
+def load_score(path, a4: float | None = None, ratio_for=None) -> list[Note]:
+    """The notes of a TOML score or a MIDI file (told apart by content and name), each pitch tuned for the engine
+    ratio_for(scene) names (see note_from_fields)."""
     from .midi import is_midi
     from .notes import A4_HZ, check_a4
 
     if is_midi(path):
-        return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4))
+        return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4), ratio_for=ratio_for)
     if a4 is not None:
         raise ScoreError("--a4 retunes MIDI files; a TOML score sets its own with a top-level a4 = ...")
-    return load_toml_score(path)
+    return load_toml_score(path, ratio_for=ratio_for)
 
 
 def voices_from_presets(names: list[str], **overrides) -> list[Note]:

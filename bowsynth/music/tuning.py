@@ -29,7 +29,6 @@ import numpy as np
 from .. import physics
 from ..errors import SceneError, UsageError
 from ..io.cache import DiskTable
-from ..scene import Scene
 from .notes import A4_HZ, parse_pitch
 
 
@@ -195,16 +194,6 @@ def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> 
     return Ratio(r=float(r), settle_periods=float(settled), amplitude=float(amps[-1]), beta=beta, vb=vb, a=a)
 
 
-def fdm_ratio(sample_rate: float, oversample: int = 1):
-    """The sounding ratio of the FDM at this rate, as `tune(ratio=...)` takes it: the scheme's own, at its step in tau
-    k w = 2 pi f0 / (sample_rate oversample), dispersion included (about (w k)^2 / 24: +2.2 cents at A5 at 44.1 kHz
-    if tuned with the truth's ratio). Cached in the process and on disk like sounding_ratio."""
-    def ratio(beta: float, vb: float, a: float, f0: float) -> float:
-        k = physics.dtau(f0, sample_rate * oversample)
-        return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: _measure_ratio(beta, vb, a, k=k).r)
-    return ratio
-
-
 def engine_ratio(engine: str, beta: float, vb: float, a: float, measure) -> float:
     """An engine's sounding ratio at a bow, from the on-disk table or measured (a silent note raises, as the truth's
     does: sounding_ratio is asked first)."""
@@ -360,28 +349,3 @@ def sounding_pitch(f0: float, fb: float, vb: float = 0.2, a: float = 100.0) -> f
     return f0 * sounding_ratio(physics.beta(fb, f0), vb, a).r
 
 
-RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain does not depend on f0, only the samples
-RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
-
-
-def operator_ratio(model):
-    """The sounding ratio of a trained operator, as `pitch.tune(ratio=...)` takes it: the model rolled out from rest
-    at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods. A model's
-    window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached on disk
-    with the model's id)."""
-    from ..analysis.metrics import f0_estimate
-    from ..engines.operator.choose import as_model
-    from ..engines.operator.engine import render_operator
-
-    m = as_model(model)
-
-    def ratio(beta: float, vb: float, a: float, f0: float) -> float:
-        def measure():
-            truth = sounding_ratio(beta, vb, a)
-            seconds = min((truth.settle_periods + RATIO_PERIODS / truth.r) / RATIO_F0, 60.0)
-            sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=seconds)
-            r = render_operator(sc, model=m)
-            tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
-            return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
-        return engine_ratio(f"operator{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
-    return ratio
