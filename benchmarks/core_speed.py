@@ -20,6 +20,7 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this tree, not an installed bowsynth
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 
 CASES = {"--help": ["--help"],
