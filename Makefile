@@ -5,16 +5,15 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models bench bench-quick clean chromium
+.PHONY: setup demo test models bench bench-quick clean chromium core
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	# the CPU build of torch lies on this machine; a bare `torch` would pull a multi-GB CUDA build
 	$(PY) -m pip install -q torch==2.13.0
+	# builds the compiled core (src/core) with scikit-build-core: needs g++; CMake and nanobind come from PyPI
 	$(PY) -m pip install -q -e '.[test]'
-	# compile numba's cached loops now (the FDM, the rollout loops): no user command pays the ~10 s compile
-	$(PY) -c 'from bowsynth.engines import warm; warm()'
 	touch $(STAMP)
 
 setup: $(STAMP) chromium
@@ -50,6 +49,13 @@ bench: $(STAMP)
 
 bench-quick: $(STAMP)
 	$(BOW) bench --quick
+
+# The compiled core alone, into bowsynth/ (for a source tree run with PYTHONPATH and another venv's python: PY=...)
+core:
+	$(PY) -m pip install -q 'nanobind>=2.0' cmake ninja
+	$(dir $(PY))cmake -S . -B build/core -G Ninja -DCMAKE_MAKE_PROGRAM=$(abspath $(dir $(PY))ninja) \
+	    -DCMAKE_BUILD_TYPE=Release -DPython_EXECUTABLE=$(abspath $(PY))
+	$(dir $(PY))cmake --build build/core -j2
 
 clean:
 	rm -rf $(OUTDIR) .pytest_cache

@@ -42,7 +42,7 @@ def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: i
 
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):
-    """Render a Scene with the FDM; see `bowsynth.engines.fdm.render_fdm` (imported here on first use: it loads numba).
+    """Render a Scene with the FDM; see `bowsynth.engines.fdm.render_fdm` (imported here on first use).
     Refused past the estimates of `bowsynth.engines.limits` unless force=True."""
     from .engines.fdm import render_fdm as _r
     from .engines.limits import check_request

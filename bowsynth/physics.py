@@ -22,7 +22,7 @@ NEWTON_MAXIT = 60
 
 
 def _exp(x):
-    # torch tensors carry their own exp (keeps autograd); numba compiles an overload (see fdm_kernel.py); a Python float
+    # torch tensors carry their own exp (keeps autograd); a Python float
     # takes math.exp, ~10x faster than np.exp on a scalar (the render-time physics check steps in Python floats)
     if type(x) is float:
         return math.exp(x)

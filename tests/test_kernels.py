@@ -1,4 +1,5 @@
-"""The compiled rollout: its own tanh, cos and sin, both loops against the torch network, per-voice failure."""
+"""The compiled rollout (bowsynth._core): its own tanh, cos and sin, both loops against the torch network and the
+numpy reference, per-voice failure."""
 
 import math
 
@@ -7,24 +8,26 @@ import pytest
 import torch
 
 from bowsynth import Scene
-from bowsynth.engines.operator import loops as kernels
+from bowsynth.engines import core
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
-from bowsynth.engines.operator.windows import FAILURES
+from bowsynth.engines.operator.windows import FAIL_DOMAIN, FAIL_NONFINITE, FAILURES
+
+kernels = core.load()
 
 
 def test_tanh32_matches_tanh_and_keeps_nan():
     x = np.concatenate([np.linspace(-30, 30, 200_001), [1e30, -1e30, np.inf, -np.inf]]).astype(np.float32)
-    y = np.array([kernels.tanh32(v) for v in x])
+    y = np.array([kernels._tanh32(v) for v in x])
     assert np.abs(y - np.tanh(x.astype(float))).max() < 5e-7
     assert np.all(np.abs(y) <= 1)
-    assert math.isnan(kernels.tanh32(np.float32("nan")))
+    assert math.isnan(kernels._tanh32(np.float32("nan")))
 
 
 def test_cos_sin_match_libm():
     z = np.linspace(-80, 80, 100_003)
-    cs = np.array([kernels.cos_sin(v) for v in z])
+    cs = np.array([kernels._cos_sin(v) for v in z])
     assert np.abs(cs[:, 0] - np.cos(z)).max() < 1e-10
     assert np.abs(cs[:, 1] - np.sin(z)).max() < 1e-10
 
@@ -51,10 +54,10 @@ def torch_rollout(model, x0, n_samples, dtau):
 
 def test_window_starts_stay_on_multiples_of_the_window():
     spw = 220.5  # f0 200 at 44.1 kHz, window 2 pi
-    ends = np.array([kernels.window_end(w, spw) for w in range(1000)])
+    ends = np.array([kernels._window_end(w, spw) for w in range(1000)])
     assert set(np.diff(ends)) == {220, 221}
     assert np.abs(ends - np.arange(1, 1001) * spw).max() <= 0.5
-    assert set(np.diff([kernels.window_end(w, 441.0) for w in range(100)])) == {441}
+    assert set(np.diff([kernels._window_end(w, 441.0) for w in range(100)])) == {441}
 
 
 @pytest.mark.parametrize("f0", [100.0, 200.0], ids=["441-sample-windows", "220-and-221"])
@@ -85,7 +88,8 @@ def test_one_voice_failing_stops_only_that_voice(tiny_model, voices):
     assert tuple(fail[1]) == (0, kernels.FAIL_NONFINITE) and np.all(np.isnan(q[1]))
     others = np.delete(np.arange(voices), 1)
     assert np.all(fail[others, 0] == -1) and np.all(np.isfinite(q[others])) and np.all(np.isfinite(p[others]))
-    assert kernels.FAIL_NONFINITE in FAILURES and kernels.FAIL_DOMAIN in FAILURES
+    assert (kernels.FAIL_NONFINITE, kernels.FAIL_DOMAIN) == (FAIL_NONFINITE, FAIL_DOMAIN)  # the codes agree
+    assert FAIL_NONFINITE in FAILURES and FAIL_DOMAIN in FAILURES
 
 
 def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path):
@@ -106,8 +110,8 @@ def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path
         assert len(r.q) == r.scene.n_samples  # what the continuation holds: tests/test_fallback.py
 
 
-@pytest.mark.parametrize("loop,voices", [("numpy", 5), ("numba", 3), ("numba", BATCH_FROM + 1)],
-                         ids=["numpy-loop", "numba-voice-loop", "numba-batch-loop"])
+@pytest.mark.parametrize("loop,voices", [("numpy", 5), ("core", 3), ("core", BATCH_FROM + 1)],
+                         ids=["numpy-loop", "core-voice-loop", "core-batch-loop"])
 def test_voices_at_different_pitches_roll_in_one_batch(loop, voices):
     from bowsynth.engines.operator.choose import SHIPPED_DIR
 
@@ -134,7 +138,7 @@ def test_numpy_loop_stops_a_failing_voice_like_the_compiled_ones(tiny_model):
     x0[2] = [np.nan, 0.0]
     d = m.domain
     x0[3] = [d.q_hi * 0.99, 0.0]  # near the edge of the box: may leave it
-    runs = [rollout_states(m, x0, 3000, sc.omega / sc.sample_rate, loop=lp) for lp in ("numpy", "numba")]
+    runs = [rollout_states(m, x0, 3000, sc.omega / sc.sample_rate, loop=lp) for lp in ("numpy", "core")]
     (qa, pa, fa), (qb, pb, fb) = runs
     assert np.array_equal(fa, fb) and tuple(fa[2]) == (0, kernels.FAIL_NONFINITE)
     ok = np.isfinite(qb)
@@ -157,7 +161,7 @@ def test_trunk_features_interpolated_for_many_pitches_match_the_network():
             assert np.abs(f - direct).max() < 1e-7 * np.abs(direct).max()  # float32 rounding is 6e-8
 
 
-@pytest.mark.parametrize("loop,voices", [("numpy", 2), ("numba", 1), ("numba", BATCH_FROM + 1)],
+@pytest.mark.parametrize("loop,voices", [("numpy", 2), ("core", 1), ("core", BATCH_FROM + 1)],
                          ids=["numpy", "voice-loop", "batch-loop"])
 def test_rest_linearised_flow_rolls_like_the_torch_network(tiny_rest_model, loop, voices):
     """A model whose linear part is the flow linearised at rest (damped rotation about the static deflection, in

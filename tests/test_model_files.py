@@ -86,7 +86,7 @@ def test_rollout_from_a_file_equals_the_torch_built_model(tmp_path):
     assert all(np.array_equal(again.weights[k], v) for k, v in loaded.weights.items())
 
 
-def test_render_imports_neither_torch_nor_numba(tmp_path):
+def test_render_imports_neither_torch_nor_scipy(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     r = subprocess.run([sys.executable, "-X", "importtime", "-m", "bowsynth", "render", "--fb", "100", "-d", "1",
                         str(tmp_path / "x.wav")], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
@@ -208,10 +208,10 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
 
 @pytest.mark.parametrize("args", [["render", "--pitch", "A4", "--fb", "276", "-d", "0.2", "x.wav"],
                                   ["score", "--score", "s.toml", "--mix", "m.wav"]], ids=["render-pitch", "score"])
-def test_a_repeated_pitch_and_an_operator_score_load_no_numba(tmp_path, args):
+def test_a_repeated_pitch_and_an_operator_score_load_no_torch(tmp_path, args):
     """The first `--pitch` measures the sounding pitch with the compiled FDM; the same note again reads the on-disk
-    table (bowsynth.io.cache) and loads no numba. An operator score (its releases in the numpy FDM batch) loads none
-    from the first run on."""
+    table (bowsynth.io.cache). An operator score (its releases in the compiled FDM) loads no torch and no numba
+    (retired: the compiled core replaced it) from the first run on."""
     (tmp_path / "s.toml").write_text('[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.2\n'
                                      '[[voice]]\nname = "w"\nf0 = 150.0\nbeta = 0.159155\nduration = 0.3\n')
     env = {**os.environ, "PYTHONPATH": str(ROOT), "BOWSYNTH_CACHE": str(tmp_path / "cache")}
@@ -223,7 +223,7 @@ def test_a_repeated_pitch_and_an_operator_score_load_no_numba(tmp_path, args):
         return {line.split("|")[-1].strip().split(".")[0] for line in r.stderr.splitlines() if "import time:" in line}
 
     first = modules()
-    assert "numpy" in first and (("numba" in first) == (args[0] == "render"))
+    assert "numpy" in first and "numba" not in first and "torch" not in first
     again = modules()
     assert "numpy" in again and "numba" not in again and "torch" not in again
     if args[0] == "render":

@@ -268,10 +268,9 @@ def test_score_outputs_follow_the_output_rules(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.filterwarnings("ignore::bowsynth.engines.fdm.OversampleWarning")  # the reference of the fb 12000 note
-@pytest.mark.parametrize("loop", ["numpy", "numba"])
+@pytest.mark.parametrize("loop", ["numpy", "core"])
 def test_batched_releases_are_the_fdm_of_each_release(loop):
-    """The releases of many notes run as one numpy FDM batch (or, where numba is loaded, by the compiled loop);
-    each equals `render_fdm` of that note's release scene (same start, scheme and Newton), for notes at several
+    """The releases of many notes run by the compiled FDM (or, the reference, as one numpy FDM batch); each equals `render_fdm` of that note's release scene (same start, scheme and Newton), for notes at several
     pitches, bow forces, speeds and release times, one of them needing the FDM oversampled, and a note without a
     release passes through untouched."""
     from bowsynth.engines.fdm import check_oversample, render_fdm

@@ -63,7 +63,7 @@ def test_signal_during_a_long_fdm_render(sig, tmp_path):
     # ~1.8e9 scheme steps: minutes of compiled FDM (hence --force); chunked, so the signal lands within a chunk
     proc = _start(["render", "--method", "fdm", "--oversample", "200", "-d", "200", "--force", str(out)], tmp_path)
     _handlers_installed(proc)
-    time.sleep(4)  # into the numba loop (start-up and compile-cache load take ~1-3 s)
+    time.sleep(4)  # into the compiled loop (start-up takes ~0.5-1 s)
     code, _, err = _stop(proc, sig)
     _check(code, err, sig)
     assert out.read_bytes() == b"precious"

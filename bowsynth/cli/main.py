@@ -18,7 +18,8 @@ from . import listing, render, train, compare, bench, score  # noqa: E402,F401  
 
 def _raise_on_signal(signum, frame):
     # raised in the main thread between bytecodes, so `finally` blocks and temp-file cleanup run; a long compiled
-    # (numba) call delays it until the call returns (the FDM runs in chunks of well under a second for this)
+    # call (the core releases the GIL but Python runs handlers between bytecodes) delays it until the call returns
+    # (the FDM runs in chunks of well under a second for this)
     run_state["signal"] = signum
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 

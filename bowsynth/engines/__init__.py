@@ -11,10 +11,8 @@ from __future__ import annotations
 
 from enum import Enum
 
-from .. import physics
 from ..errors import UsageError
 from ..render import Render
-from ..scene import Scene
 
 
 class Engine(str, Enum):
@@ -56,21 +54,3 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
 
 
 __all__ = ["Engine", "Fallback", "Render", "parse_choice", "render"]
-
-
-def warm() -> None:
-    """Compile and cache every compiled path once (`make setup` runs this), so that no user command compiles: the
-    FDM, and both rollout loops on a shipped model, at two pitches."""
-
-    import numpy as np
-
-    from .fdm import render_fdm
-    from .operator.choose import SHIPPED_DIR
-    from .operator.modelfile import load_model
-    from .operator.rollout import BATCH_FROM, rollout_states
-
-    render_fdm(Scene(duration=0.01))
-    m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")
-    dtau = [physics.dtau(f, 44100) for f in (100.0, 200.0)]
-    for voices in (1, BATCH_FROM):
-        rollout_states(m, np.zeros((voices, 2)), 8, np.resize(dtau, voices), loop="numba")

@@ -10,8 +10,9 @@ u^{+-1} = u^0 +- k p0 - k^2/2 (w^2 u^0 + F_B phi(p0 - v_B)) -- the second-order 
 p[0] = p0, and the render converges at second order to the initial-value problem. The paper's own file instead uses
 u^{-1} = u^0 = 0 (see `run_fdm_raw`).
 
-Two paths: `render_fdm` (one voice, a numba-compiled loop in `fdm_kernel`, imported on first use) and `fdm_batch` (numpy, vectorised across initial
-states, for training data). They run the same iteration and agree to rounding.
+Two paths: `render_fdm` (one voice, the compiled loop of `engines.core`, src/core/fdm.cpp) and `fdm_batch` (numpy,
+vectorised across initial states, for training data, and the readable reference the tests hold the compiled loop to).
+They run the same iteration and agree to the bit.
 """
 
 from __future__ import annotations
@@ -43,27 +44,28 @@ def taylor_start(u0, p0, k, w, fb, vb, a):
     return u0 - k * p0 - 0.5 * k * k * (w * w * u0 + fb * physics.phi(p0 - vb, a))
 
 
-def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None):
+def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None, w2=None):
     """The bare scheme from two given displacements (u^{-1}, u^0): returns (u, eta) at every `stride`-th step.
 
-    fb and vb are numbers or Curves (followed per step, from t = 0 at u^0)."""
+    fb and vb are numbers or Curves (followed per step, from t = 0 at u^0); w2, if given, replaces w * w: a number
+    or a Curve of the squared angular frequency (rad^2/s^2), followed per step like the bow (a pitch that moves)."""
     from ..controls import breakpoints
+    from . import core
 
     u_out = np.empty(n_out)
     eta_out = np.empty(n_out)
+    w2_t, w2_v = breakpoints(float(w) * float(w) if w2 is None else w2)
     fb_t, fb_v = breakpoints(fb)
     vb_t, vb_v = breakpoints(vb)
     eta = -vb_v[0] if eta0 is None else eta0
     state = (float(u_prev), float(u_cur), float(eta))
     # chunks of CHUNK_STEPS steps (~0.1-0.3 s each): Python runs signal handlers (Ctrl-C, SIGTERM) only between
     # compiled calls, and a 20 s x200 render in one call ignored Ctrl-C for 13 s
-    from .fdm_kernel import kernel  # numba: imported when the compiled loop first runs, not with the module
-
     per = max(1, CHUNK_STEPS // int(stride))
     for j in range(0, int(n_out), per):
         m = min(per, int(n_out) - j)
-        state = kernel(*state, j * int(stride), m, int(stride), float(k), float(w * w), fb_t, fb_v, vb_t, vb_v,
-                        float(a), u_out[j:j + m], eta_out[j:j + m])
+        state = core.fdm_run(*state, j * int(stride), m, int(stride), float(k), w2_t, w2_v, fb_t, fb_v, vb_t, vb_v,
+                             float(a), physics.NEWTON_TOL, physics.NEWTON_MAXIT, u_out[j:j + m], eta_out[j:j + m])
     return u_out, eta_out
 
 
@@ -95,7 +97,6 @@ def render_fdm(scene: Scene, oversample: int = 1) -> Render:
     w = scene.omega
     k = 1.0 / (scene.sample_rate * os_)
     u0 = scene.q0 / w
-    run_fdm_raw(0.0, 0.0, 1, 1, k, w, 0.0, 0.0, scene.a)  # compile / load the kernel outside the timing
     fb0, vb0 = float(scene.fb_at(0.0)), float(scene.vb_at(0.0))
     t0 = time.perf_counter()
     u_prev = taylor_start(u0, scene.p0, k, w, fb0, vb0, scene.a)

@@ -120,7 +120,7 @@ def remove_dc(x: np.ndarray, sample_rate: float) -> np.ndarray:
 
     The zero-phase response |H|^2 of a 2nd-order Butterworth high-pass at DC_HZ, (f/fc)^4 / (1 + (f/fc)^4) -- what
     a forward-backward run of the filter gives -- applied in the frequency domain with numpy, so that writing a file
-    loads no scipy (0.3-0.9 s of start-up; the operator's render path keeps off scipy, torch and numba). The signal
+    loads no scipy (0.3-0.9 s of start-up; the operator's render path keeps off scipy and torch). The signal
     is padded by odd reflection (DC_PAD_S at each end) so the circular wrap rings out before it reaches the signal.
     """
     x = np.asarray(x, dtype=np.float64)

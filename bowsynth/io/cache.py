@@ -1,7 +1,7 @@
 """A small on-disk cache of measured numbers (the sounding ratios of `pitch`), kept between processes.
 
 Why: `render --pitch A4` solves for the f0 that sounds at A4 by running the FDM from rest a few times; that costs a
-second or more per process (numba's import and load, then the runs), every time the same note is asked for. The
+fraction of a second per process (the runs; numba's import and load added ~0.8 s before the compiled core), every time the same note is asked for. The
 answer depends only on (F_B / w, v_B, a) and the measuring code, so it is kept in one JSON file per table under
 
     $BOWSYNTH_CACHE, else $XDG_CACHE_HOME/bowsynth, else ~/.cache/bowsynth     (BOWSYNTH_CACHE=off: no cache)

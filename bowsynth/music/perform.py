@@ -125,19 +125,16 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
     """Each note's release by the FDM from its sustain's state at the hold, written over the sustain's samples from
     there on (`sustains` rendered from `Note.rollout_scene`, so they already span the whole note).
 
-    The releases run together in one numpy FDM (`fdm.fdm_batch`, one batch per sample rate and oversampling): a few
-    thousand steps of a few small array operations, where the compiled loop would first cost numba's import and load
-    (~1 s, more than a 100-note score's whole rollout). Same scheme, start and Newton iteration as `render_fdm`.
-    Where numba is already loaded (a long piece's compiled rollout paid for it), each release runs `render_fdm`'s
-    compiled loop instead: the 8 releases of 0.1 s of a 60 s piece took 0.37 s in numpy and 4-5 ms compiled.
-    loop: 'auto' (that choice, rollout.numba_loaded), 'numpy' or 'numba'."""
+    Each release runs `render_fdm`'s compiled loop (src/core/fdm.cpp): same scheme, start and Newton iteration, in
+    a few milliseconds (a chorale's 151 releases took 0.96 s in the numpy batch). loop: 'core' ('auto' is the same),
+    or 'numpy': all releases of a sample rate and oversampling in one numpy batch (`fdm.fdm_batch`), the readable
+    reference the tests hold the compiled loop to."""
     from ..engines.fdm import check_oversample, fdm_batch, render_fdm
-    from ..engines.operator.rollout import numba_loaded
 
     if loop == "auto":
-        loop = "numba" if numba_loaded() else "numpy"
-    if loop not in ("numpy", "numba"):
-        raise ValueError(f"loop must be auto, numpy or numba, got {loop!r}")
+        loop = "core"
+    if loop not in ("numpy", "core"):
+        raise ValueError(f"loop must be auto, core or numpy, got {loop!r}")
 
     out = [None] * len(notes)
     groups: dict[tuple, list[int]] = {}
@@ -154,7 +151,7 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
         groups.setdefault((rel.sample_rate, os_, rel.a), []).append(i)
     for (sr, os_, a), idx in groups.items():
         rel = [scenes[i] for i in idx]
-        if loop == "numba":
+        if loop == "core":
             for i, r in zip(idx, rel):
                 f = render_fdm(r, os_)
                 out[i] = _join_release(notes[i], sustains[i], f.q, f.p, f.seconds)

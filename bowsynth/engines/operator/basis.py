@@ -14,7 +14,7 @@ from .modelfile import OperatorModel
 
 class NumpyOperator:
     """The trained network's weights as float32 numpy arrays (the precision it was trained in), laid out for the
-    rollout loops (numpy here, compiled in `kernels`)."""
+    rollout loops (numpy in rollout._roll_numpy, compiled in src/core/rollout.cpp)."""
 
     def __init__(self, model: OperatorModel):
         w = model.weights
@@ -25,7 +25,7 @@ class NumpyOperator:
         rest = [g(f"hidden.{i}") for i in range(1, cfg.depth)]
         width = cfg.width
         self.ff = np.ascontiguousarray(2 * np.pi * w["branch.ff.B"].astype(np.float64))
-        gates = [g(name) for name in ("U", "V", "hidden.0")]  # one product for the three (kernels.roll_voices)
+        gates = [g(name) for name in ("U", "V", "hidden.0")]  # one product for the three (src/core/rollout.cpp: gates)
         self.weights = (f32(np.hstack([m for m, _ in gates])), f32(np.concatenate([b for _, b in gates])),
                         f32(np.array([m for m, _ in rest]).reshape(-1, width, width)),
                         f32(np.array([b for _, b in rest]).reshape(-1, width)), *g("out"))
@@ -86,7 +86,7 @@ class NumpyOperator:
         would start ever earlier than the states the model trained on, measured 2.6x the error at 200 Hz). A window
         of n_hi samples runs past T by less than one sample spacing.
         Returns spw = T / dtau, n_lo; Bq, Bp (k + 3, n_hi) float32: the trunk features times s c at the sample
-        offsets, then cos, sin and the bias term (see kernels.roll_voices); for the end state after n_lo and after
+        offsets, then cos, sin and the bias term (see src/core/rollout.cpp: samples); for the end state after n_lo and after
         n_hi samples, in float64, the features endb (2, 2, k) and endlin (2, 6) = (m11, m12, bias_q, bias_p, m22,
         -m21) of the linear flow M (the rotation: cos, sin, ..., cos, sin; see physics.flow_coefficients).
         The trunk is evaluated in numpy, float64 (once per render and pitch); tf: its features at the offsets
@@ -101,7 +101,7 @@ class NumpyOperator:
         basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n_hi+1)
         bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n_hi+1)
         m11, m12, m21, m22, kq, kp = npnet.linear_part(self.cfg, tau, self.lin)
-        # q rows act on (q0, p0), p rows on (p0, -q0) (kernels._samples); the flow's constant joins the bias row
+        # q rows act on (q0, p0), p rows on (p0, -q0) (src/core/rollout.cpp: samples); the flow's constant joins the bias row
         # (a point model's gain is 1)
         bias = bias + np.stack([kq, kp])
         lin = ((m11, m12), (m22, -m21))

@@ -24,7 +24,7 @@ from .choose import (
     unreadable_notes,
 )
 from .modelfile import OperatorModel
-from .rollout import applied_controls, choose_loop, rollout_states, scene_bows
+from .rollout import applied_controls, rollout_states, scene_bows
 from .windows import FAIL_BOW, FAILURES
 
 
@@ -159,9 +159,9 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         x0 = np.array([[sc.q0, sc.p0] for sc in group])
         dtau = np.array([sc.dtau for sc in group])
         par, bows, leave = _voice_bows(m, group)
-        loop = choose_loop(m, n, dtau)
-        # warm-up: converts the weights, computes the trunk features at these sample offsets and loads the compiled
-        # loop if it is used, so that `seconds` measures the rollout itself (start-up: info.setup_seconds)
+        loop = "core"
+        # warm-up: converts the weights and computes the trunk features at these sample offsets, so that `seconds`
+        # measures the rollout itself (start-up: info.setup_seconds)
         rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
         t0 = time.perf_counter()
         q, p, fail = rollout_states(m, x0, n, dtau, loop=loop, params=par)

@@ -2,12 +2,10 @@
 
 The audio samples sit at fixed offsets tau_j = j w / sr inside every window, so the trunk features there are
 computed once per render and pitch; a window then costs one branch evaluation and a small matmul. No torch here; the
-loops run in numpy, or compiled (`kernels`, numba) when the work repays importing numba.
+loops run compiled (`engines.core`: src/core/rollout.cpp), or in numpy (`_roll_numpy`, the tests' readable reference).
 """
 
 from __future__ import annotations
-
-import sys
 
 import numpy as np
 
@@ -16,35 +14,9 @@ from .basis import _bases, _operator
 from .modelfile import OperatorModel
 from .windows import FAIL_DOMAIN, FAIL_NONFINITE, max_windows, window_bounds, window_ends
 
-BATCH_FROM = 8  # compiled loops: from this many voices on, the window-at-a-time loop with BLAS products is faster
-# numba costs ~0.3 s to import and ~0.5 s more on the first call of a cached loop in a process (typing machinery and
-# the cache's code loaded; measured at load ~4-5 on the shared 2-core machine), more than the whole numpy rollout of
-# most renders (a 5 s note at 100 Hz: 0.044 s in numpy, ~0.01 s compiled; 100 voices x 5 s at 100 pitches: 0.81 s in
-# numpy, 0.58 s compiled). So the compiled loops run only where the numpy loop's estimated time exceeds
-# NUMBA_PAYS_FROM, or once numba is imported (a process that ran the FDM: a notebook, training's validation, bench,
-# where the first call's 0.5 s is repaid by every later render). docs/BENCHMARKS.md, issue 12.
-NUMBA_PAYS_FROM = 1.0
-
-
-def _numpy_seconds(rounds: int, voice_windows: int, voice_samples: int) -> float:
-    """Estimated time of `_roll_numpy` (fitted on the shared machine at load ~5: 1 voice x 5 s 0.044 s, 100 voices
-    at 100 pitches x 1 s 0.16 s, x 5 s 0.81 s; importing numba and loading the loops took 0.39 s there)."""
-    return 80e-6 * rounds + 6e-6 * voice_windows + 15e-9 * voice_samples
-
-
-def numba_loaded() -> bool:
-    """Has this process already paid numba's import (the FDM ran, or a compiled rollout)? Then compiled loops cost
-    only their own cache load (~10 ms), and every later render or release repays it."""
-    return "numba" in sys.modules
-
-
-def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
-    """'numba' when numba is already imported or the numpy loop's estimated time repays loading it, else 'numpy'."""
-    if numba_loaded():
-        return "numba"
-    spw = _operator(model).window / np.atleast_1d(np.asarray(dtau, dtype=float))
-    slow = _numpy_seconds(int(n_samples / spw.min()) + 1, int(np.sum(n_samples / spw)) + len(spw), n_samples * len(spw))
-    return "numba" if slow > NUMBA_PAYS_FROM else "numpy"
+# the compiled loops: from this many voices on, the window-at-a-time loop (matrix-matrix products over the voices)
+# is faster than one voice after another (docs/BENCHMARKS.md, "compiled core")
+BATCH_FROM = 8
 
 
 def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
@@ -87,8 +59,8 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau (one spacing for all voices,
     or one per voice: voices at different pitches roll in one batch).
 
-    loop: 'numpy', 'numba' (the compiled loops of `kernels`), or 'auto' (numba when it is already imported or the
-    work is long enough to repay importing it).
+    loop: 'core' (the compiled loops, src/core/rollout.cpp; 'auto' is the same), or 'numpy' (`_roll_numpy`, the
+    readable reference the tests hold the compiled loops to).
     Returns q, p (B, n_samples) float32 and fail (B, 2) int: per voice the first sample of the window where the
     rollout left the model's domain or went non-finite, and the reason (a key of FAILURES), or (-1, 0). A failed
     voice stops there (its later samples are NaN); the other voices go on.
@@ -110,16 +82,14 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     pin, gain, center, halfrange = op.window_inputs(_window_bows(model, B, W, params))
     args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
-    if loop == "auto":
-        loop = choose_loop(model, n_samples, dt)
-    if loop == "numba":
-        from . import loops as kernels
+    if loop in ("auto", "core"):
+        from .. import core
 
-        (kernels.roll_batch if B >= BATCH_FROM else kernels.roll_voices)(*args)
+        core.roll(B >= BATCH_FROM, *args)
     elif loop == "numpy":
         _roll_numpy(*args)
     else:
-        raise ValueError(f"loop must be auto, numpy or numba, got {loop!r}")
+        raise ValueError(f"loop must be auto, core or numpy, got {loop!r}")
     for b in np.flatnonzero(fail[:, 0] >= 0):
         q[b, fail[b, 0]:] = np.nan
         p[b, fail[b, 0]:] = np.nan

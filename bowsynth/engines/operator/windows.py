@@ -1,6 +1,6 @@
 """A rollout's geometry in samples and how a voice can fail: one place for the rule "window w ends at floor((w + 1) spw
 + 0.5)" (spw = samples per window, a window being one free period T in tau), which the numpy loop, the planner and
-the compiled loops (their own copy, `loops.window_end`, checked against this in tests) all follow."""
+the compiled loops (their own copy, window_end in src/core/rollout.cpp, checked against this in tests) all follow."""
 
 from __future__ import annotations
 

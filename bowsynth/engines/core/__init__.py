@@ -1,0 +1,70 @@
+"""The compiled core's thin wrapper (`bowsynth._core`, C++ in src/core, built at install by scikit-build-core with nanobind): the
+FDM step and the operator's rollout loops, with the GIL released and no allocation after a process's first call of
+a size. Nothing is compiled at run time.
+
+`load()` imports it once and refuses, in one line (CoreError), a module that does not belong to this package: not
+built, built for another Python (its file name carries the interpreter's tag, so Python does not find it), of another
+ABI, or built from other sources than the src/core beside the package (a stale build in a source tree: the digest of
+the sources is compiled in and compared here). A module that imports at all has passed these checks; the kernels
+check every array's dtype, rank and shape before touching it (TypeError / ValueError).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from ...errors import BowsynthError
+
+ABI = 1  # src/core/core.h: bowsynth::ABI
+_REBUILD = "rebuild it with `pip install -e .` (or `make core` in a source tree run with PYTHONPATH)"
+
+
+class CoreError(BowsynthError, ImportError):
+    """The compiled core is missing or does not match this package."""
+
+
+def source_digest(core_dir: Path) -> str | None:
+    """The digest CMakeLists.txt compiles in: sha256 over 'name:sha256(file)' lines of src/core/*.cpp, *.h sorted by
+    path; None where the sources are not there (an installed wheel carries none)."""
+    files = sorted([*core_dir.glob("*.cpp"), *core_dir.glob("*.h")])
+    if not files:
+        return None
+    text = "".join(f"{f.name}:{hashlib.sha256(f.read_bytes()).hexdigest()}\n" for f in files)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+_module = None
+
+
+def load():
+    """The compiled module, checked once per process (see the module's docstring)."""
+    global _module
+    if _module is not None:
+        return _module
+    pkg = Path(__file__).resolve().parents[2]  # bowsynth/
+    try:
+        from ... import _core
+    except ImportError as e:  # not built, or built for another interpreter (the file name carries its tag)
+        raise CoreError(f"bowsynth's compiled core (bowsynth._core) could not be imported ({e}): {_REBUILD}") from None
+    if getattr(_core, "ABI", None) != ABI:
+        raise CoreError(f"bowsynth's compiled core ({_core.__file__}) has ABI {getattr(_core, 'ABI', None)}, the "
+                        f"package expects {ABI} (a stale build): {_REBUILD}")
+    want = source_digest(pkg.parent / "src" / "core")
+    if want is not None and getattr(_core, "DIGEST", None) != want:
+        raise CoreError(f"bowsynth's compiled core ({_core.__file__}) was built from other sources than "
+                        f"{pkg.parent / 'src' / 'core'} (a stale build): {_REBUILD}")
+    _module = _core
+    return _core
+
+
+def fdm_run(*args):
+    """`_core.fdm_run`: steps of the FDM; see engines.fdm.run_fdm_raw."""
+    return load().fdm_run(*args)
+
+
+def roll(batch: bool, *args) -> None:
+    """The rollout loop: `_core.roll_batch` (every voice one window at a time) or `_core.roll_voices` (one voice
+    after another); arguments as engines.operator.rollout._roll_numpy."""
+    core = load()
+    (core.roll_batch if batch else core.roll_voices)(*args)

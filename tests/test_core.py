@@ -1,0 +1,175 @@
+"""The compiled core (bowsynth._core) at its edges: the arrays it refuses, a module that does not belong to the
+package, a build without a compiler; and its loops against the numpy reference at window lengths that exercise every
+tile of its products."""
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bowsynth.engines import core
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.rollout import rollout_states
+
+ROOT = Path(__file__).resolve().parents[1]
+FB100 = SHIPPED_DIR / "paper-fb100.safetensors"
+
+
+def loop_args(monkeypatch, voices=2):
+    """The arguments rollout_states hands the compiled loop, captured from a real call."""
+    seen = {}
+    monkeypatch.setattr(core, "roll", lambda batch, *args: seen.setdefault("args", args))
+    rollout_states(load_model(FB100), np.zeros((voices, 2)), 500, [0.02] * voices)
+    monkeypatch.undo()
+    return list(seen["args"])
+
+
+NAMES = ["x0", "n_samples", "spw", "n_lo", "vidx", "Bq", "Bp", "endb", "endlin", "center", "halfrange", "ff", "pin",
+         "gain", "Gw", "Gb", "Hw", "Hb", "Ow", "Ob", "box", "mask", "check", "q_out", "p_out", "fail"]
+
+
+@pytest.mark.parametrize("kernel", ["roll_voices", "roll_batch"])
+def test_the_loops_refuse_wrong_dtypes_ranks_and_shapes_with_one_error(monkeypatch, kernel):
+    args = loop_args(monkeypatch)
+    fn = getattr(core.load(), kernel)
+    fn(*args)  # as given: runs
+    arrays = [i for i, a in enumerate(args) if isinstance(a, np.ndarray)]
+    for i in arrays:
+        name, a = NAMES[i], args[i]
+        other = np.float32 if a.dtype != np.float32 else np.float64
+        for bad, err in [(a.astype(other), TypeError),  # a dtype it would have to convert (an output would be lost)
+                         (a[..., None], TypeError),  # another rank
+                         (np.asfortranarray(a) if a.ndim > 1 and min(a.shape) > 1 else None, TypeError)]:
+            if bad is None:
+                continue
+            with pytest.raises(err):
+                fn(*args[:i], bad, *args[i + 1:])
+        if a.ndim and a.shape[-1] > 1 and name not in ("q_out", "p_out", "mask"):
+            # one element short: named, or (an array that sets a size) the first array that no longer agrees
+            with pytest.raises(ValueError, match=f"^{kernel}: "):
+                fn(*args[:i], np.ascontiguousarray(a[..., :-1]), *args[i + 1:])
+    ro = args[23].copy()
+    ro.flags.writeable = False
+    with pytest.raises(TypeError):  # an output it cannot write
+        fn(*args[:23], ro, *args[24:])
+    for i, value, what in [(1, 10**9, "q_out"), (4, np.array([0, 5]), "vidx"), (3, args[3] + 1, "n_lo"),
+                           (2, np.array([0.5]), "spw")]:
+        with pytest.raises(ValueError, match=what):
+            fn(*args[:i], value, *args[i + 1:])
+
+
+def test_the_fdm_refuses_bad_curves_and_short_outputs():
+    c = core.load()
+    t, v = np.zeros(1), np.ones(1)
+    out = np.empty(10)
+    c.fdm_run(0.0, 0.0, 0.0, 0, 10, 1, 1e-5, t, v * 4e5, t, v * 100.0, t, v * 0.2, 100.0, 1e-14, 60, out, out.copy())
+    with pytest.raises(ValueError, match="hold n_out"):
+        c.fdm_run(0.0, 0.0, 0.0, 0, 11, 1, 1e-5, t, v, t, v, t, v, 100.0, 1e-14, 60, out, out.copy())
+    with pytest.raises(ValueError, match="times must increase"):
+        c.fdm_run(0.0, 0.0, 0.0, 0, 10, 1, 1e-5, np.array([0.0, 0.0]), np.ones(2), t, v, t, v, 100.0, 1e-14, 60,
+                  out, out.copy())
+    with pytest.raises(ValueError, match="as many times as values"):
+        c.fdm_run(0.0, 0.0, 0.0, 0, 10, 1, 1e-5, t, np.ones(2), t, v, t, v, 100.0, 1e-14, 60, out, out.copy())
+    with pytest.raises(ValueError, match="positive"):
+        c.fdm_run(0.0, 0.0, 0.0, 0, 10, 1, float("nan"), t, v, t, v, t, v, 100.0, 1e-14, 60, out, out.copy())
+    with pytest.raises(TypeError):
+        c.fdm_run(0.0, 0.0, 0.0, 0, 10, 1, 1e-5, t, v, t, v, t, v, 100.0, 1e-14, 60, out.astype(np.float32), out)
+
+
+def test_the_fdm_follows_a_w2_curve_like_the_numpy_scheme():
+    """w^2 given per step as breakpoints (a pitch that moves): the compiled loop against the same scheme written out
+    in numpy, step by step."""
+    from bowsynth.engines.fdm import _solve_eta_bracketed
+    from bowsynth.physics import NEWTON_MAXIT, NEWTON_TOL
+
+    k, n, a, fb, vb = 1 / 44100, 3000, 100.0, 150.0, 0.2
+    w2_t, w2_v = np.array([0.0, 0.05]), (2 * np.pi * np.array([100.0, 300.0])) ** 2
+    u, eta = np.empty(n), np.empty(n)
+    t1, v1 = np.zeros(1), np.ones(1)
+    core.load().fdm_run(0.0, 0.0, -vb, 0, n, 1, k, w2_t, w2_v, t1, v1 * fb, t1, v1 * vb, a, NEWTON_TOL, NEWTON_MAXIT,
+                        u, eta)
+    up, uc, e = 0.0, 0.0, np.array([-vb])
+    ref = np.empty(n)
+    for j in range(n):
+        w2 = np.interp(j * k, w2_t, w2_v)
+        b = 2 / k * vb + 2 / k**2 * (up - uc) + w2 * uc
+        e = _solve_eta_bracketed(e, np.array([b]), 2 / k, np.array([fb]), a)
+        ref[j] = uc
+        up, uc = uc, up + 2 * k * (e[0] + vb)
+    assert np.abs(u - ref).max() <= 1e-12 * np.abs(ref).max() and np.abs(ref).max() > 0
+
+
+@pytest.mark.parametrize("voices", [1, 9], ids=["voice-loop", "batch-loop"])
+def test_every_window_length_matches_the_numpy_reference(voices):
+    """Windows of 3 to 200 samples (pitches from ~1.4 kHz down to 100 Hz... and beyond the products' tiles: fewer than
+    one vector, ragged ends of every width) against the numpy loop."""
+    m = load_model(FB100)
+    spw = np.array([3.0, 7.5, 8.0, 9.0, 15.0, 17.3, 23.0, 31.9, 40.0, 57.0, 63.0, 64.0, 65.0, 71.0, 121.0, 200.0])
+    dtau = m.domain.window / spw
+    rng = np.random.default_rng(0)
+    for i in range(0, len(spw), voices):
+        d = dtau[i:i + voices]
+        if len(d) < voices:
+            d = np.resize(dtau, voices)
+        x0 = np.stack([rng.uniform(-0.05, 0.05, voices), rng.uniform(-0.05, 0.05, voices)], 1)
+        qa, pa, fa = rollout_states(m, x0, 400, d, check_domain=False, loop="core")
+        qb, pb, fb = rollout_states(m, x0, 400, d, check_domain=False, loop="numpy")
+        assert np.array_equal(fa, fb)
+        ok = np.isfinite(qb)
+        assert np.array_equal(ok, np.isfinite(qa))
+        assert np.abs(qa[ok] - qb[ok]).max() < 1e-5 and np.abs(pa[ok] - pb[ok]).max() < 1e-5
+
+
+def test_a_stale_module_or_another_abi_is_refused_in_one_line(monkeypatch):
+    monkeypatch.setattr(core, "_module", None)
+    monkeypatch.setattr(core, "source_digest", lambda d: "0" * 64)
+    with pytest.raises(core.CoreError, match="built from other sources.*stale build.*pip install -e") as e:
+        core.load()
+    assert "\n" not in str(e.value)
+    monkeypatch.setattr(core, "ABI", core.ABI + 1)
+    with pytest.raises(core.CoreError, match="has ABI .* expects .* stale build"):
+        core.load()
+    monkeypatch.undo()
+    assert core.load().ABI == core.ABI
+
+
+def test_the_digest_is_the_one_compiled_in():
+    digest = core.source_digest(ROOT / "src" / "core")
+    if digest is None:
+        pytest.skip("no sources beside the package (an installed wheel)")
+    assert core.load().DIGEST == digest
+
+
+@pytest.mark.parametrize("broken", ["missing", "not-a-library"])
+def test_a_module_that_does_not_load_is_one_line_from_the_cli(tmp_path, broken):
+    """No module (not built, or built for another Python: its file name carries that interpreter's tag) or a file
+    that is no library: `render` says so in one line and exits 1, never a crash."""
+    pkg = tmp_path / "bowsynth"
+    shutil.copytree(ROOT / "bowsynth", pkg, ignore=shutil.ignore_patterns("_core.*", "__pycache__"))
+    if broken == "not-a-library":
+        (pkg / Path(core.load().__file__).name).write_bytes(b"\x7fELF but not really")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    r = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--method", "fdm", "-d", "0.1",
+                        str(tmp_path / "x.wav")], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
+    assert r.returncode == 1, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "compiled core" in lines[0] and "pip install -e ." in lines[0], r.stderr
+
+
+def test_a_build_without_a_compiler_says_so_in_one_line(tmp_path):
+    cmake, ninja = shutil.which("cmake"), shutil.which("ninja")
+    if not (cmake and ninja):
+        pytest.skip("cmake and ninja are needed to configure the build")
+    bin_ = tmp_path / "bin"
+    bin_.mkdir()
+    (bin_ / "ninja").symlink_to(ninja)  # a PATH with a build tool and no compiler
+    r = subprocess.run([cmake, "-S", str(ROOT), "-B", str(tmp_path / "build"), "-G", "Ninja"], capture_output=True,
+                       text=True, env={"PATH": str(bin_), "HOME": str(tmp_path)}, timeout=120)
+    assert r.returncode != 0
+    said = [line.strip() for line in r.stderr.splitlines() if "bowsynth:" in line]
+    assert said == ["bowsynth: no C++ compiler found: install g++ (apt-get install g++)"], r.stderr
