@@ -267,3 +267,12 @@ def test_a_note_is_tuned_by_the_engine_that_plays_it(pitch, fb, engine):
     if engine == "fdm":  # and the truth's tuning is measurably off there: the test can tell the two apart
         r0 = api.render(base, engine="fdm")
         assert abs(cents(f0_estimate(r0.q[len(r0.q) // 3:], sc.sample_rate, tail=1.0), hz)) > 1.0
+
+
+def test_bracketed_root_finds_roots_of_steep_and_flat_functions():
+    from bowsynth.music.tuning import _bracketed_root
+
+    for h, root in [(lambda x: x ** 3 - 2.0, 2 ** (1 / 3)), (lambda x: math.exp(5 * x) - 3.0, math.log(3) / 5),
+                    (lambda x: 1200 * math.log2(1 + math.atan(x - 0.3) / 10), 0.3)]:
+        x = _bracketed_root(h, -1.0, 2.0, h(-1.0), h(2.0))
+        assert abs(x - root) < 1e-8 or abs(h(x)) < 1e-6, (x, root)  # to 1e-6 cents, as tune asks
