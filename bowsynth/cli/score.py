@@ -97,9 +97,14 @@ def score(
     renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file)
     secs = time.perf_counter() - t0
     say = console_for(output)
+    # a remark that holds for many notes (a model's physics check, say) is said once, with how many notes it concerns
+    said: dict[str, list[str]] = {}
     for n, r in zip(notes, renders):
         for line in r.info.notes:
-            tell(quiet, f"{n.describe()}: {line}", say)
+            said.setdefault(line, []).append(n.describe())
+    for line, who in said.items():
+        where = who[0] if len(who) == 1 else f"{who[0]} and {len(who) - 1} more notes"
+        tell(quiet, f"{where}: {line}", say)
     paths = write_voices(notes, renders, output, mix=mix, stems=stems, dc=dc, gain_db=gain, force=force)
     audio = sum(n.scene.duration for n in notes)
     voices = len({n.name for n in notes})

@@ -1,0 +1,117 @@
+"""A chorale-sized piece as a user plays it: `score --mix` of a four-part MIDI file with the operator and with the FDM,
+whole processes alternated with `bowsynth --help`, and how far the operator's mix sounds from the FDM's.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/chorale.py [--runs 3] [--keep DIR]
+
+The piece is written here (no corpus file ships with the repository) in the layout GUIDE section 9 describes for a
+chorale exported from a public corpus: MIDI type 1, a tempo track and four part tracks, every part on channel 1, one
+velocity (90), 4 notes a beat at 76 bpm in four-part harmony (MIDI 42-76), 152 notes, ~25 s, with held notes, repeated
+notes and unisons between parts. Prints Markdown: medians of the whole processes, notes played, and the median
+log-spectral distance per 8192-sample frame between the two mixes (frames where the FDM's mix sounds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+TPB = 480
+# (soprano, alto, tenor, bass) per beat, MIDI numbers; a held note repeats its number with "-" in the next beat
+PHRASES = [
+    [(67, 62, 59, 43), (67, 64, 60, 48), (69, 64, 60, 45), (71, 62, 55, 55), (72, 64, 55, 48), (71, 62, 55, 50),
+     (69, 60, 54, 50), (67, 59, 55, 43)],
+    [(71, 62, 55, 55), (72, 64, 57, 57), (74, 66, 57, 50), (76, 67, 59, 52), (74, 66, 57, 54), (72, 64, 57, 45),
+     (71, 62, 55, 47), (69, 62, 54, 50)],
+    [(67, 62, 59, 55), (69, 64, 60, 52), (71, 62, 55, 47), (72, 64, 55, 48), (71, 62, 55, 50), (69, 60, 54, 42),
+     (67, 59, 50, 43), (67, 59, 50, 43)],
+]
+
+
+def write_piece(path: Path) -> int:
+    import mido
+
+    beats = [chord for phrase in PHRASES for chord in phrase] * 2
+    mid = mido.MidiFile(type=1, ticks_per_beat=TPB)
+    tempo = mido.MidiTrack([mido.MetaMessage("set_tempo", tempo=mido.bpm2tempo(76), time=0)])
+    mid.tracks.append(tempo)
+    notes = 0
+    for part in range(4):
+        tr = mido.MidiTrack([mido.MetaMessage("track_name", name=["Soprano", "Alto", "Tenor", "Bass"][part])])
+        wait = 0
+        i = 0
+        while i < len(beats):
+            n = beats[i][part]
+            j = i + 1
+            while j < len(beats) and beats[j][part] == n and part in (1, 2) and j - i < 2:
+                j += 1  # inner parts hold a repeated note over two beats; soprano and bass re-strike
+            tr.append(mido.Message("note_on", channel=0, note=n, velocity=90, time=wait))
+            tr.append(mido.Message("note_off", channel=0, note=n, velocity=0, time=(j - i) * TPB - 20))
+            wait, i, notes = 20, j, notes + 1
+        mid.tracks.append(tr)
+    mid.save(path)
+    return notes
+
+
+def run(args, cwd) -> tuple[float, str]:
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "bowsynth", *args], cwd=cwd, env=ENV, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"bowsynth {' '.join(args)} failed: {r.stderr.strip()}")
+    return time.perf_counter() - t0, r.stdout + r.stderr
+
+
+def frame_lsd(x, ref, sr: int, n: int = 8192) -> float:
+    """Median over frames (where ref sounds, within 40 dB of its loudest frame) of the log-spectral distance."""
+    from bowsynth.analysis.metrics import log_spectral_distance
+
+    m = min(len(x), len(ref)) // n
+    rms = np.array([np.sqrt(np.mean(ref[i * n:(i + 1) * n] ** 2)) for i in range(m)])
+    keep = [i for i in range(m) if rms[i] > rms.max() * 1e-2]
+    return float(np.median([log_spectral_distance(x[i * n:(i + 1) * n], ref[i * n:(i + 1) * n], sr) for i in keep]))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--keep", type=Path, default=None, help="write the piece and the two mixes here")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(args.keep or tmp)
+        d.mkdir(parents=True, exist_ok=True)
+        n_notes = write_piece(d / "chorale.mid")
+        times = {"help": [], "operator": [], "fdm": []}
+        outs = {}
+        for _ in range(args.runs):
+            times["help"].append(run(["--help"], d)[0])
+            for method in ("operator", "fdm"):
+                t, out = run(["score", "--score", "chorale.mid", "--method", method, "--mix", f"{method}.wav",
+                              "--force"], d)
+                times[method].append(t)
+                outs[method] = out
+        from bowsynth.io.audio import read_wav
+
+        op, fd = read_wav(d / "operator.wav"), read_wav(d / "fdm.wav")
+        lsd = frame_lsd(op.physical, fd.physical, 44100)
+        med = {k: statistics.median(v) for k, v in times.items()}
+        print(f"{n_notes} notes in the file; `score --mix`, medians of {args.runs} alternated runs (s)\n")
+        print("| process | seconds | x --help | x the FDM's |\n|---|---|---|---|")
+        for k in ("help", "operator", "fdm"):
+            print(f"| {k} | {med[k]:.2f} | {med[k] / med['help']:.2f} | {med[k] / med['fdm']:.2f} |")
+        print(f"\nmedian log-spectral distance per 8192-sample frame, operator mix against FDM mix: {lsd:.2f} dB")
+        for method in ("operator", "fdm"):
+            said = [ln for ln in outs[method].splitlines() if "wrote" in ln or "note" in ln.lower()][:3]
+            print(f"\n{method} said:\n" + "\n".join(f"    {ln}" for ln in said))
+
+
+if __name__ == "__main__":
+    main()
