@@ -153,8 +153,12 @@ def test_a_module_that_does_not_load_is_one_line_from_the_cli(tmp_path, broken):
     shutil.copytree(ROOT / "bowsynth", pkg, ignore=shutil.ignore_patterns("_core.*", "__pycache__"))
     if broken == "not-a-library":
         (pkg / Path(core.load().__file__).name).write_bytes(b"\x7fELF but not really")
-    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
-    r = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--method", "fdm", "-d", "0.1",
+    # -S: no .pth files, so an editable install's import redirect (scikit-build-core maps bowsynth._core to the
+    # build it made) cannot hand the copy the real module; the site-packages stay on the path for numpy and the rest
+    import site
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *site.getsitepackages()])}
+    r = subprocess.run([sys.executable, "-S", "-m", "bowsynth", "render", "--method", "fdm", "-d", "0.1",
                         str(tmp_path / "x.wav")], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
     assert r.returncode == 1, r.stderr
     lines = r.stderr.strip().splitlines()
