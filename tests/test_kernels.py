@@ -61,8 +61,9 @@ def test_window_starts_stay_on_multiples_of_the_window():
 
 
 @pytest.mark.parametrize("f0", [100.0, 200.0], ids=["441-sample-windows", "220-and-221"])
-@pytest.mark.parametrize("voices", [1, BATCH_FROM + 1], ids=["voice-loop", "batch-loop"])
-def test_rollout_follows_the_torch_network(tiny_model, voices, f0):
+@pytest.mark.parametrize("loop,voices", [("core", 1), ("core", BATCH_FROM + 1), ("core-batch", BATCH_FROM + 1)],
+                         ids=["voice-loop", "voice-loop-many", "batch-loop"])
+def test_rollout_follows_the_torch_network(tiny_model, loop, voices, f0):
     m = load_model(tiny_model)
     sc = Scene(fb=f0, f0=f0)
     dtau = sc.omega / sc.sample_rate
@@ -70,7 +71,7 @@ def test_rollout_follows_the_torch_network(tiny_model, voices, f0):
     x0 = np.stack([np.linspace(0.4 * d.q_lo, 0.4 * d.q_hi, voices), np.linspace(0.3 * d.p_hi, 0.3 * d.p_lo, voices)], 1)
     n = 5 * 441 * 100 // int(f0)  # five windows
     ref = torch_rollout(m, x0, n, dtau)
-    q, p, fail = rollout_states(m, x0, n, dtau, check_domain=False)
+    q, p, fail = rollout_states(m, x0, n, dtau, check_domain=False, loop=loop)
     assert np.all(fail[:, 0] == -1)
     scale = np.abs(ref).max()
     # float32 network against float64 torch, over five windows
@@ -78,13 +79,13 @@ def test_rollout_follows_the_torch_network(tiny_model, voices, f0):
     assert np.abs(p - ref[..., 1]).max() < 2e-5 * scale
 
 
-@pytest.mark.parametrize("voices", [3, BATCH_FROM + 2], ids=["voice-loop", "batch-loop"])
-def test_one_voice_failing_stops_only_that_voice(tiny_model, voices):
+@pytest.mark.parametrize("loop,voices", [("core", 3), ("core-batch", BATCH_FROM + 2)], ids=["voice-loop", "batch-loop"])
+def test_one_voice_failing_stops_only_that_voice(tiny_model, loop, voices):
     m = load_model(tiny_model)
     sc = Scene(fb=100)
     x0 = np.zeros((voices, 2))
     x0[1] = [np.nan, 0.0]  # non-finite from the first window on
-    q, p, fail = rollout_states(m, x0, 3000, sc.omega / sc.sample_rate, check_domain=False)
+    q, p, fail = rollout_states(m, x0, 3000, sc.omega / sc.sample_rate, check_domain=False, loop=loop)
     assert tuple(fail[1]) == (0, kernels.FAIL_NONFINITE) and np.all(np.isnan(q[1]))
     others = np.delete(np.arange(voices), 1)
     assert np.all(fail[others, 0] == -1) and np.all(np.isfinite(q[others])) and np.all(np.isfinite(p[others]))
@@ -110,7 +111,7 @@ def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path
         assert len(r.q) == r.scene.n_samples  # what the continuation holds: tests/test_fallback.py
 
 
-@pytest.mark.parametrize("loop,voices", [("numpy", 5), ("core", 3), ("core", BATCH_FROM + 1)],
+@pytest.mark.parametrize("loop,voices", [("numpy", 5), ("core", 3), ("core-batch", BATCH_FROM + 1)],
                          ids=["numpy-loop", "core-voice-loop", "core-batch-loop"])
 def test_voices_at_different_pitches_roll_in_one_batch(loop, voices):
     from bowsynth.engines.operator.choose import SHIPPED_DIR
@@ -161,7 +162,7 @@ def test_trunk_features_interpolated_for_many_pitches_match_the_network():
             assert np.abs(f - direct).max() < 1e-7 * np.abs(direct).max()  # float32 rounding is 6e-8
 
 
-@pytest.mark.parametrize("loop,voices", [("numpy", 2), ("core", 1), ("core", BATCH_FROM + 1)],
+@pytest.mark.parametrize("loop,voices", [("numpy", 2), ("core", 1), ("core-batch", BATCH_FROM + 1)],
                          ids=["numpy", "voice-loop", "batch-loop"])
 def test_rest_linearised_flow_rolls_like_the_torch_network(tiny_rest_model, loop, voices):
     """A model whose linear part is the flow linearised at rest (damped rotation about the static deflection, in

@@ -97,7 +97,7 @@ def test_batched_and_single_voice_loops_agree_on_gestures(which, request):
     par = np.stack([rng.uniform(box[0], box[1], (B, W)), rng.uniform(box[2], box[3], (B, W))], axis=-1)
     x0 = np.zeros((B, 2))
     a = rollout_states(m, x0, n, dt, check_domain=False, loop="numpy", params=par)
-    b = rollout_states(m, x0, n, dt, check_domain=False, loop="core", params=par)  # roll_batch (B >= 8)
+    b = rollout_states(m, x0, n, dt, check_domain=False, loop="core-batch", params=par)
     c = [rollout_states(m, x0[i:i + 1], n, dt[i], check_domain=False, loop="core", params=par[i:i + 1])
          for i in range(2)]  # roll_voices
     np.testing.assert_allclose(a[1], b[1], atol=1e-5, equal_nan=True)

@@ -31,7 +31,7 @@ def test_batch_loop_equals_voice_loop(tiny_model):
     sc = Scene(fb=100)
     x0 = np.array([[0.001 * i, -0.002 * i] for i in range(BATCH_FROM)])
     dt = sc.omega / sc.sample_rate
-    q, p, fail = rollout_states(m, x0, 2000, dt, check_domain=False)
+    q, p, fail = rollout_states(m, x0, 2000, dt, check_domain=False, loop="core-batch")
     assert np.all(fail[:, 0] == -1)
     for i in (0, BATCH_FROM - 1):
         q1, p1, _ = rollout_states(m, x0[i:i + 1], 2000, dt, check_domain=False)

@@ -14,8 +14,12 @@ from .basis import _bases, _operator
 from .modelfile import OperatorModel
 from .windows import FAIL_DOMAIN, FAIL_NONFINITE, max_windows, window_bounds, window_ends
 
-# the compiled loops: from this many voices on, the window-at-a-time loop (matrix-matrix products over the voices)
-# is faster than one voice after another (docs/BENCHMARKS.md, "compiled core")
+# The compiled core has two loops: one voice after another (matrix-vector products) and every voice one window at a
+# time (matrix-matrix products over the voices). Measured on the chorale's 172 voices at 92-660 Hz (benchmarks/
+# chorale.py's piece; CPU shared): one voice after another took 0.019 / 0.049 / 0.20 / 0.41 / 0.85 / 1.69 s for
+# 2 / 8 / 32 / 64 / 256 / 512 voices, the window-at-a-time loop 0.023 / 0.059 / 0.25 / 0.60 / 1.22 / 2.75 s. So
+# renders use the first; loop="core-batch" asks for the second (the parity tests keep it honest). BATCH_FROM: the
+# voices a test needs for the window-at-a-time loop to work on more than one block of voices.
 BATCH_FROM = 8
 
 
@@ -82,14 +86,14 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     pin, gain, center, halfrange = op.window_inputs(_window_bows(model, B, W, params))
     args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
-    if loop in ("auto", "core"):
+    if loop in ("auto", "core", "core-batch"):
         from .. import core
 
-        core.roll(B >= BATCH_FROM, *args)
+        core.roll(loop == "core-batch", *args)
     elif loop == "numpy":
         _roll_numpy(*args)
     else:
-        raise ValueError(f"loop must be auto, core or numpy, got {loop!r}")
+        raise ValueError(f"loop must be auto, core, core-batch or numpy, got {loop!r}")
     for b in np.flatnonzero(fail[:, 0] >= 0):
         q[b, fail[b, 0]:] = np.nan
         p[b, fail[b, 0]:] = np.nan
