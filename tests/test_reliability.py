@@ -191,20 +191,23 @@ def test_written_files_get_normal_permissions(tmp_path, monkeypatch, capsys):
 
 
 def test_wheel_carries_presets_and_shipped_models(tmp_path):
-    """A non-editable install must find the presets and shipped models: they are package data."""
+    """A non-editable install must find the presets, the shipped models and their recipes (package data) and the
+    compiled core: the wheel carries all of them."""
     import subprocess
     import sys
     import zipfile
     from pathlib import Path
 
-    pytest.importorskip("setuptools")
+    pytest.importorskip("scikit_build_core")  # the test extra installs it
     root = Path(__file__).resolve().parents[1]
     r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w",
                         str(tmp_path), str(root)], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     names = zipfile.ZipFile(next(tmp_path.glob("bowsynth-*.whl"))).namelist()
-    for p in [*(root / "bowsynth" / "presets").glob("*.toml"), *(root / "bowsynth" / "models").glob("*.safetensors")]:
+    for p in [*(root / "bowsynth" / "presets").glob("*.toml"), *(root / "bowsynth" / "models").glob("*.safetensors"),
+              *(root / "bowsynth" / "models").glob("*.toml")]:
         assert f"bowsynth/{p.parent.name}/{p.name}" in names
+    assert any(n.startswith("bowsynth/_core.") and n.endswith(".so") for n in names), names
 
 
 def test_a_signal_during_a_checkpoint_write_waits_for_it():
