@@ -75,6 +75,18 @@ def expression_factor(cc: float) -> float:
     return cc / 127.0
 
 
+def bow_beta(velocity: int, pressure: float = NEUTRAL[CC_PRESSURE]) -> float:
+    """F_B / w of a note struck at `velocity` with CC2 at `pressure`: the one mapping the MIDI-file reader (through
+    `score`) and the live instrument (`bowsynth.live`) share. Rounded to 7 significant digits, as a score's
+    breakpoints are written, so that a file and a live performance of the same events tune the same bow."""
+    return float(f"{velocity_beta(velocity) * pressure_factor(pressure):.7g}")
+
+
+def bow_vb(velocity: int, expression: float = NEUTRAL[CC_EXPRESSION]) -> float:
+    """v_B of a note struck at `velocity` with CC11 at `expression` (see bow_beta)."""
+    return float(f"{velocity_vb(velocity) * expression_factor(expression):.7g}")
+
+
 def is_midi(path) -> bool:
     """Does the file start like a standard MIDI file (or is it named like one)?"""
     p = Path(path)

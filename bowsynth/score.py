@@ -331,8 +331,8 @@ def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
     notes = ScoreNotes(remarks=piece.remarks)
     for n in piece.notes:
         hold = n.end - n.start
-        beta = _midi_control(piece, n, M.CC_PRESSURE, M.velocity_beta(n.velocity), M.pressure_factor)
-        vb = _midi_control(piece, n, M.CC_EXPRESSION, M.velocity_vb(n.velocity), M.expression_factor)
+        beta = _midi_control(piece, n, M.CC_PRESSURE, M.bow_beta)
+        vb = _midi_control(piece, n, M.CC_EXPRESSION, M.bow_vb)
         voice = n.voice
         from .pitch import note_name, midi_to_hz
 
@@ -351,11 +351,12 @@ def read_midi_checked(path):
     return read_midi(path)
 
 
-def _midi_control(piece, n, cc, base: float, factor):
+def _midi_control(piece, n, cc, bow):
+    """The note's bow control (bow: midi.bow_beta or midi.bow_vb, the mapping `play` shares) over its controller."""
     from .midi import controller_curve
 
     pts = controller_curve(piece, n.channel, cc, n.start, n.end)
-    return as_control([(t, float(f"{base * factor(v):.7g}")) for t, v in pts])
+    return as_control([(t, bow(n.velocity, v)) for t, v in pts])
 
 
 def load_score(path, a4: float | None = None) -> list[Note]:
