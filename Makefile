@@ -5,7 +5,7 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models bench bench-quick clean chromium
+.PHONY: setup demo test models bench bench-quick clean chromium jackd
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	$(PY) -c 'from bowsynth.kernels import warm; warm()'
 	touch $(STAMP)
 
-setup: $(STAMP) chromium
+setup: $(STAMP) chromium jackd
 
 demo: $(STAMP)
 	mkdir -p $(OUTDIR)
@@ -31,7 +31,7 @@ demo: $(STAMP)
 	$(BOW) render --fb 50@0,200@2 --vb 0.15 -d 2 $(OUTDIR)/crescendo.wav
 	$(BOW) compare $(OUTDIR)/crescendo.wav
 
-test: $(STAMP) chromium
+test: $(STAMP) chromium jackd
 	$(PY) -m pytest
 
 # The shipped operators: one command each, on a 2-core CPU at most 15 minutes for each point model and 60 for each
@@ -48,6 +48,10 @@ models: $(STAMP)
 # The report tests open pages in Debian's chromium, driven by playwright (the test extra) with no browser download.
 chromium:
 	@command -v chromium >/dev/null || { S=$$([ "$$(id -u)" = 0 ] || echo sudo); $$S apt-get update && $$S apt-get install -y chromium; } || echo "chromium could not be installed: the browser tests will skip"
+
+# `bowsynth play` is a JACK client: libjack and the server (its dummy driver needs no sound card) come with jackd2.
+jackd:
+	@command -v jackd >/dev/null || { S=$$([ "$$(id -u)" = 0 ] || echo sudo); $$S apt-get update && DEBIAN_FRONTEND=noninteractive $$S apt-get install -y jackd2; } || echo "jackd2 could not be installed: bowsynth play and its tests will skip"
 
 bench: $(STAMP)
 	$(BOW) bench --out docs/bench

@@ -250,6 +250,9 @@ class Stream:
             self.counts["dropped_bytes"] += 1
             return
         status = data[0]
+        if status >= 0xF0:  # system messages (sysex, clock, ...): not for a synthesizer voice
+            self.counts["ignored"] += 1
+            return
         if status < 0x80 or any(b >= 0x80 for b in data[1:n]):
             self.counts["dropped_bytes"] += 1
             return
