@@ -20,8 +20,8 @@ builds the voice's window basis by interpolation in place (`voices.trunk_basis`)
 What differs from offline, by design:
 - a controller changed while a note sounds acts on the notes struck after it (the file reader follows it within the
   note, with a 5 ms ramp, and tunes the note at the bow's median over the note, which a live note cannot know);
-- a note struck with CC2 / CC11 away from neutral is tuned with the ratio of the neutral-controller velocity whose
-  F_B / w is nearest (ratios are measured for the 127 velocities at neutral controllers before activation);
+- a note struck with CC2 / CC11 away from neutral is tuned with a ratio interpolated on a grid of measured bows
+  (the 127 velocities at neutral controllers are measured exactly before activation);
 - a note the model does not cover (its bow outside the model's box, its pitch too high for one sample per window) is
   played whole by the FDM, as `score --fallback fdm` does;
 - with every voice busy a new note takes the voice nearest its end (releasing first, then the oldest): `stolen`;
@@ -31,7 +31,6 @@ What differs from offline, by design:
 
 from __future__ import annotations
 
-import bisect
 import math
 import time
 
@@ -48,7 +47,11 @@ from . import voices as V
 DC_HZ = 5.0  # the causal DC blocker's corner: a bowed note's static offset is not sound (wav.remove_dc: 5 Hz too)
 AMP = 0.25  # output = AMP x the sum of the notes' q = w u (m/s): a note's q peaks near 0.3-0.6
 TRUNK_POINTS = 8192  # the trunk grid: spacing ~2.4e-4 of a window, interpolation error ~1e-9 (rollout.TRUNK_GRID)
-TIMES = 1 << 16  # callback durations kept for the percentiles (the last ~6 minutes at 512 frames)
+TIMES = 1 << 16
+# the tuning grid for bows off the velocity table: F_B / w over the velocities' span (0.040..0.637) and a little
+# more, v_B from where a note barely speaks to the fastest velocity's bow; 9 x 8 ratios, measured once (disk-cached)
+GRID_BETA, GRID_VB, GRID_N = (0.03, 0.8), (0.1, 0.25), (9, 8)
+DENSE = (512, 256)  # the spline through them, tabulated  # callback durations kept for the percentiles (the last ~6 minutes at 512 frames)
 
 
 class Stream:
@@ -93,7 +96,30 @@ class Stream:
                 self.v_ratio[v] = sounding_ratio(self.v_beta[v], self.v_vb[v], self.a).r
             except SilentNoteError:
                 pass  # a velocity whose note does not speak stays NaN: its notes are dropped (`silent`)
-        self._betas = [float(b) for b in self.v_beta]
+        # bows away from the table (CC2 / CC11 moved): the ratio interpolated on a grid over the bows the velocities
+        # and controllers reach (docs/live.md gives its error); outside the grid, held at its edge
+        self.g_logb = np.linspace(math.log(GRID_BETA[0]), math.log(GRID_BETA[1]), GRID_N[0])
+        self.g_vb = np.linspace(GRID_VB[0], GRID_VB[1], GRID_N[1])
+        self.g_ratio = np.full(GRID_N, np.nan)
+        for i, lb in enumerate(self.g_logb):
+            for j, vb in enumerate(self.g_vb):
+                try:
+                    self.g_ratio[i, j] = sounding_ratio(float(math.exp(lb)), float(vb), self.a).r
+                except SilentNoteError:
+                    pass
+        # bicubic through the measured points (bilinear was 4-7 cents off between them; this 0.01-0.22), sampled
+        # densely here so that the callback interpolates bilinearly in a table (no scipy call there)
+        from scipy.interpolate import RectBivariateSpline
+
+        r = self.g_ratio
+        if np.isnan(r).any():  # a silent corner: filled from its neighbours along v_B (it is never played)
+            for i in range(r.shape[0]):
+                ok = ~np.isnan(r[i])
+                r[i] = np.interp(self.g_vb, self.g_vb[ok], r[i][ok]) if ok.any() else np.nanmean(r)
+        spline = RectBivariateSpline(self.g_logb, self.g_vb, r, kx=3, ky=3)
+        self.g_logb = np.linspace(self.g_logb[0], self.g_logb[-1], DENSE[0])
+        self.g_vb = np.linspace(self.g_vb[0], self.g_vb[-1], DENSE[1])
+        self.g_ratio = spline(self.g_logb, self.g_vb)
 
     def _prepare_operator(self, model) -> None:
         from ..npnet import trunk_features
@@ -289,7 +315,7 @@ class Stream:
         neutral = c2 == M.NEUTRAL[M.CC_PRESSURE] and c11 == M.NEUTRAL[M.CC_EXPRESSION]
         beta = self.v_beta[vel] if neutral else M.bow_beta(vel, c2)
         vb = self.v_vb[vel] if neutral else M.bow_vb(vel, c11)
-        ratio = self.v_ratio[vel] if neutral else self._near_ratio(beta)
+        ratio = self.v_ratio[vel] if neutral else self._grid_ratio(beta, vb)
         if not ratio == ratio or vb <= 0 or beta <= 0:  # NaN: a silent bow
             self.counts["silent"] += 1
             return
@@ -356,13 +382,16 @@ class Stream:
                 h *= math.exp(sum(float(hs[j]) * pin[slot, j] for j in range(cfg.params)))
             center[slot, i], half[slot, i] = c, h
 
-    def _near_ratio(self, beta: float) -> float:
-        """The neutral-controller velocity's ratio whose F_B / w is nearest (v_beta grows with the velocity)."""
-        i = min(max(bisect.bisect_left(self._betas, beta), 1), 127)
-        if i > 1 and abs(self._betas[i - 1] - beta) < abs(self._betas[i] - beta):
-            i -= 1
-        r = self.v_ratio[i]
-        return float(r)
+    def _grid_ratio(self, beta: float, vb: float) -> float:
+        """The sounding ratio at a bow off the velocity table: the grid's spline, bilinear in its dense table."""
+        gb, gv = self.g_logb, self.g_vb
+        x = min(max((math.log(beta) - gb[0]) / (gb[1] - gb[0]), 0.0), len(gb) - 1.0)
+        y = min(max((vb - gv[0]) / (gv[1] - gv[0]), 0.0), len(gv) - 1.0)
+        i, j = min(int(x), len(gb) - 2), min(int(y), len(gv) - 2)
+        fx, fy = x - i, y - j
+        r = self.g_ratio
+        return float((1 - fx) * ((1 - fy) * r[i, j] + fy * r[i, j + 1]) + fx * ((1 - fy) * r[i + 1, j]
+                                                                                 + fy * r[i + 1, j + 1]))
 
     def _plays(self, beta: float, vb: float) -> bool:
         """Does the model play this bow (Domain.box_contains for one bow, in scalars)? A point model plays only
