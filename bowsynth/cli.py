@@ -449,6 +449,8 @@ def score(
     stems: Optional[Path] = typer.Option(None, "--stems", help="With --mix: also write one WAV per note into this "
                                                                 "directory (what `compare` on the mix reads)."),
     a4: Optional[float] = typer.Option(None, "--a4", help="MIDI files: the tuning of A4 in Hz (default 440)."),
+    bend_range: Optional[float] = typer.Option(None, "--bend-range", help="MIDI files: semitones at full pitch "
+                                                                          "bend (default 2)."),
     fallback: str = typer.Option("none", "--fallback", help="A note no model covers, or that leaves its model's domain: "
                                                             "none (stop before rendering) or fdm (render it with the FDM)."),
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
@@ -483,7 +485,9 @@ def score(
     if score_file is not None:
         if duration is not None:
             raise UsageError("--duration applies to --presets; a score gives each note its duration")
-        notes = load_score(score_file, a4=a4)
+        if bend_range is not None and not (0 <= bend_range <= 24):
+            raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
+        notes = load_score(score_file, a4=a4, bend_range=bend_range)
     else:
         if a4 is not None:
             raise UsageError("--a4 retunes MIDI files; presets have their own f0")
@@ -546,6 +550,8 @@ def play(
     a4: Optional[float] = typer.Option(None, "--a4", help="The tuning of A4 in Hz (default 440)."),
     gain: Optional[float] = typer.Option(None, "--gain", help="Output gain in dB on the sum of the notes' q = w u "
                                                               "(default -12: x0.25)."),
+    bend_range: float = typer.Option(2.0, "--bend-range", help="Semitones at full pitch bend. CC1 (modulation) is "
+                                                               "vibrato depth, +-50 cents at 127, at 5.5 Hz."),
 ):
     """Play live: a JACK client taking MIDI on NAME:midi_in and sounding on NAME:out, until Ctrl-C or SIGTERM.
 
@@ -561,7 +567,7 @@ def play(
         raise UsageError(f"--voices must be >= 1, got {voices}")
     amp = None if gain is None else 10.0 ** (gain / 20.0)
     run(name=name, server=server, connect=connect or (), voices=voices, engine=method, model=model,
-        a4=A4_HZ if a4 is None else a4, amp=amp)
+        a4=A4_HZ if a4 is None else a4, amp=amp, bend_range=bend_range)
 
 
 def _raise_on_signal(signum, frame):

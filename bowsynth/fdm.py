@@ -46,13 +46,14 @@ def taylor_start(u0, p0, k, w, fb, vb, a):
 def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None):
     """The bare scheme from two given displacements (u^{-1}, u^0): returns (u, eta) at every `stride`-th step.
 
-    fb and vb are numbers or Curves (followed per step, from t = 0 at u^0)."""
+    w (rad/s), fb and vb are numbers or Curves (followed per step, from t = 0 at u^0)."""
     from .controls import breakpoints
 
     u_out = np.empty(n_out)
     eta_out = np.empty(n_out)
     fb_t, fb_v = breakpoints(fb)
     vb_t, vb_v = breakpoints(vb)
+    w_t, w_v = breakpoints(w)
     eta = -vb_v[0] if eta0 is None else eta0
     state = (float(u_prev), float(u_cur), float(eta))
     # chunks of CHUNK_STEPS steps (~0.1-0.3 s each): Python runs signal handlers (Ctrl-C, SIGTERM) only between
@@ -62,7 +63,7 @@ def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None):
     per = max(1, CHUNK_STEPS // int(stride))
     for j in range(0, int(n_out), per):
         m = min(per, int(n_out) - j)
-        state = kernel(*state, j * int(stride), m, int(stride), float(k), float(w * w), fb_t, fb_v, vb_t, vb_v,
+        state = kernel(*state, j * int(stride), m, int(stride), float(k), w_t, w_v, fb_t, fb_v, vb_t, vb_v,
                         float(a), u_out[j:j + m], eta_out[j:j + m])
     return u_out, eta_out
 
@@ -71,7 +72,7 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
     """The oversampling factor to use: the one asked for, raised to respect the uniqueness bound if needed."""
     if oversample < 1 or int(oversample) != oversample:
         raise ValueError(f"oversample must be a whole number >= 1, got {oversample}")
-    need = physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate, scene.f0)
+    need = physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate, scene.f0_max)
     if need > MAX_OVERSAMPLE:
         raise SceneError(f"fb={scene.fb_max:g} with a={scene.a:g} needs the FDM oversampled x{need} at "
                          f"{scene.sample_rate} Hz (uniqueness bound k < e/(fb sqrt(2a))); the limit is "
@@ -82,7 +83,7 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
                 why = (f"fb={scene.fb_max:g} at {scene.sample_rate} Hz breaks the FDM uniqueness bound "
                        f"k < e/(fb sqrt(2a))")
             else:
-                why = f"f0={scene.f0:g} Hz at {scene.sample_rate} Hz breaks the FDM stability bound k < 2/w"
+                why = f"f0={scene.f0_max:g} Hz at {scene.sample_rate} Hz breaks the FDM stability bound k < 2/w"
             warnings.warn(f"{why}; oversampling raised from {oversample} to {need}", OversampleWarning, stacklevel=3)
         return need
     return int(oversample)
@@ -90,20 +91,23 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
 
 def render_fdm(scene: Scene, oversample: int = 1) -> Render:
     """Render a scene with the FDM at `oversample` times its sample rate, returned at its sample rate. Bow curves
-    are followed at every step of the scheme."""
+    are followed at every step of the scheme, and so is a pitch curve (w(t) = 2 pi f0(t); q = w(t) u)."""
+    from .controls import Curve
+
     os_ = check_oversample(scene, oversample)
-    w = scene.omega
+    w = Curve(tuple((t, 2.0 * math.pi * f) for t, f in scene.f0.points)) if scene.pitch_varies else scene.omega
+    w0 = float(scene.f0_at(0.0)) * 2.0 * math.pi if scene.pitch_varies else w
     k = 1.0 / (scene.sample_rate * os_)
-    u0 = scene.q0 / w
-    run_fdm_raw(0.0, 0.0, 1, 1, k, w, 0.0, 0.0, scene.a)  # compile / load the kernel outside the timing
+    u0 = scene.q0 / w0
+    run_fdm_raw(0.0, 0.0, 1, 1, k, w0, 0.0, 0.0, scene.a)  # compile / load the kernel outside the timing
     fb0, vb0 = float(scene.fb_at(0.0)), float(scene.vb_at(0.0))
     t0 = time.perf_counter()
-    u_prev = taylor_start(u0, scene.p0, k, w, fb0, vb0, scene.a)
+    u_prev = taylor_start(u0, scene.p0, k, w0, fb0, vb0, scene.a)
     u, eta = run_fdm_raw(u_prev, u0, scene.n_samples, os_, k, w, scene.fb, scene.vb, scene.a,
                          eta0=scene.p0 - vb0)
     secs = time.perf_counter() - t0
     t = np.arange(scene.n_samples) / scene.sample_rate
-    q = w * u
+    q = (2.0 * math.pi * scene.f0_at(t) if scene.pitch_varies else w) * u
     q[0] = scene.q0  # exact by construction; avoid the w * (q0 / w) rounding
     vb = scene.vb_at(t)
     return Render(scene, t, q, eta + vb, method="fdm" if os_ == 1 else f"fdm x{os_}",

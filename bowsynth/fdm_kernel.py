@@ -56,19 +56,21 @@ def _control(ts, vs, t, i):
 
 
 @numba.njit(cache=True)
-def kernel(u_prev, u_cur, eta, n0, n_out, stride, k, w2, fb_t, fb_v, vb_t, vb_v, a, u_out, eta_out):
-    """Bow force and speed follow their breakpoints (fb_t, fb_v), (vb_t, vb_v) step by step, at t = n k; this
-    call runs steps n0, n0 + 1, ..."""
+def kernel(u_prev, u_cur, eta, n0, n_out, stride, k, w_t, w_v, fb_t, fb_v, vb_t, vb_v, a, u_out, eta_out):
+    """The angular frequency w, bow force and speed follow their breakpoints (w_t, w_v), (fb_t, fb_v), (vb_t, vb_v)
+    step by step, at t = n k (a pitch curve: u_tt + w(t)^2 u = -F_B phi); this call runs steps n0, n0 + 1, ..."""
     c = 2.0 / k
     ck = 2.0 / (k * k)
     ifb = 0
     ivb = 0
+    iw = 0
     for j in range(n_out):
         for s in range(stride):
             t = (n0 + j * stride + s) * k
             fb, ifb = _control(fb_t, fb_v, t, ifb)
             vb, ivb = _control(vb_t, vb_v, t, ivb)
-            b = c * vb + ck * (u_prev - u_cur) + w2 * u_cur
+            w, iw = _control(w_t, w_v, t, iw)
+            b = c * vb + ck * (u_prev - u_cur) + w * w * u_cur
             eta = _solve_eta(eta, b, c, fb, a)
             if s == 0:
                 u_out[j] = u_cur

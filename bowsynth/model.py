@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+from . import __version__, physics
 from .errors import ModelFileError
 from .npnet import NetConfig, weight_shapes
 from .scene import Scene
@@ -168,8 +168,9 @@ class Domain:
         if not self.contains(scene.q0, scene.p0):
             out.append(f"initial state (q0, p0) = ({scene.q0:g}, {scene.p0:g}) is outside the trained states "
                        f"(q in [{self.q_lo:.3g}, {self.q_hi:.3g}], p in [{self.p_lo:.3g}, {self.p_hi:.3g}], on its band)")
-        if self.window / scene.dtau < 1:
-            out.append(f"the window ({self.window:.3g} in tau) holds no sample at {scene.sample_rate} Hz, f0 {scene.f0:g}")
+        if self.window / physics.dtau(scene.f0_max, scene.sample_rate) < 1:
+            out.append(f"the window ({self.window:.3g} in tau) holds no sample at {scene.sample_rate} Hz, f0 "
+                       f"{scene.f0_max:g}")
         return out
 
     def to_json(self) -> dict:

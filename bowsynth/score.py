@@ -70,7 +70,7 @@ def stop_tail(fb: float, f0: float, a: float) -> float:
 TOP_KEYS = {"defaults": "table of note defaults", "voice": "array of voice tables", "a4": "tuning, Hz",
             "title": "text"}
 NOTE_KEYS = {"start", "duration", "pitch", "f0", "fb", "beta", "vb", "a", "release", "preset", "sample_rate",
-             "q0", "p0"}
+             "q0", "p0", "cents"}
 VOICE_KEYS = NOTE_KEYS | {"name", "note"}
 DEFAULT_KEYS = NOTE_KEYS - {"start"}
 EXCLUSIVE = (("pitch", "f0"), ("fb", "beta"))
@@ -113,7 +113,9 @@ class Note:
         """The note without its release: the controls over [0, hold], constant ones as numbers."""
         sc = self.scene
         n = self.hold_samples + extra_samples
-        return sc.replace(fb=_clip(sc.fb, self.hold), vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
+        # a moving pitch keeps its force curve (F_B = beta w(t) follows the pitch through the note)
+        fb = sc.fb if sc.pitch_varies else _clip(sc.fb, self.hold)
+        return sc.replace(fb=fb, vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
 
     @property
     def hold_samples(self) -> int:
@@ -235,7 +237,14 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
     fb = None if beta is not None else _control(where, "fb", fields.get("fb", d.fb))
     rest = {k: fields[k] for k in ("q0", "p0") if k in fields}
     try:
-        if "pitch" in fields:
+        curve = _pitch_points(where, fields, a4)  # a moving pitch: [(t, Hz), ...], else None
+        if curve is not None:  # each breakpoint tuned with the note's held bow (docs/score.md, "Pitch curves")
+            held = dict(vb=P.held_value(vb, hold), a=a, a4=a4)
+            f0s = [P.tune(h, None, beta=P.held_value(beta, hold), **held).f0 if beta is not None
+                   else P.tune(h, P.held_value(fb, hold), **held).f0 for _, h in curve]
+            hz = curve[0][1]
+            f0 = as_control([(t, f) for (t, _), f in zip(curve, f0s)])
+        elif "pitch" in fields:
             hz = P.parse_pitch(fields["pitch"], a4)
             held = dict(vb=P.held_value(vb, hold), a=a)
             if beta is not None:
@@ -245,11 +254,16 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
         else:
             hz = None
             f0 = _num(where, "f0", fields.get("f0", d.f0))
-        if beta is not None:
+        if beta is not None and isinstance(f0, Curve):  # F_B / w held: the force follows the pitch
+            if isinstance(as_control(beta), Curve):
+                raise ScoreError(f"{where}: a pitch curve plays with a constant beta (or fb)")
+            fb = Curve(tuple((t, float(beta) * physics.omega(f)) for t, f in f0.points))
+        elif beta is not None:
             fb = _scale(beta, physics.omega(f0))
         if release > 0:
             fb_end = float(Scene(f0=f0, fb=fb, a=a).fb_at(hold + release))
-            vb_full, duration = _with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0, a)
+            f0_end = float(Scene(f0=f0, fb=fb, a=a).f0_at(hold + release))
+            vb_full, duration = _with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0_end, a)
         else:
             vb_full, duration = vb, hold
         scene = Scene(f0=f0, fb=fb, vb=vb_full, a=a, duration=duration, sample_rate=rate, **rest)
@@ -257,6 +271,46 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
         raise ScoreError(f"{where}: {e}") from None
     return Note(name, scene, start=start, hold=hold, release=release, pitch=hz,
                 label=label or where)
+
+
+MAX_PITCH_POINTS = 4096  # a pitch curve's breakpoints (the operator's curve path holds as many)
+CENTS_STEP = 0.005  # s: a cents curve is sampled this often between its breakpoints (linear in Hz, not in cents)
+
+
+def _pitch_points(where: str, fields: dict, a4: float):
+    """A note's moving pitch as [(t, Hz), ...]: `pitch` as breakpoints [[t, "A4"], [t, 440.0], ...] and/or `cents`
+    as breakpoints [[t, cents], ...] added to it; None for a pitch that holds."""
+    from . import pitch as P
+
+    pitch, cents = fields.get("pitch"), fields.get("cents")
+    if not isinstance(pitch, list) and cents is None:
+        return None
+    if isinstance(pitch, list):
+        try:
+            base = as_control([(float(t), P.parse_pitch(v, a4)) for t, v in pitch])
+        except (TypeError, ValueError):
+            raise ScoreError(f"{where}: a pitch curve is [[seconds, pitch], ...] (pitch a note name or Hz), got "
+                             f"{pitch!r}") from None
+        except SceneError as e:
+            raise ScoreError(f"{where}: pitch curve: {e}") from None
+    elif "pitch" in fields:
+        base = P.parse_pitch(pitch, a4)
+    else:
+        raise ScoreError(f"{where}: cents moves a pitch: give pitch too")
+    c = _control(where, "cents", cents) if cents is not None else 0.0
+    times = set(controls_times(base)) | set(controls_times(c))
+    if isinstance(c, Curve):  # 2^(c / 1200) is not linear in c: sample between the cents breakpoints
+        times |= set(np.arange(0.0, c.times[-1], CENTS_STEP).tolist())
+    t = np.array(sorted(times))
+    hz = (base.at(t) if isinstance(base, Curve) else np.full(len(t), float(base)))
+    hz = hz * 2.0 ** ((c.at(t) if isinstance(c, Curve) else float(c)) / 1200.0)
+    if len(t) > MAX_PITCH_POINTS:
+        raise ScoreError(f"{where}: the pitch curve needs {len(t)} breakpoints, at most {MAX_PITCH_POINTS}")
+    return list(zip(t.tolist(), hz.tolist()))
+
+
+def controls_times(c) -> list[float]:
+    return c.times.tolist() if isinstance(c, Curve) else [0.0]
 
 
 def load_toml_score(path) -> list[Note]:
@@ -323,12 +377,13 @@ class ScoreNotes(list):
         self.remarks = list(remarks)
 
 
-def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
+def load_midi_score(path, a4: float = 440.0, bend_range: float | None = None) -> ScoreNotes:
     """The notes of a MIDI file with the bow of `bowsynth.midi`'s mapping; a track's channel is a voice."""
     from . import midi as M
 
     piece = read_midi_checked(path)
     notes = ScoreNotes(remarks=piece.remarks)
+    bend_range = M.BEND_RANGE if bend_range is None else bend_range
     for n in piece.notes:
         hold = n.end - n.start
         beta = _midi_control(piece, n, M.CC_PRESSURE, M.bow_beta)
@@ -339,8 +394,11 @@ def load_midi_score(path, a4: float = 440.0) -> ScoreNotes:
         where = f"{Path(path).name}: {voice} note {note_name(midi_to_hz(n.number, a4), a4)} at {n.start:.3f} s"
         if not 12 <= n.number <= 119:
             raise ScoreError(f"{where}: MIDI note {n.number} is outside C0..B8")
-        notes.append(note_from_fields(voice, {"start": n.start, "duration": hold, "pitch": midi_to_hz(n.number, a4),
-                                              "beta": beta, "vb": vb}, where, a4, label=where.split(": ", 1)[1]))
+        fields = {"start": n.start, "duration": hold, "pitch": midi_to_hz(n.number, a4), "beta": beta, "vb": vb}
+        semis = M.pitch_curve(piece, n.channel, n.start, n.start + hold + RELEASE, bend_range)
+        if semis is not None:  # the pitch wheel and CC1 (vibrato), as `play` reads them
+            fields["cents"] = [[t, 100.0 * v] for t, v in semis]
+        notes.append(note_from_fields(voice, fields, where, a4, label=where.split(": ", 1)[1]))
         notes[-1].extra = {"midi_note": n.number, "velocity": n.velocity}
     return notes
 
@@ -359,13 +417,15 @@ def _midi_control(piece, n, cc, bow):
     return as_control([(t, bow(n.velocity, v)) for t, v in pts])
 
 
-def load_score(path, a4: float | None = None) -> list[Note]:
+def load_score(path, a4: float | None = None, bend_range: float | None = None) -> list[Note]:
     """The notes of a TOML score or a MIDI file (told apart by content and name)."""
     from .midi import is_midi
     from .pitch import A4_HZ, check_a4
 
     if is_midi(path):
-        return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4))
+        return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4), bend_range)
+    if bend_range is not None:
+        raise ScoreError("--bend-range applies to MIDI files' pitch wheel; a TOML score writes its pitch curves")
     if a4 is not None:
         raise ScoreError("--a4 retunes MIDI files; a TOML score sets its own with a top-level a4 = ...")
     return load_toml_score(path)
@@ -487,7 +547,14 @@ def _plays_whole(note: Note, model=None) -> bool:
 def _release_scene(note: Note, sus: Render) -> Scene:
     """The note after its sustain: v_B falls to 0 over the release, from the sustain's state at the hold."""
     sc, h = note.scene, note.hold_samples
-    return Scene(f0=sc.f0, fb=float(sc.fb_at(note.hold)), vb=[[0.0, float(sc.vb_at(note.hold))], [note.release, 0.0]],
+    if sc.pitch_varies:  # the pitch (and a force that follows it) go on along their curves from the hold's sample
+        from .controls import after
+
+        t0 = h / sc.sample_rate
+        f0, fb = after(sc.f0, t0), after(sc.fb, t0)
+    else:
+        f0, fb = sc.f0, float(sc.fb_at(note.hold))
+    return Scene(f0=f0, fb=fb, vb=[[0.0, float(sc.vb_at(note.hold))], [note.release, 0.0]],
                  a=sc.a, duration=(sc.n_samples - h) / sc.sample_rate, sample_rate=sc.sample_rate,
                  q0=float(sus.q[h]), p0=float(sus.p[h]))
 
@@ -522,10 +589,11 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
                              f"{n.scene.n_samples} (render Note.rollout_scene)")
         scenes[i] = rel = _release_scene(n, sus)
         os_ = check_oversample(rel, 1, warn=False)
-        groups.setdefault((rel.sample_rate, os_, rel.a), []).append(i)
-    for (sr, os_, a), idx in groups.items():
+        # a moving pitch: the compiled FDM, which follows w(t) (the numpy batch holds one w per note)
+        groups.setdefault((rel.sample_rate, os_, rel.a, rel.pitch_varies), []).append(i)
+    for (sr, os_, a, moving), idx in groups.items():
         rel = [scenes[i] for i in idx]
-        if loop == "numba":
+        if loop == "numba" or moving:
             for i, r in zip(idx, rel):
                 f = render_fdm(r, os_)
                 out[i] = _join_release(notes[i], sustains[i], f.q, f.p, f.seconds)

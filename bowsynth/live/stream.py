@@ -51,7 +51,11 @@ TIMES = 1 << 16
 # the tuning grid for bows off the velocity table: F_B / w over the velocities' span (0.040..0.637) and a little
 # more, v_B from where a note barely speaks to the fastest velocity's bow; 9 x 8 ratios, measured once (disk-cached)
 GRID_BETA, GRID_VB, GRID_N = (0.03, 0.8), (0.1, 0.25), (9, 8)
-DENSE = (512, 256)  # the spline through them, tabulated  # callback durations kept for the percentiles (the last ~6 minutes at 512 frames)
+DENSE = (512, 256)  # the spline through them, tabulated
+BEND_RANGE = 2.0  # semitones at full pitch bend (--bend-range)
+VIB_HZ = 5.5  # the vibrato's rate, Hz (a violinist's is 5-7 Hz)
+VIB_DEPTH = 0.5  # semitones: CC1 = 127 swings the pitch +-50 cents (midi.vibrato_depth)
+CURVE_POINTS = 4096  # breakpoints a scene's pitch curve may have in the offline path (render_curve)  # callback durations kept for the percentiles (the last ~6 minutes at 512 frames)
 
 
 class Stream:
@@ -60,7 +64,8 @@ class Stream:
 
     def __init__(self, sample_rate: int = 44100, block: int = 512, voices: int = 16, engine: str = "operator",
                  model=None, a4: float = 440.0, release: float | None = None, amp: float = AMP,
-                 busy_fraction: float = 0.5, dc_hz: float = DC_HZ):
+                 busy_fraction: float = 0.5, dc_hz: float = DC_HZ, bend_range: float = BEND_RANGE,
+                 tuning: bool = True, lowest_f0: float | None = None):
         from ..pitch import check_a4
         from ..score import RELEASE
 
@@ -75,12 +80,19 @@ class Stream:
         self.release = RELEASE if release is None else float(release)
         self.amp, self.busy_fraction = float(amp), float(busy_fraction)
         self.a = 100.0  # the friction shape every MIDI note plays (Scene's default, as the file reader's notes)
-        self._prepare_tuning()
+        if not (math.isfinite(bend_range) and 0 <= bend_range <= 24):
+            raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
+        self.bend_range = float(bend_range)
+        self.tuning = tuning
+        if tuning:
+            self._prepare_tuning()
+        self.lowest_f0 = lowest_f0
         self.model = None
         if engine == "operator":
             self._prepare_operator(model)
         self._allocate(dc_hz)
-        self._warm()
+        if tuning:  # an engine without the velocity table (render_curve) is driven slot by slot, not by MIDI
+            self._warm()
 
     # --- preparation (before activation) ----------------------------------------------------------------------
 
@@ -131,11 +143,15 @@ class Stream:
         op = self.op = _operator(m)
         d = m.domain
         self.covered = np.zeros(128, bool)
-        for v in range(1, 128):
+        for v in range(1, 128 if self.tuning else 1):
             self.covered[v] = bool(d.box_contains(self.v_beta[v], self.v_vb[v])) and math.isclose(d.a, self.a,
                                                                                                  rel_tol=1e-9)
-        # the longest window any playable note needs: the lowest MIDI note (12) at the lowest f0 (r < 1 raises f0)
-        self.n_max = int(math.ceil(op.window / physics.dtau(midi_to_hz(12, self.a4), self.sample_rate))) + 2
+        # the longest window any playable note needs: the lowest MIDI note (12) at the lowest f0 (r < 1 raises f0),
+        # bent down and at the bottom of its vibrato
+        lowest = midi_to_hz(12, self.a4) * 2.0 ** (-(self.bend_range + VIB_DEPTH) / 12.0)
+        if self.lowest_f0 is not None:
+            lowest = self.lowest_f0
+        self.n_max = int(math.ceil(op.window / physics.dtau(lowest, self.sample_rate))) + 2
         cfg = op.cfg
         self.s_max = 2.0  # window fractions up to n_hi / spw < 1 + 1 / spw <= 2 (a window holds at least a sample)
         self.h_grid = self.s_max / (TRUNK_POINTS - 3)
@@ -147,6 +163,8 @@ class Stream:
         self.n_par = cfg.params
         box = np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi])
         self.net = (op.ff, *op.weights, box, np.ascontiguousarray(d.mask))
+        self.tb = (self.grid, self.h_grid, op.corr_scale, op.bias, float(op.window), int(self.lin_kind),
+                   float(self.lin_d), float(self.lin_qs), float(self.sample_rate), int(self.n_max))
 
     def _default_model(self, models):
         """The validated model that covers the most velocities at neutral controllers (ties: lowest validation
@@ -193,8 +211,9 @@ class Stream:
                         np.zeros(width, np.float32), np.zeros(2 * k, np.float32))
             # per velocity (neutral controllers): the branch's bow inputs, the correction's gain, the state scaling
             # (NumpyOperator.window_inputs: the offline rollout's own code)
-            pin, gain, c, h = self.op.window_inputs(np.stack([self.v_beta, self.v_vb], 1)[None])
-            self.v_pin, self.v_gain, self.v_center, self.v_half = pin[0], gain[0], c[0], h[0]
+            if self.tuning:
+                pin, gain, c, h = self.op.window_inputs(np.stack([self.v_beta, self.v_vb], 1)[None])
+                self.v_pin, self.v_gain, self.v_center, self.v_half = pin[0], gain[0], c[0], h[0]
         else:
             self.ops = (np.zeros((1, 2)), np.zeros(1), np.zeros(1, np.int64), np.zeros((1, 3, 1), np.float32),
                         np.zeros((1, 3, 1), np.float32), np.zeros((1, 2, 2, 0)), np.zeros((1, 2, 6)), np.zeros((1, 2)),
@@ -205,9 +224,19 @@ class Stream:
             self.net = (np.zeros((2, 1)), np.zeros((2, 3), np.float32), np.zeros(3, np.float32),
                         np.zeros((0, 1, 1), np.float32), np.zeros((0, 1), np.float32), np.zeros((1, 0), np.float32),
                         np.zeros(0, np.float32), np.zeros(4), np.ones((1, 1), np.bool_))
+            self.tb = (np.zeros((4, 2, 0)), 1.0, np.zeros(2), np.zeros(2), 1.0, 0, 0.0, 0.0, float(self.sample_rate), 4)
         self.fdm = (np.zeros((nv, 7)), np.zeros((nv, 2), np.int64), np.zeros((nv, 3)), np.zeros((nv, 3)),
-                    np.zeros(nv, np.int64), np.zeros((nv, 1)), np.zeros((nv, 1)), np.zeros((nv, bl)),
+                    np.zeros(nv, np.int64), np.zeros((nv, 2)), np.zeros((nv, 2)), np.zeros((nv, bl)),
                     np.zeros((nv, bl)))
+        # pitch: mode (voices.HELD, CURVE, LIVE), parameters (voices.P_*), a curve's breakpoints, the running window
+        # end, the basis's spacing, the FDM's w breakpoints
+        self.pit = (np.zeros(nv, np.int64), np.zeros((nv, 10)), np.zeros((nv, CURVE_POINTS)),
+                    np.zeros((nv, CURVE_POINTS)), np.ones(nv, np.int64), np.zeros(nv), np.zeros(nv), np.zeros((nv, 2)),
+                    np.zeros((nv, 2)))
+        self.chan = np.zeros(nv, np.int64)  # each slot's channel (its bend and vibrato follow it through the release)
+        self.bend = np.zeros(16)  # semitones, per channel
+        self.depth = np.zeros(16)  # vibrato depth, semitones, per channel
+        self._nop = np.zeros(0)
         self.mix = np.zeros(bl)
         self.out = np.zeros(bl, np.float32)
         self.dc_state = np.zeros(2)
@@ -266,8 +295,8 @@ class Stream:
         return self.out[:n]
 
     def _render(self, off: int, m: int) -> None:
-        V.render(self.mode, self.pos, self.end, self.net, self.ops, self.scr, self.fdm, self.mix, off, m, self.amp,
-                 self.why)
+        V.render(self.mode, self.pos, self.end, self.net, self.ops, self.scr, self.fdm, self.pit, self.tb, self.mix,
+                 self._nop, off, m, self.amp, self.why)
 
     def _event(self, off: int, data) -> None:
         """One MIDI message at frame `off` of the block: note on/off, CC 2/11/123; anything malformed is dropped."""
@@ -298,6 +327,12 @@ class Stream:
                     self._note_off(slot)
         elif kind == 0xB0 and data[1] in (M.CC_PRESSURE, M.CC_EXPRESSION):
             self.cc[ch, data[1]] = data[2]
+        elif kind == 0xE0:
+            self.bend[ch] = M.bend_semitones((data[2] << 7) | data[1], self.bend_range)
+            self._pitch_moved(ch)
+        elif kind == 0xB0 and data[1] == M.CC_MODULATION:
+            self.depth[ch] = M.vibrato_depth(data[2])
+            self._pitch_moved(ch)
         else:
             self.counts["ignored"] += 1
 
@@ -332,13 +367,22 @@ class Stream:
         vb_t[slot, 0], vb_v[slot, 0], nvb[slot] = 0.0, vb, 1
         self.pos[slot], self.end[slot], self.start[slot] = 0, -1, self.frame + off
         self.key[slot], self.vb_hold[slot], self.why[slot] = key, vb, V.WHY_OK
+        pm, pp = self.pit[0], self.pit[1]
+        self.chan[slot] = ch
+        pp[slot, V.P_F0], pp[slot, V.P_BETA] = f0, beta
+        pp[slot, V.P_B0] = pp[slot, V.P_B1] = self.bend[ch]
+        pp[slot, V.P_D0] = pp[slot, V.P_D1] = self.depth[ch]
+        pp[slot, V.P_BT] = pp[slot, V.P_DT] = 0.0
+        pp[slot, V.P_RATE], pp[slot, V.P_RAMP] = VIB_HZ, M.CC_RAMP * sr
+        pm[slot] = V.LIVE if (self.bend[ch] != 0 or self.depth[ch] != 0) else V.HELD
+        self.pit[5][slot] = 0.0
         self.sounding[key] = slot
         self.counts["notes"] += 1
         if self.engine == "operator" and self._operator_note(slot, vel, neutral, beta, vb, f0):
             return
         if self.engine == "operator":
             self.counts["fdm_notes"] += 1
-        V.to_fdm(slot, 0.0, 0.0, self.fdm)  # the whole note by the FDM, from rest (fdm.render_fdm's start)
+        V.to_fdm(slot, 0.0, 0.0, self.fdm, self.pit, float(sr), 0)  # the FDM from rest (fdm.render_fdm's start)
         self.mode[slot] = V.FDM
 
     def _operator_note(self, slot, vel, neutral, beta, vb, f0) -> bool:
@@ -358,6 +402,7 @@ class Stream:
             self._bow_inputs(slot, beta, vb)
         V.trunk_basis(self.grid, self.h_grid, self.op.corr_scale, self.op.bias, self.op.window, self.lin_kind,
                       self.lin_d, self.lin_qs, dtau, n_lo, n_hi, Bq[slot], Bp[slot], endb[slot], endlin[slot])
+        self.pit[6][slot] = dtau
         x[slot, 0], x[slot, 1] = 0.0, 0.0
         spw_a[slot], nlo_a[slot], win[slot], wstart[slot], wlen[slot] = spw, n_lo, -1, 0, 0
         self.ops[16][slot] = -1
@@ -392,6 +437,20 @@ class Stream:
         r = self.g_ratio
         return float((1 - fx) * ((1 - fy) * r[i, j] + fy * r[i, j + 1]) + fx * ((1 - fy) * r[i + 1, j]
                                                                                  + fy * r[i + 1, j + 1]))
+
+    def _pitch_moved(self, ch: int) -> None:
+        """The channel's bend or vibrato depth changed: each of its notes (held or releasing) ramps to it from its
+        value now (a 5 ms ramp, as the file reader's controllers) and follows it from its next window on."""
+        pm, pp = self.pit[0], self.pit[1]
+        for slot in range(self.n_voices):
+            if self.mode[slot] == V.FREE or self.chan[slot] != ch:
+                continue
+            s = float(self.pos[slot])
+            b = V._ramp(pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT], pp[slot, V.P_RAMP], s)
+            d = V._ramp(pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT], pp[slot, V.P_RAMP], s)
+            pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT] = b, self.bend[ch], s
+            pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT] = d, self.depth[ch], s
+            pm[slot] = V.LIVE
 
     def _plays(self, beta: float, vb: float) -> bool:
         """Does the model play this bow (Domain.box_contains for one bow, in scalars)? A point model plays only
@@ -432,12 +491,12 @@ class Stream:
         f0 = fst[slot, 4] / (2.0 * math.pi)
         total = int(round((h / sr + rel + stop_tail(fst[slot, 6], f0, self.a)) * sr))
         if self.mode[slot] == V.OPERATOR and self.ops[16][slot] < 0:
-            V.advance_to(slot, h, self.net, self.ops, self.scr, self.fdm, self.why)
+            V.advance_to(slot, h, self.net, self.ops, self.scr, self.fdm, self.why, self.pit, self.tb)
         if self.mode[slot] == V.OPERATOR and (self.ops[16][slot] < 0 or h < self.ops[16][slot]):
             a = h - self.ops[12][slot]
             q0, p0 = float(self.ops[14][slot, a]), float(self.ops[15][slot, a])
             vb_t[slot, 0], vb_t[slot, 1], vb_v[slot, 0], vb_v[slot, 1], nvb[slot] = 0.0, rel, vb, 0.0, 2
-            V.to_fdm(slot, q0, p0, self.fdm)
+            V.to_fdm(slot, q0, p0, self.fdm, self.pit, float(sr), h)
             self.mode[slot] = V.FDM
         else:  # the FDM plays on; its bow falls from its own time now (render_fdm of the note's v_B curve)
             t = fint[slot, 0] * fst[slot, 3]
@@ -455,3 +514,65 @@ class Stream:
     def callback_times(self) -> np.ndarray:
         """The durations (s) of the last process() calls."""
         return self.times[:min(self.n_times, TIMES)].copy()
+
+
+def render_curve(scene, model):
+    """The operator's render of a scene whose f0 follows a curve (vibrato, glissando, bend): one slot of the live
+    engine, per window the window's own sample spacing (f0 at its middle), basis and end-state offsets, the same
+    code `play` runs for pitch bend and CC1. F_B / w and v_B must hold (a MIDI note's bow, a score note's beta):
+    else a SceneError says to render with the FDM. A window that leaves the model's states hands over to the FDM
+    (following the curve) as a live note does; info['notes'] says so."""
+    from ..controls import Curve, breakpoints
+    from ..errors import DomainError, SceneError
+    from ..fdm import check_oversample
+    from ..render import Render
+    from ..rollout import as_model
+
+    t_b = np.union1d(breakpoints(scene.fb)[0], scene.f0.times)
+    betas = scene.fb_at(t_b) / (2.0 * math.pi * scene.f0_at(t_b))
+    if isinstance(scene.vb, Curve) or np.ptp(betas) > 1e-9 * betas.max():
+        raise SceneError("the operator plays a pitch curve with F_B / w and v_B held (a bow force growing with the "
+                         "pitch, beta = ...); render this scene with --method fdm")
+    if len(scene.f0.points) > CURVE_POINTS:
+        raise SceneError(f"a pitch curve for the operator holds at most {CURVE_POINTS} breakpoints, this one "
+                         f"{len(scene.f0.points)}")
+    m = as_model(model)
+    beta, vb = float(betas[0]), float(scene.vb)
+    if not (m.domain.box_contains(beta, vb) and math.isclose(m.domain.a, scene.a, rel_tol=1e-9)):
+        raise DomainError(f"model {m.path or m.meta.name} does not play F_B / w {beta:.4g}, v_B {vb:g}, a "
+                          f"{scene.a:g}; render with --method fdm")
+    sr = scene.sample_rate
+    st = Stream(sample_rate=sr, block=4096, voices=1, model=m, tuning=False, lowest_f0=scene.f0.lo)
+    st.a = scene.a
+    f0 = float(scene.f0_at(0.0))
+    w0 = 2.0 * math.pi * f0
+    pm, pp, pt, pv, npt = st.pit[:5]
+    pm[0], npt[0] = V.CURVE, len(scene.f0.points)
+    pt[0, :npt[0]], pv[0, :npt[0]] = scene.f0.times, scene.f0.values
+    pp[0, V.P_F0], pp[0, V.P_BETA] = f0, beta
+    st._bow_inputs(0, beta, vb)
+    x, spw = st.ops[0], st.ops[1]
+    x[0] = (scene.q0, scene.p0)
+    spw[0] = st.op.window / physics.dtau(f0, sr)
+    st.ops[11][0], st.ops[12][0], st.ops[13][0], st.ops[16][0] = -1, 0, 0, -1
+    st.pit[5][0], st.pit[6][0] = 0.0, -1.0
+    stride = check_oversample(scene, 1, warn=False)
+    fst, fint, vb_t, vb_v, nvb = st.fdm[:5]
+    fst[0, 3:7] = (1.0 / (sr * stride), w0, scene.a, beta * w0)
+    fint[0, 1] = stride
+    vb_t[0, 0], vb_v[0, 0], nvb[0] = 0.0, vb, 1
+    st.mode[0], st.pos[0], st.end[0] = V.OPERATOR, 0, scene.n_samples
+    n = scene.n_samples
+    q, p = np.zeros(n), np.zeros(n)
+    t0 = time.perf_counter()
+    for a in range(0, n, st.block):
+        k = min(st.block, n - a)
+        V.render(st.mode, st.pos, st.end, st.net, st.ops, st.scr, st.fdm, st.pit, st.tb, q[a:a + k], p[a:a + k], 0,
+                 k, 1.0, st.why)
+    secs = time.perf_counter() - t0
+    notes = ["note: the rollout left the model's trained states; finished with the FDM from there"] \
+        if st.why[0] == V.WHY_FALLBACK else []
+    return Render(scene, np.arange(n) / sr, q.astype(np.float32), p.astype(np.float32),
+                  method="operator" + ("+fdm" if notes else ""), seconds=secs,
+                  info={"model_id": m.id, "model_path": str(m.path) if m.path else None, "notes": notes,
+                        "loop": "live per-window pitch"})

@@ -20,12 +20,17 @@ import numba
 import numpy as np
 
 from .. import kernels as K
-from ..fdm_kernel import _phi
+from ..fdm_kernel import _control, _phi
 from ..fdm_kernel import kernel as fdm_steps
 
 _JIT = dict(fastmath=K._FM, error_model="numpy", cache=True)
 
 FREE, OPERATOR, FDM = 0, 1, 2  # a slot's mode
+HELD, CURVE, LIVE = 0, 1, 2  # a slot's pitch: constant, breakpoints (a scene's f0 curve), bend and vibrato (play)
+# pp[slot] columns: the note's f0 (Hz), F_B / w, then for LIVE the pitch bend's ramp (from, to in semitones, its
+# start in the note's samples), the vibrato depth's (from, to in semitones), its start, the vibrato rate (Hz), and the
+# ramps' length (samples)
+P_F0, P_BETA, P_B0, P_B1, P_BT, P_D0, P_D1, P_DT, P_RATE, P_RAMP = range(10)
 WHY_OK, WHY_FALLBACK = 0, 1  # why[slot]: the operator left its states and the FDM finished the note
 
 
@@ -114,7 +119,79 @@ def trunk_basis(grid, h, corr_scale, bias, window, lin_kind, lin_d, lin_qs, dtau
 
 
 @numba.njit(**_JIT)
-def _window(v, net, ops, scr):
+def _ramp(a, b, t0, length, s):
+    if s <= t0:
+        return a
+    if s >= t0 + length:
+        return b
+    return a + (b - a) * (s - t0) / length
+
+
+@numba.njit(**_JIT)
+def f0_at(v, s, pit, sr):
+    """Slot v's f0 (Hz) at the note's sample s (a float): held, its breakpoints (times in s, linear between, held
+    outside: controls.Curve), or the live bend and vibrato
+    f0 2^((bend + depth sin(2 pi rate t)) / 12), each control a ramp from its last change."""
+    pm, pp, pt, pv, npt = pit[0], pit[1], pit[2], pit[3], pit[4]
+    if pm[v] == HELD:
+        return pp[v, P_F0]
+    if pm[v] == CURVE:
+        t = s / sr
+        n = npt[v]
+        if t <= pt[v, 0]:
+            return pv[v, 0]
+        for i in range(n - 1):
+            if t < pt[v, i + 1]:
+                return pv[v, i] + (pv[v, i + 1] - pv[v, i]) * (t - pt[v, i]) / (pt[v, i + 1] - pt[v, i])
+        return pv[v, n - 1]
+    bend = _ramp(pp[v, P_B0], pp[v, P_B1], pp[v, P_BT], pp[v, P_RAMP], s)
+    depth = _ramp(pp[v, P_D0], pp[v, P_D1], pp[v, P_DT], pp[v, P_RAMP], s)
+    semis = bend + depth * math.sin(2.0 * math.pi * pp[v, P_RATE] * s / sr)
+    return pp[v, P_F0] * 2.0 ** (semis / 12.0)
+
+
+@numba.njit(**_JIT)
+def _next_window(v, ops, pit, tb):
+    """Start slot v's next window: its length, and for a moving pitch the window's own sample spacing: f0 at the
+    window's middle (predicted with the last window's length), the window's end at the sample nearest the running
+    sum of samples per window (window_end's rule, with a spw per window), the basis rebuilt when the spacing
+    changed. Returns the window's length."""
+    spw, n_lo, Bq, Bp, endb, endlin, win, wstart, wlen = (ops[1], ops[2], ops[3], ops[4], ops[5], ops[6], ops[11],
+                                                         ops[12], ops[13])
+    pm, wfrac, bdtau = pit[0], pit[5], pit[6]
+    grid, hg, corr_scale, bias, window, lin_kind, lin_d, lin_qs, sr, n_max = tb
+    win[v] += 1
+    wstart[v] += wlen[v]
+    if pm[v] == HELD:
+        e = (win[v] + 1) * spw[v]
+        wfrac[v] = e
+        n = K.window_end(win[v], spw[v]) - wstart[v]
+        wlen[v] = n
+        return n
+    f = f0_at(v, wstart[v] + 0.5 * spw[v], pit, sr)
+    dtau = 2.0 * math.pi * f / sr
+    s_w = window / dtau
+    lo = int(math.floor(s_w))
+    hi = int(math.ceil(s_w))
+    if hi + 1 > n_max or lo < 1:  # a pitch beyond what the slot was sized for: held at the edge
+        s_w = min(max(s_w, 1.0), n_max - 2.0)
+        dtau = window / s_w
+        lo = int(math.floor(s_w))
+        hi = int(math.ceil(s_w))
+    if dtau != bdtau[v]:
+        trunk_basis(grid, hg, corr_scale, bias, window, lin_kind, lin_d, lin_qs, dtau, lo, hi, Bq[v], Bp[v], endb[v],
+                    endlin[v])
+        bdtau[v] = dtau
+    spw[v] = s_w
+    n_lo[v] = lo
+    wfrac[v] += s_w
+    n = int(math.floor(wfrac[v] + 0.5)) - wstart[v]
+    wlen[v] = n
+    return n
+
+
+@numba.njit(**_JIT)
+def _window(v, net, ops, scr, pit, tb):
     """Slot v's next window (kernels.roll_voices' body): its samples into the slot's buffer, the end state into x[v].
     Returns 0, or 1 if the end state is non-finite, 2 if it is outside the model's states (x[v] then unchanged)."""
     ff, Gw, Gb, Hw, Hb, Ow, Ob, box, mask = net
@@ -122,10 +199,7 @@ def _window(v, net, ops, scr):
     h, g, u, vv_, z, hh, o = scr
     k = endb.shape[3]
     width = Hw.shape[1]
-    win[v] += 1
-    wstart[v] += wlen[v]
-    n = K.window_end(win[v], spw[v]) - wstart[v]
-    wlen[v] = n
+    n = _next_window(v, ops, pit, tb)
     q0 = x[v, 0]
     p0 = x[v, 1]
     K._features(q0, p0, center[v], halfrange[v], ff, pin[v], h)
@@ -156,7 +230,7 @@ def _window(v, net, ops, scr):
 
 
 @numba.njit(**_JIT)
-def advance_to(v, target, net, ops, scr, fdm, why):
+def advance_to(v, target, net, ops, scr, fdm, why, pit, tb):
     """Compute slot v's windows until its buffer holds the note's sample `target` (a note-off's sample: the release
     starts from the sustain's state there). A window that leaves the model's states marks where the FDM takes over
     (op_end[v]: its last sample, as rollout._finish does offline; why[v] = WHY_FALLBACK)."""
@@ -165,7 +239,7 @@ def advance_to(v, target, net, ops, scr, fdm, why):
         qbuf, pbuf = ops[14], ops[15]
         lq = qbuf[v, max(wlen[v] - 1, 0)]
         lp = pbuf[v, max(wlen[v] - 1, 0)]
-        bad = _window(v, net, ops, scr)
+        bad = _window(v, net, ops, scr, pit, tb)
         if bad == 2:  # the window itself is good, its end state is not: hand over at its last sample
             op_end[v] = wstart[v] + wlen[v] - 1
             why[v] = WHY_FALLBACK
@@ -178,14 +252,16 @@ def advance_to(v, target, net, ops, scr, fdm, why):
 
 
 @numba.njit(**_JIT)
-def render(mode, pos, end, net, ops, scr, fdm, out, off, m, amp, why):
+def render(mode, pos, end, net, ops, scr, fdm, pit, tb, out, outp, off, m, amp, why):
     """Add m samples of every sounding slot to out[off:off + m] (times amp), advancing each slot.
 
     Per slot: mode (FREE, OPERATOR, FDM), pos the note's next sample, end the note's last sample + 1 (-1 while it is
     held). An operator slot plays its buffered window (samples wstart .. wstart + wlen of the note) and computes the
     next when the block reaches it. An FDM slot runs fdm_kernel.kernel from its state fst = (u_prev, u_cur, eta, k,
     w, a, fb) and fint = (steps done, stride), its controls the breakpoints vb_t/vb_v (nvb of them) and fb_t/fb_v,
-    into the scratch su, se. A slot reaching `end` is freed."""
+    into the scratch su, se. A slot reaching `end` is freed. outp (empty, or as long as out): the velocities p summed
+    likewise (an offline render of one scene wants both)."""
+    want_p = outp.shape[0] > 0
     qbuf, pbuf, wstart, wlen, op_end = ops[14], ops[15], ops[12], ops[13], ops[16]
     fst, fint, vb_t, vb_v, nvb, fb_t, fb_v, su, se = fdm
     for v in range(mode.shape[0]):
@@ -200,10 +276,10 @@ def render(mode, pos, end, net, ops, scr, fdm, out, off, m, amp, why):
             if mode[v] == OPERATOR:
                 if op_end[v] >= 0 and pos[v] >= op_end[v]:  # the FDM takes over here, with the bow the slot holds
                     a = pos[v] - wstart[v]
-                    to_fdm(v, float(qbuf[v, a]), float(pbuf[v, a]), fdm)
+                    to_fdm(v, float(qbuf[v, a]), float(pbuf[v, a]), fdm, pit, tb[8], pos[v])
                     mode[v] = FDM
                     continue
-                advance_to(v, pos[v], net, ops, scr, fdm, why)
+                advance_to(v, pos[v], net, ops, scr, fdm, why, pit, tb)
                 stop = wstart[v] + wlen[v]
                 if op_end[v] >= 0:
                     stop = min(stop, op_end[v])
@@ -211,35 +287,71 @@ def render(mode, pos, end, net, ops, scr, fdm, out, off, m, amp, why):
                 a = pos[v] - wstart[v]
                 for i in range(n):
                     out[off + j + i] += amp * qbuf[v, a + i]
+                if want_p:
+                    for i in range(n):
+                        outp[off + j + i] += amp * pbuf[v, a + i]
                 pos[v] += n
                 j += n
             else:
                 n = min(lim, su.shape[1])
+                if pit[0][v] != HELD:  # w is linear over a run: short runs follow a vibrato (64: within 0.001 cent)
+                    n = min(n, 64)
                 stride = fint[v, 1]
-                w = fst[v, 4]
-                up, uc, eta = fdm_steps(fst[v, 0], fst[v, 1], fst[v, 2], fint[v, 0], n, stride, fst[v, 3], w * w,
-                                        fb_t[v], fb_v[v], vb_t[v, :nvb[v]], vb_v[v, :nvb[v]], fst[v, 5], su[v, :n],
-                                        se[v, :n])
+                k = fst[v, 3]
+                nw = 1
+                w0 = fst[v, 4]
+                w1 = w0
+                if pit[0][v] != HELD:  # the pitch moves: w and F_B = beta w linear over this run (<= one block)
+                    w0 = 2.0 * math.pi * f0_at(v, float(pos[v]), pit, tb[8])
+                    w1 = 2.0 * math.pi * f0_at(v, float(pos[v] + n), pit, tb[8])
+                    t0 = fint[v, 0] * k
+                    wt, wv = pit[7], pit[8]
+                    wt[v, 0] = t0
+                    wt[v, 1] = t0 + n * stride * k
+                    wv[v, 0] = w0
+                    wv[v, 1] = w1
+                    fb_t[v, 0] = t0
+                    fb_t[v, 1] = wt[v, 1]
+                    fb_v[v, 0] = pit[1][v, P_BETA] * w0
+                    fb_v[v, 1] = pit[1][v, P_BETA] * w1
+                    nw = 2
+                else:
+                    wt, wv = pit[7], pit[8]
+                    wt[v, 0] = 0.0
+                    wv[v, 0] = w0
+                up, uc, eta = fdm_steps(fst[v, 0], fst[v, 1], fst[v, 2], fint[v, 0], n, stride, k, wt[v, :nw],
+                                        wv[v, :nw], fb_t[v, :nw], fb_v[v, :nw], vb_t[v, :nvb[v]], vb_v[v, :nvb[v]],
+                                        fst[v, 5], su[v, :n], se[v, :n])
                 fst[v, 0] = up
                 fst[v, 1] = uc
                 fst[v, 2] = eta
                 fint[v, 0] += n * stride
                 for i in range(n):
+                    w = w0 + (w1 - w0) * i / n
                     out[off + j + i] += amp * (w * su[v, i])
+                if want_p:  # p = eta + v_B at the sample's step (fdm.render_fdm)
+                    ivb = 0
+                    for i in range(n):
+                        vb, ivb = _control(vb_t[v, :nvb[v]], vb_v[v, :nvb[v]], (fint[v, 0] - (n - i) * stride) * k,
+                                           ivb)
+                        outp[off + j + i] += amp * (se[v, i] + vb)
                 pos[v] += n
                 j += n
 
 
 @numba.njit(**_JIT)
-def to_fdm(v, q0, p0, fdm):
-    """Slot v goes on with the FDM from the state (q0, p0) at its current sample, the FDM's time restarting at 0
-    there (the caller has set its bow breakpoints vb_t/vb_v, fb, and fst[v, 3:7] = k, w, a, fb, fint[v, 1] =
-    stride): fdm.taylor_start, the scheme's start from a state."""
+def to_fdm(v, q0, p0, fdm, pit, sr, s):
+    """Slot v goes on with the FDM from the state (q0, p0) at the note's sample s, the FDM's time restarting at 0
+    there (the caller has set its bow breakpoints vb_t/vb_v and fst[v, 3:7] = k, w, a, fb, fint[v, 1] = stride; a
+    moving pitch takes w and F_B = beta w at s): fdm.taylor_start, the scheme's start from a state."""
     fst, fint, vb_t, vb_v = fdm[0], fdm[1], fdm[2], fdm[3]
     k = fst[v, 3]
     w = fst[v, 4]
-    a = fst[v, 5]
     fb = fst[v, 6]
+    if pit[0][v] != HELD:
+        w = 2.0 * math.pi * f0_at(v, float(s), pit, sr)
+        fb = pit[1][v, P_BETA] * w
+    a = fst[v, 5]
     vb0 = vb_v[v, 0]
     u0 = q0 / w
     fst[v, 0] = u0 - k * p0 - 0.5 * k * k * (w * w * u0 + fb * _phi(p0 - vb0, a))
