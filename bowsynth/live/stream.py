@@ -25,8 +25,9 @@ What differs from offline, by design:
 - a note the model does not cover (its bow outside the model's box, its pitch too high for one sample per window) is
   played whole by the FDM, as `score --fallback fdm` does;
 - with every voice busy a new note takes the voice nearest its end (releasing first, then the oldest): `stolen`;
-- note-ons beyond what the block's time allows (`busy_fraction` of the period spent) are dropped and counted, so a
-  flood of 10,000 notes a second keeps the engine on time; malformed MIDI bytes are dropped and counted.
+- note-ons beyond what the block's time allows (`busy_fraction` of the period spent) wait for the next block and start
+  at its first frame, in order (`deferred`, `max_defer` frames late); past PENDING waiting they are dropped and
+  counted, so a flood of 10,000 notes a second keeps the engine on time; malformed MIDI bytes are dropped, counted.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ DENSE = (512, 256)  # the spline through them, tabulated
 BEND_RANGE = 2.0  # semitones at full pitch bend (--bend-range)
 VIB_HZ = 5.5  # the vibrato's rate, Hz (a violinist's is 5-7 Hz)
 VIB_DEPTH = 0.5  # semitones: CC1 = 127 swings the pitch +-50 cents (midi.vibrato_depth)
+PENDING = 64  # note-ons waiting for time (a 64-key chord; a flood beyond it is dropped and counted)
 CURVE_POINTS = 4096  # breakpoints a scene's pitch curve may have in the offline path (render_curve)  # callback durations kept for the percentiles (the last ~6 minutes at 512 frames)
 
 
@@ -155,8 +157,9 @@ class Stream:
         cfg = op.cfg
         self.s_max = 2.0  # window fractions up to n_hi / spw < 1 + 1 / spw <= 2 (a window holds at least a sample)
         self.h_grid = self.s_max / (TRUNK_POINTS - 3)
-        self.grid = np.ascontiguousarray(trunk_features(m.weights, cfg, (np.arange(TRUNK_POINTS) - 1.0)
-                                                        * self.h_grid))
+        # (2, k, G): each feature's values along s contiguous (trunk_basis reads them sample after sample)
+        self.grid = np.ascontiguousarray(np.transpose(trunk_features(m.weights, cfg, (np.arange(TRUNK_POINTS) - 1.0)
+                                                                     * self.h_grid), (1, 2, 0)))
         self.lin_kind = 2 if not cfg.linear_flow else (0 if op.lin is None else 1)
         self.lin_d, self.lin_qs = op.lin if op.lin is not None else (0.0, 0.0)
         self.k = cfg.k
@@ -164,7 +167,8 @@ class Stream:
         box = np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi])
         self.net = (op.ff, *op.weights, box, np.ascontiguousarray(d.mask))
         self.tb = (self.grid, self.h_grid, op.corr_scale, op.bias, float(op.window), int(self.lin_kind),
-                   float(self.lin_d), float(self.lin_qs), float(self.sample_rate), int(self.n_max))
+                   float(self.lin_d), float(self.lin_qs), float(self.sample_rate), int(self.n_max),
+                   np.zeros(self.n_max + 1, np.int64), np.zeros((4, self.n_max + 1)))
 
     def _default_model(self, models):
         """The validated model that covers the most velocities at neutral controllers (ties: lowest validation
@@ -224,7 +228,8 @@ class Stream:
             self.net = (np.zeros((2, 1)), np.zeros((2, 3), np.float32), np.zeros(3, np.float32),
                         np.zeros((0, 1, 1), np.float32), np.zeros((0, 1), np.float32), np.zeros((1, 0), np.float32),
                         np.zeros(0, np.float32), np.zeros(4), np.ones((1, 1), np.bool_))
-            self.tb = (np.zeros((4, 2, 0)), 1.0, np.zeros(2), np.zeros(2), 1.0, 0, 0.0, 0.0, float(self.sample_rate), 4)
+            self.tb = (np.zeros((2, 0, 4)), 1.0, np.zeros(2), np.zeros(2), 1.0, 0, 0.0, 0.0, float(self.sample_rate), 4,
+                       np.zeros(5, np.int64), np.zeros((4, 5)))
         self.fdm = (np.zeros((nv, 7)), np.zeros((nv, 2), np.int64), np.zeros((nv, 3)), np.zeros((nv, 3)),
                     np.zeros(nv, np.int64), np.zeros((nv, 2)), np.zeros((nv, 2)), np.zeros((nv, bl)),
                     np.zeros((nv, bl)))
@@ -244,7 +249,12 @@ class Stream:
         self.frame = 0  # frames processed since the start
         self.times = np.zeros(TIMES)
         self.n_times = 0
-        self.counts = dict(notes=0, dropped_bytes=0, dropped_busy=0, stolen=0, fdm_notes=0, fallbacks=0, silent=0,
+        # note-ons past the block's time budget wait here (channel, note, velocity, the frame they were due) and
+        # start at the next block's first frame, oldest first; a full queue drops them
+        self.pending = np.zeros((PENDING, 4), np.int64)
+        self.n_pending = self.head = 0
+        self.counts = dict(notes=0, dropped_bytes=0, dropped_busy=0, deferred=0, max_defer=0, stolen=0, fdm_notes=0,
+                           fallbacks=0, silent=0,
                            out_of_range=0, ignored=0, zero_length=0)
 
     def _warm(self) -> None:
@@ -263,6 +273,7 @@ class Stream:
         self.end[:] = -1
         self.key[:] = -1
         self.sounding[:] = -1
+        self.n_pending = self.head = 0
         self.ops[16][:] = -1
         self.dc_state[:] = 0.0
         self.frame = 0
@@ -280,6 +291,8 @@ class Stream:
         mix = self.mix
         mix[:n] = 0.0
         at = 0
+        if self.n_pending:
+            self._start_pending()
         for off, data in events:
             off = min(max(int(off), at), n)
             if off > at:
@@ -321,6 +334,8 @@ class Stream:
             slot = self.sounding[ch * 128 + data[1]]
             if slot >= 0:
                 self._note_off(slot)
+            elif self.n_pending:  # still waiting to start: it never sounds (counted as dropped)
+                self._cancel_pending(ch, data[1])
         elif kind == 0xB0 and data[1] in (120, 123):  # all sound off / all notes off: release the channel's notes
             for slot in range(self.n_voices):
                 if self.key[slot] >= 0 and self.key[slot] // 128 == ch:
@@ -336,10 +351,42 @@ class Stream:
         else:
             self.counts["ignored"] += 1
 
+    def _cancel_pending(self, ch: int, note: int) -> None:
+        """A note-off for a note still waiting: it never sounds (marked, velocity 0; counted as dropped)."""
+        q = self.pending
+        for i in range(self.n_pending):
+            k = (self.head + i) % PENDING
+            if q[k, 0] == ch and q[k, 1] == note and q[k, 2] > 0:
+                q[k, 2] = 0
+                self.counts["dropped_busy"] += 1
+                return
+
+    def _start_pending(self) -> None:
+        """The waiting note-ons (a ring: no array is moved), oldest first, at this block's first frame, while the
+        time budget lasts."""
+        q = self.pending
+        while self.n_pending and time.perf_counter() <= self._busy_until:
+            ch, note, vel, due = q[self.head]
+            self.head = (self.head + 1) % PENDING
+            self.n_pending -= 1
+            if vel > 0:
+                self.counts["max_defer"] = max(self.counts["max_defer"], self.frame - int(due))
+                self._start_note(0, int(ch), int(note), int(vel))
+
     def _note_on(self, off: int, ch: int, note: int, vel: int) -> None:
-        if time.perf_counter() > self._busy_until:
-            self.counts["dropped_busy"] += 1
+        if self.n_pending or time.perf_counter() > self._busy_until:  # later, in order (a chord's top notes)
+            if self.n_pending == PENDING:
+                self.counts["dropped_busy"] += 1
+                return
+            k = (self.head + self.n_pending) % PENDING
+            self.pending[k, 0], self.pending[k, 1], self.pending[k, 2], self.pending[k, 3] = (ch, note, vel,
+                                                                                            self.frame + off)
+            self.n_pending += 1
+            self.counts["deferred"] += 1
             return
+        self._start_note(off, ch, note, vel)
+
+    def _start_note(self, off: int, ch: int, note: int, vel: int) -> None:
         if not 12 <= note <= 119:  # the file reader refuses them (C0..B8)
             self.counts["out_of_range"] += 1
             return
@@ -401,7 +448,8 @@ class Stream:
         else:
             self._bow_inputs(slot, beta, vb)
         V.trunk_basis(self.grid, self.h_grid, self.op.corr_scale, self.op.bias, self.op.window, self.lin_kind,
-                      self.lin_d, self.lin_qs, dtau, n_lo, n_hi, Bq[slot], Bp[slot], endb[slot], endlin[slot])
+                      self.lin_d, self.lin_qs, dtau, n_lo, n_hi, Bq[slot], Bp[slot], endb[slot], endlin[slot],
+                      self.tb[10], self.tb[11])
         self.pit[6][slot] = dtau
         x[slot, 0], x[slot, 1] = 0.0, 0.0
         spw_a[slot], nlo_a[slot], win[slot], wstart[slot], wlen[slot] = spw, n_lo, -1, 0, 0
