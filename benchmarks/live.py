@@ -137,7 +137,7 @@ def hold(voices: int, seconds: float) -> None:
         srv.close()
 
 
-def curves() -> None:
+def curves(model: str = MODEL) -> None:
     """Vibrato (+-30 cents, 5.5 Hz) and an octave glissando on A3, F_B / w 0.159, v_B 0.2, against a x100 FDM of the
     same curve: per 100 ms frame the pitch (zero crossings) and harmonics 1-6 (each frame's FFT peaks)."""
     from bowsynth import Scene
@@ -149,12 +149,15 @@ def curves() -> None:
     t = np.arange(0.0, 3.0, 0.005)
     vib = [(float(x), f0 * 2 ** (30 * math.sin(2 * math.pi * 5.5 * x) * (x > 0.5) / 1200)) for x in t]
     gl = [(0.0, f0), (1.0, f0), (2.0, 2 * f0), (3.0, 2 * f0)]
-    for name, pts in (("vibrato +-30 cents 5.5 Hz from 0.5 s", vib), ("octave glissando 1-2 s", gl)):
-        sc = Scene(f0=pts, fb=[(x, beta * 2 * math.pi * f) for x, f in pts], vb=vb, duration=3.0)
+    held = [(0.0, f0)]  # the control: the same note held (the model's own error, no curve)
+    for name, pts in (("vibrato +-30 cents 5.5 Hz from 0.5 s", vib), ("octave glissando 1-2 s", gl),
+                      ("held A3 (control)", held)):
+        sc = Scene(f0=pts if len(pts) > 1 else pts[0][1], fb=[(x, beta * 2 * math.pi * f) for x, f in pts] if
+                   len(pts) > 1 else beta * 2 * math.pi * f0, vb=vb, duration=3.0)
         t0 = time.perf_counter()
         truth = render_fdm(sc, oversample=100)
         tt = time.perf_counter() - t0
-        rows = {"operator": render_operator(sc, model=MODEL), "fdm (audio rate)": render_fdm(sc)}
+        rows = {f"operator ({model})": render_operator(sc, model=model), "fdm (audio rate)": render_fdm(sc)}
         print(f"{name}: x100 FDM {tt:.1f} s")
         for eng, r in rows.items():
             dc, dh = [], []
@@ -195,6 +198,7 @@ def main() -> None:
     ap.add_argument("what", choices=["callback", "jack", "hold", "curves"])
     ap.add_argument("--seconds", type=float, default=None)
     ap.add_argument("--voices", type=int, default=64)
+    ap.add_argument("--model", default=MODEL)
     a = ap.parse_args()
     if a.what == "callback":
         callback(a.seconds or 5.0)
@@ -203,7 +207,7 @@ def main() -> None:
     elif a.what == "hold":
         hold(a.voices, a.seconds or 60.0)
     else:
-        curves()
+        curves(a.model)
 
 
 if __name__ == "__main__":

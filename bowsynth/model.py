@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, physics
+from .controls import Curve
 from .errors import ModelFileError
 from .npnet import NetConfig, weight_shapes
 from .scene import Scene
@@ -147,10 +148,12 @@ class Domain:
         if not math.isclose(scene.a, self.a, rel_tol=REL_TOL, abs_tol=1e-12):
             out.append(f"a = {scene.a:.6g}, model has {self.a:.6g}")
         if self.box is None:
-            if scene.varying:
+            # a pitch curve whose force follows it (F_B / w held, as a MIDI note's) is still one bow
+            (blo, bhi), vb_moves = scene.beta_range, isinstance(scene.vb, Curve)
+            if blo != bhi and not math.isclose(blo, bhi, rel_tol=1e-9) or vb_moves:
                 out.append(f"the bow changes during the scene; this model plays one bow ({self.describe_bows()})")
                 return out
-            for name, have, want in (("F_B / w", scene.beta, self.beta), ("v_B", scene.vb, self.vb)):
+            for name, have, want in (("F_B / w", blo, self.beta), ("v_B", scene.vb, self.vb)):
                 if not math.isclose(have, want, rel_tol=REL_TOL, abs_tol=1e-12):
                     out.insert(0, f"{name} = {have:.6g}, model has {want:.6g}")
             return out
