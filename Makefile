@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q torch==2.13.0
 	$(PY) -m pip install -q -e '.[test]'
 	# compile numba's cached loops now (the FDM, the rollout loops): no user command pays the ~10 s compile
-	$(PY) -c 'from bowsynth.kernels import warm; warm()'
+	$(PY) -c 'from bowsynth.engines import warm; warm()'
 	touch $(STAMP)
 
 setup: $(STAMP) chromium jackd
@@ -34,16 +34,12 @@ demo: $(STAMP)
 test: $(STAMP) chromium jackd
 	$(PY) -m pytest
 
-# The shipped operators: one command each, on a 2-core CPU at most 15 minutes for each point model and 60 for each
-# range model (F_B / w at f0 100: soft 0.015-0.4 x v_B 0.05-0.3). The stick-slip range (0.6-2.0 x 0.1-0.3,
-# `train --fb 376.9:1256.7 --vb 0.1:0.3 --minutes 40`) failed its validation and is not shipped (BENCHMARKS.md).
-# scratch-g2 speaks slowly (v_B 0.3): it needs the rest-linearised flow, and took 20 minutes (over the 15 above).
+# The shipped operators: each is trained by its recipe beside it (bowsynth/models/NAME.toml: the flags of
+# `bowsynth train`), on a 2-core CPU at most 15 minutes for each point model and 45 for the range model. The
+# stick-slip range failed its validation and is not shipped (BENCHMARKS.md).
+RECIPES := $(wildcard bowsynth/models/*.toml)
 models: $(STAMP)
-	$(BOW) train --preset paper-fb10 --minutes 8 --out bowsynth/models/paper-fb10.safetensors --force
-	$(BOW) train --preset paper-fb100 --minutes 10 --out bowsynth/models/paper-fb100.safetensors --force
-	$(BOW) train --preset paper-fb1000 --minutes 12 --out bowsynth/models/paper-fb1000.safetensors --force
-	$(BOW) train --preset scratch-g2 --rest-linear --minutes 20 --out bowsynth/models/scratch-g2.safetensors --force
-	$(BOW) train --f0 100 --fb 9.42:251.4 --vb 0.05:0.3 --minutes 30 --out bowsynth/models/soft-range.safetensors --force
+	for r in $(RECIPES); do $(BOW) train --config $$r --force || exit 1; done
 
 # The report tests open pages in Debian's chromium, driven by playwright (the test extra) with no browser download.
 chromium:

@@ -269,8 +269,8 @@ def _forge(d: Path, name: str, edit_tensors=None, edit_meta=None) -> None:
     from safetensors import safe_open
     from safetensors.numpy import save_file
 
-    from bowsynth.model import digest
-    from bowsynth.rollout import SHIPPED_DIR
+    from bowsynth.engines.operator.choose import SHIPPED_DIR
+    from bowsynth.engines.operator.modelfile import digest
 
     with safe_open(str(SHIPPED_DIR / "paper-fb100.safetensors"), framework="numpy") as f:
         meta = json.loads(f.metadata()["bowsynth"])

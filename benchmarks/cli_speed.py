@@ -84,7 +84,7 @@ def in_process(runs: int) -> tuple[float, float]:
     to, tf = [], []
     for _ in range(runs):
         t0 = time.perf_counter()
-        loop = render_operator(sc).info["loop"]
+        loop = render_operator(sc).info.loop
         to.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         render_fdm(sc)
@@ -124,7 +124,7 @@ def main():
             a = ["render", *flags, "x.wav"]
             mo, mf, _, _ = alternate(a, [*a[:1], "--method", "fdm", *a[1:]], runs, cwd)
             print(f"| `render {' '.join(flags)} x.wav` | {mo:.3f} | {mf:.3f} | {mo / mf:.2f} |")
-        # --pitch solves f0 by FDM runs; what they measured is kept on disk (bowsynth.cache): warm, and switched off
+        # --pitch solves f0 by FDM runs; what they measured is kept on disk (bowsynth.io.cache): warm, and switched off
         pitch = ["render", "--pitch", "A4", "--fb", "276", "-d", "1", "x.wav"]
         for label, env in (("pitch cache warm", {"BOWSYNTH_CACHE": str(cwd / "cache")}),
                            ("BOWSYNTH_CACHE=off: every process measures", {"BOWSYNTH_CACHE": "off"})):

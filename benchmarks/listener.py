@@ -24,8 +24,8 @@ import warnings
 import numpy as np
 
 from bowsynth import BowsynthError, Scene
+from bowsynth.analysis.metrics import listener_errors, nmse
 from bowsynth.api import render
-from bowsynth.metrics import listener_errors, nmse
 
 REGIONS = {  # (F_B / w lo, hi), (v_B lo, hi): the soft-bow and stick-slip spaces
     "soft": ((0.02, 0.38), (0.09, 0.26)),

@@ -8,9 +8,9 @@ import numpy as np
 from scipy import signal as sps
 
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth.bench import REF_OVERSAMPLE
-from bowsynth.metrics import nmse
-from bowsynth.rollout import SHIPPED_DIR
+from bowsynth.analysis.metrics import nmse
+from bowsynth.engines.fdm import TRUTH_OVERSAMPLE
+from bowsynth.engines.operator.choose import SHIPPED_DIR
 
 
 def onset_shift():
@@ -18,7 +18,7 @@ def onset_shift():
     peak |p| (the envelope) against the FDM."""
     m = load_model(SHIPPED_DIR / "paper-fb10.safetensors")
     sc = make_scene("paper-fb10")
-    path = render_fdm(sc.replace(duration=0.05, sample_rate=4 * sc.sample_rate), oversample=REF_OVERSAMPLE // 4)
+    path = render_fdm(sc.replace(duration=0.05, sample_rate=4 * sc.sample_rate), oversample=TRUTH_OVERSAMPLE // 4)
     print("fb 10, 1 s renders from the rest trajectory at t = m T (m = 2, 2.25, 2.5):")
     print("| start | NMSE(p) | RMS error per 0.2 s | envelope, largest relative difference |")
     print("|---|---|---|---|")
@@ -26,7 +26,7 @@ def onset_shift():
     for mt in (2.0, 2.25, 2.5):
         i = int(round(mt / sc.f0 * path.scene.sample_rate))
         s = sc.replace(q0=float(path.q[i]), p0=float(path.p[i]))
-        r, ref = render_operator(s, model=m), render_fdm(s, oversample=REF_OVERSAMPLE)
+        r, ref = render_operator(s, model=m), render_fdm(s, oversample=TRUTH_OVERSAMPLE)
         e = r.p - ref.p
         rms = " ".join(f"{np.sqrt(np.mean(e[k * 8820:(k + 1) * 8820] ** 2)):.1e}" for k in range(5))
         print(f"| {mt:g} T | {nmse(r.p, ref.p):.2e} | {rms} | {np.abs(env(r.p) / env(ref.p) - 1).max():.1e} |")
@@ -34,11 +34,11 @@ def onset_shift():
 
 def onset_windows():
     """fb 10: one-window NMSE(p) from states of the rest trajectory at t = (m + f) T."""
-    from bowsynth.bench import window_errors
+    from bowsynth.analysis.out_of_sample import window_errors
 
     m = load_model(SHIPPED_DIR / "paper-fb10.safetensors")
     sc = make_scene("paper-fb10")
-    path = render_fdm(sc.replace(duration=0.25, sample_rate=4 * sc.sample_rate), oversample=REF_OVERSAMPLE // 4)
+    path = render_fdm(sc.replace(duration=0.25, sample_rate=4 * sc.sample_rate), oversample=TRUTH_OVERSAMPLE // 4)
     per = path.scene.sample_rate / sc.f0
     print("\nfb 10, one-window NMSE(p) from the rest trajectory at t = (m + f) T:")
     print("| m | f = 0 (a window start of the render from rest) | f = 0.25 | f = 0.5 | f = 0.75 |")
@@ -53,7 +53,7 @@ def spectrum_bands():
     """fb 1000: the operator's Welch power against the FDM x100's, mean dB difference per band (1 s from rest)."""
     m = load_model(SHIPPED_DIR / "paper-fb1000.safetensors")
     sc = make_scene("paper-fb1000")
-    r, ref = render_operator(sc, model=m), render_fdm(sc, oversample=REF_OVERSAMPLE)
+    r, ref = render_operator(sc, model=m), render_fdm(sc, oversample=TRUTH_OVERSAMPLE)
     f, px = sps.welch(np.asarray(r.p, float), sc.sample_rate, nperseg=4096)
     _, pr = sps.welch(ref.p, sc.sample_rate, nperseg=4096)
     print("\nfb 1000, 1 s from rest: power of the operator's p against the FDM x100's, by band:")
@@ -67,7 +67,7 @@ def spectrum_bands():
 
 def margin_states():
     """One-window NMSE(p) of held-out states by their distance from the band (fraction of the domain's box)."""
-    from bowsynth.bench import band_distance, band_states, window_errors
+    from bowsynth.analysis.out_of_sample import band_distance, band_states, window_errors
 
     print("\nOne-window NMSE(p) of 64 held-out states (seed 1) by distance from the band:")
     print("| model | distance (of the box) | states | median | worst |")

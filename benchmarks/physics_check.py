@@ -1,4 +1,4 @@
-"""The render-time physics check (rollout.check_physics): what the shipped models score, what a lying file scores,
+"""The render-time physics check (operator.check.check_physics): what the shipped models score, what a lying file scores,
 and what the check costs.
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python benchmarks/physics_check.py
@@ -17,8 +17,8 @@ import time
 import numpy as np
 
 from bowsynth import Scene
-from bowsynth import rollout as R
-from bowsynth.model import load_model
+from bowsynth.engines.operator import check as R
+from bowsynth.engines.operator.modelfile import load_model
 
 PITCHES = (50, 100, 200, 400, 800)
 
@@ -65,7 +65,7 @@ def main():
         worst = max(worst, rest, *grid)
         print(f"| {path.stem} | {rest:.1e} | {band[0]:.1e}, {band[1]:.1e} | {' / '.join(f'{g:.1e}' for g in grid)} | "
               f"{first * 1e3:.1f}, {cached * 1e3:.3f} |")
-    print(f"\nworst legitimate error {worst:.1e}; limit rollout.PHYSICS_MAX_ERROR = {R.PHYSICS_MAX_ERROR:g} "
+    print(f"\nworst legitimate error {worst:.1e}; limit check.PHYSICS_MAX_ERROR = {R.PHYSICS_MAX_ERROR:g} "
           f"({R.PHYSICS_MAX_ERROR / worst:.0f}x above)\n")
     print("| model | metadata claims | error from rest |")
     print("|---|---|---|")

@@ -1,4 +1,4 @@
-"""Asked vs heard: notes solved by `bowsynth.pitch` and rendered for 2 s, the pitch measured by interpolated zero
+"""Asked vs heard: notes solved by `bowsynth.music.tuning` and rendered for 2 s, the pitch measured by interpolated zero
 crossings over the steady second half.
 
     PYTHONPATH=. .venv/bin/python benchmarks/pitch_accuracy.py
@@ -12,9 +12,10 @@ import math
 import time
 
 from bowsynth import Scene, render_fdm
+from bowsynth.analysis.metrics import cents, f0_estimate
 from bowsynth.engines import render
-from bowsynth.metrics import cents, f0_estimate
-from bowsynth.pitch import note_name, parse_pitch, sounding_pitch, tune
+from bowsynth.music.notes import note_name, parse_pitch
+from bowsynth.music.tuning import sounding_pitch, tune
 
 FIXED = [("C2", 40.0, 0.1), ("A2", 1000.0, 0.2), ("E3", 100.0, 0.25), ("A4", 100.0, 0.2), ("E5", 300.0, 0.25),
          ("A5", 1000.0, 0.15)]

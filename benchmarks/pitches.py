@@ -10,9 +10,10 @@ samples; elsewhere windows of two lengths keep their starts on the multiples of 
 import math
 
 from bowsynth import Scene, render_fdm
-from bowsynth.metrics import nmse
-from bowsynth.model import load_model
-from bowsynth.rollout import SHIPPED_DIR, render_operator
+from bowsynth.analysis.metrics import nmse
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import load_model
 
 PITCHES = (100, 150, 200, 300, 400)
 

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from bowsynth import api
-from bowsynth.bench import bench_parameter_points, parameter_summary
+from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
 from bowsynth.training.ranges import ParamBox
 
 BOX = ParamBox(0.08, 0.32, 0.1, 0.28, 100.0)  # the box of the first range measurement (shared/GUIDE.md 8)

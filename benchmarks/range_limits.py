@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from bowsynth.fdm import fdm_batch
+from bowsynth.engines.fdm import fdm_batch
 
 A = 100.0
 F0 = 100.0

@@ -27,11 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from bowsynth import Scene, render_fdm
-from bowsynth.bench import bench_parameter_points, parameter_summary
+from bowsynth.analysis.metrics import nmse
+from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
 from bowsynth.controls import Curve
-from bowsynth.metrics import nmse
-from bowsynth.model import load_model
-from bowsynth.rollout import SHIPPED_DIR, render_operator, rollout_states, scene_bows
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.rollout import rollout_states, scene_bows
 
 PITCHES = (65.0, 100.0, 220.0, 440.0)
 REF = 100
@@ -51,7 +53,8 @@ def step_curve(bows_per_window, starts, ends, sample_rate, scale=1.0):
 
 
 def gesture(m, name, fb, vb, f0=100.0, seconds=1.0):
-    from bowsynth.rollout import _operator, window_bounds
+    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.windows import window_bounds
 
     sc = Scene(f0=f0, fb=fb, vb=vb, a=m.domain.a, duration=seconds)
     r = render_operator(sc, model=m, fallback="fdm")

@@ -33,7 +33,7 @@ from long_score import score_text  # noqa: E402
 STUB = """
 import sys
 import numpy as np
-import bowsynth.rollout as r
+import bowsynth.engines.operator.engine as r  # render_operator calls rollout_states through this name
 
 real = r.rollout_states
 
@@ -46,7 +46,7 @@ def silent(model, x0, n_samples, dtau, check_domain=True, loop="auto", params=No
 
 r.rollout_states = silent
 sys.argv = ["bowsynth", *sys.argv[1:]]
-from bowsynth.cli import main
+from bowsynth.cli.main import main
 main()
 """
 FLOOR = "import numpy, soundfile, typer, rich"

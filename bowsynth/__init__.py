@@ -6,7 +6,7 @@ from .errors import BowsynthError, DomainError, ModelFileError, SceneError, Usag
 
 # Everything else is imported on first use, so `import bowsynth` (and the CLI's start) loads no numpy, numba (the
 # FDM, ~0.5 s) or torch (training, seconds) until a command needs them.
-_LAZY = {"Render": "render", "Scene": "scene", "load_preset": "scene", "make_scene": "scene", "render_fdm": "api",
+_LAZY = {"Render": "render", "Scene": "scene", "load_preset": "scene", "make_scene": "music.request", "render_fdm": "api",
          "render_operator": "api", "load_model": "api", "train": "api"}
 
 

@@ -7,7 +7,8 @@ import math
 import os
 from pathlib import Path
 
-from .errors import BowsynthError, DomainError, UsageError, interrupt_exit_code
+from . import physics
+from .errors import BowsynthError, UsageError, interrupt_exit_code
 from .scene import Scene
 
 
@@ -24,68 +25,47 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     """Render a Scene (or a list of Scenes) with engine 'operator' or 'fdm'; see `bowsynth.engines.render`.
 
     A request estimated past minutes of FDM work or gigabytes of memory is refused with the estimate (a UsageError)
-    unless force=True; see `bowsynth.limits`."""
+    unless force=True; see `bowsynth.engines.limits`."""
     from .engines import render as _r
-    from .limits import check_request
+    from .engines.limits import check_request
 
     check_request(scene, engine, oversample, force)
     return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample)
 
 
 def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1):
-    """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
-    scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it, its own
-    pitch), so that the asked note sounds there whichever engine plays. (None, why) when no model covers the scene:
-    the note is then tuned with the truth's ratio (what compare scores against)."""
-    from . import pitch as P
+    """(ratio, what): the sounding ratio of the engine that will play the scene, for `make_scene(pitch=...,
+    ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
+    from .music.engine_tuning import ratio_for_engine
 
-    if str(getattr(engine, "value", engine)) == "fdm":
-        from .fdm import check_oversample
-
-        os_ = check_oversample(scene, oversample, warn=False)
-        return P.fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
-    from .rollout import as_model, find_model, operator_ratio
-
-    try:
-        m = find_model(scene) if model is None else as_model(model)
-    except DomainError as e:
-        return None, str(e).split(";")[0]
-    if not m.covers(scene):
-        return None, f"model {m.id} does not cover the scene"
-
-    def ratio(beta, vb, a, f0):
-        try:
-            return operator_ratio(m)(beta, vb, a, f0)
-        except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
-            return P.sounding_ratio(beta, vb, a).r
-    return ratio, f"model {m.id}"
+    return ratio_for_engine(scene, engine, model, oversample)
 
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):
-    """Render a Scene with the FDM; see `bowsynth.fdm.render_fdm` (imported here on first use: it loads numba).
-    Refused past the estimates of `bowsynth.limits` unless force=True."""
-    from .fdm import render_fdm as _r
-    from .limits import check_request
+    """Render a Scene with the FDM; see `bowsynth.engines.fdm.render_fdm` (imported here on first use: it loads numba).
+    Refused past the estimates of `bowsynth.engines.limits` unless force=True."""
+    from .engines.fdm import render_fdm as _r
+    from .engines.limits import check_request
 
     check_request(scene, "fdm", oversample, force)
     return _r(scene, oversample=oversample)
 
 
 def render_operator(scene, model=None, fallback: str = "none"):
-    """Render a Scene (or a list of Scenes, batched) with the operator; see `bowsynth.rollout.render_operator`."""
+    """Render a Scene (or a list of Scenes, batched) with the operator; see `bowsynth.engines.operator.engine.render_operator`."""
     return render(scene, engine="operator", model=model, fallback=fallback)
 
 
 def load_model(path):
     """Load an operator model file (safetensors + JSON metadata, no pickle)."""
-    from .model import load_model as _l
+    from .engines.operator.modelfile import load_model as _l
 
     return _l(path)
 
 
 def model_path(name) -> Path:
     """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`)."""
-    from .rollout import model_path as _m
+    from .engines.operator.choose import model_path as _m
 
     return _m(name)
 
@@ -105,13 +85,13 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     defaults are the only ones. Checkpoints go beside `out`; `resume=True` continues from one. Returns a TrainResult.
     A model whose validation rollout fails is saved but marked failed in its record (it is never picked by default).
     """
-    from .progress import Reporter
+    from .io.progress import Reporter
     from .training.config import check_net_options, check_refine, checkpoint_path, default_model_name
 
     config = config or make_train_config(scene, **settings)
     config.validate()
     if init is not None:
-        from .rollout import as_model
+        from .engines.operator.choose import as_model
         from .training.ranges import ParamBox
 
         init = as_model(init)
@@ -135,11 +115,11 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
 
 
 def _train(scene, config, out, ckpt, name, force, resume, progress, console, box, init):
-    from .progress import Reporter
+    from .io.progress import Reporter
 
     with Reporter(console, enabled=progress, title="train: ") as rep:
         rep.update("preparing", 0.0, "loading torch")  # before torch loads: a log shows life from the first second
-        from .training import TrainResult, Trainer, validate
+        from .training import Trainer, TrainResult, validate
 
         tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f), box=box,
                      init=init)
@@ -239,7 +219,7 @@ def _alive(pid: int) -> bool:
 def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: float = 1.0) -> Scene:
     """The scene a range model trains at: the box's centre bow (geometric in beta) at this pitch and rate."""
     beta = math.sqrt(max(box.beta_lo, 1e-12) * max(box.beta_hi, 1e-12))
-    return Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=(box.vb_lo + box.vb_hi) / 2, a=box.a, duration=duration,
+    return Scene(f0=f0, fb=beta * physics.omega(f0), vb=(box.vb_lo + box.vb_hi) / 2, a=box.a, duration=duration,
                  sample_rate=sample_rate)
 
 
@@ -253,7 +233,7 @@ def make_train_config(scene: Scene, window_ms=None, width=None, depth=None, **fi
     """A TrainConfig from keyword settings (None means the config's default)."""
     import dataclasses
 
-    from .network import NetConfig
+    from .engines.operator.network import NetConfig
     from .training import TrainConfig
 
     known = {f.name for f in dataclasses.fields(TrainConfig)}

@@ -16,6 +16,9 @@ import math
 import numpy as np
 
 E_HALF = math.exp(0.5)
+# the implicit friction solve of each FDM step (Newton on eta = relative velocity), in both FDM loops
+NEWTON_TOL = 1e-14  # absolute, m/s: eta is O(0.1-1)
+NEWTON_MAXIT = 60
 
 
 def _exp(x):
@@ -51,12 +54,6 @@ def dphi(eta, a: float):
     return math.sqrt(2.0 * a) * _exp(-a * eta * eta + 0.5) * (1.0 - 2.0 * a * eta * eta)
 
 
-def rest_state(b: float, vb: float, a: float):
-    """Where the bowed mass settles when it does not oscillate: p = 0, q = beta phi(v_B) (friction holds the spring
-    stretched)."""
-    return b * phi(vb, a), 0.0
-
-
 def vb_stop(a: float) -> float:
     """The bow speed below which friction damps the mass instead of driving it (phi' > 0 at -v_B): 1 / sqrt(2a)."""
     return 1.0 / math.sqrt(2.0 * a)
@@ -66,11 +63,6 @@ def onset_rate(b: float, vb: float, a: float):
     """Growth rate per unit tau of small oscillations about the rest state: -beta phi'(-v_B) / 2. Positive: the note
     speaks by itself; negative or zero: the bow damps the mass (below v_B = 1/sqrt(2a) phi' > 0, a bow stop)."""
     return -0.5 * b * dphi(-vb, a)
-
-
-def rhs_physical(q, p, w: float, fb: float, vb: float, a: float):
-    """(dq/dt, dp/dt) of the first-order system in seconds."""
-    return w * p, -w * q - fb * phi(p - vb, a)
 
 
 def rhs_tau(q, p, b: float, vb: float, a: float):

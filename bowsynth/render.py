@@ -32,6 +32,44 @@ class SceneControls(Mapping):
         return 2
 
 
+class Played(str):
+    """Which engines played a render, as a typed value that still reads (and compares) as the text users see:
+    "fdm", "fdm x4" (oversampled), "operator", "operator+fdm" (a voice the FDM finished after it left its model),
+    "operator+fdm + fdm release" (a note whose bow stop the FDM played)."""
+
+    engine: str
+    oversample: int
+    fdm_fallback: bool
+    fdm_release: bool
+
+    def __new__(cls, engine: str, oversample: int = 1, fdm_fallback: bool = False, fdm_release: bool = False):
+        if engine not in ("operator", "fdm"):
+            raise ValueError(f"engine must be operator or fdm, got {engine!r}")
+        text = ("fdm" if oversample == 1 else f"fdm x{oversample}") if engine == "fdm" else \
+            "operator" + ("+fdm" if fdm_fallback else "")
+        self = super().__new__(cls, text + (" + fdm release" if fdm_release else ""))
+        self.engine, self.oversample, self.fdm_fallback, self.fdm_release = engine, oversample, fdm_fallback, fdm_release
+        return self
+
+    def with_fdm_release(self) -> "Played":
+        return Played(self.engine, self.oversample, self.fdm_fallback, True)
+
+
+@dataclass
+class RenderInfo:
+    """What an engine reports beside the samples."""
+
+    model_id: str | None = None  # the operator's model
+    model_path: str | None = None
+    notes: list[str] = field(default_factory=list)  # what the user must know (a hand-off to the FDM, a check's verdict)
+    loop: str | None = None  # the rollout loop that ran (numpy or compiled)
+    setup_seconds: float | None = None  # choosing and preparing the model, before the loop
+    batched: int | None = None  # voices rolled out together with this one
+    range_validation: dict | None = None  # a range model's validation: how good it is over its box
+    oversample: int | None = None  # the FDM's
+    release: str | None = None  # who played a score note's bow stop: "operator" or "fdm"
+
+
 @dataclass
 class Render:
     """A rendered scene: one value per output sample at the scene's sample rate (float64 from the FDM, float32 from
@@ -46,9 +84,9 @@ class Render:
     t: np.ndarray
     q: np.ndarray
     p: np.ndarray
-    method: str
+    method: Played
     seconds: float = 0.0
-    info: dict = field(default_factory=dict)
+    info: RenderInfo = field(default_factory=RenderInfo)
     controls: Mapping = None
 
     def __post_init__(self):

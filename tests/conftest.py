@@ -4,10 +4,10 @@ from pathlib import Path
 
 import pytest
 
-from bowsynth.cli import main as _main
+from bowsynth.cli.main import main as _main
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
-# measured pitch ratios are cached on disk (bowsynth.cache): the tests keep theirs out of the user's ~/.cache
+# measured pitch ratios are cached on disk (bowsynth.io.cache): the tests keep theirs out of the user's ~/.cache
 os.environ.setdefault("BOWSYNTH_CACHE", tempfile.mkdtemp(prefix="bowsynth-test-cache-"))
 
 # the authors' reference data the tests use, in the repository (see tests/data/README.md for provenance)
@@ -20,7 +20,7 @@ def anchors():
 
 
 def tiny_config(steps=150, **kw):
-    from bowsynth.network import NetConfig
+    from bowsynth.engines.operator.network import NetConfig
     from bowsynth.training import TrainConfig
 
     return TrainConfig(minutes=None, steps=steps, optimizer=kw.pop("optimizer", "adam"), lr=kw.pop("lr", 5e-3), n_data=256, data_times=32, data_oversample=4, batch_states=64,

@@ -22,7 +22,7 @@ import pytest
 
 import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth.metrics import nmse
+from bowsynth.analysis.metrics import nmse
 
 MODELS = Path(os.environ.get("BOWSYNTH_TEST_MODELS") or Path(bowsynth.__file__).parent / "models")
 DURATION = 0.25
@@ -128,14 +128,18 @@ def test_slow_onset_model_from_rest(case):
     assert error(model, sc) <= LIMIT * SLOW_ONSET_MEASURED[case]
 
 
-# The soft range model (one net over F_B / w 0.015-0.4 x v_B 0.05-0.3): bows of the held-out grid of
-# benchmarks/ranges.py (cell centres in log F_B / w; no training bow is one) where it plays within its validation,
-# and a crescendo through the box, 1 s from rest at f0 100 against FDM x100 (the crescendo's reference follows the
-# curve per step; the operator holds each window's bow at its middle). Far from the targets, but a worse
-# model fails here as for the point models: a copy with 1 % weight noise (`benchmarks/worse_model.py soft-range 0.01
-# DIR/soft-range.safetensors`) scores 14-15x the measured values on three of the five cases and fails them.
-RANGE_MEASURED = {(0.0226, 0.1437): 9.94e-5, (0.0514, 0.1437): 5.90e-4, (0.1168, 0.1437): 1.45e-3,
-                  (0.1168, 0.2062): 1.25e-3, "crescendo 0.05 -> 0.35": 5.64e-3}
+# The soft range model (one net over F_B / w 0.015-0.4 x v_B 0.05-0.3, trained with the derivative term): bows of
+# the held-out grid of benchmarks/ranges.py (cell centres in log F_B / w; no training bow is one) and a crescendo
+# through the box, 1 s from rest at f0 100 against FDM x100 (the crescendo's reference follows the curve per step; the
+# operator holds each window's bow at its middle). NMSE from rest is ill-conditioned in the bow (GUIDE section 9), so
+# the held bows are pinned by what a listener hears too (RANGE_HEARD: the worst of harmonics 1-10 in dB and the pitch
+# in cents, over the last 0.5 s). The round-2 model scored NMSE 1e-4 to 6e-3 here but its harmonics were up to 30 dB
+# off (27.7 and 30 dB at F_B / w 0.117); this one is within 4.3 dB, at NMSE 1e-3 to 5e-2 (python
+# tests/test_accuracy.py prints both).
+RANGE_MEASURED = {(0.0226, 0.1437): 3.67e-3, (0.0514, 0.1437): 1.12e-3, (0.1168, 0.1437): 1.23e-3,
+                  (0.1168, 0.2062): 3.89e-2, "crescendo 0.05 -> 0.35": 5.47e-2}
+RANGE_HEARD = {(0.0226, 0.1437): (0.109, 0.0641), (0.0514, 0.1437): (0.485, 0.121), (0.1168, 0.1437): (4.28, 0.432),
+               (0.1168, 0.2062): (2.41, 0.659)}
 
 
 def range_case(case) -> Scene:
@@ -153,10 +157,27 @@ def test_soft_range_model_held_out_bows(case):
     assert error(model, sc) <= LIMIT * RANGE_MEASURED[case]
 
 
+def heard(model, sc: Scene) -> tuple[float, float]:
+    from bowsynth.analysis.metrics import listener_errors
+
+    e = listener_errors(render_operator(sc, model=model).p, render_fdm(sc, oversample=100).p, sc.sample_rate,
+                        steady_seconds=0.5)
+    return e["harm_db_max"], abs(e["cents"])
+
+
+@pytest.mark.parametrize("case", list(RANGE_HEARD), ids=str)
+def test_soft_range_model_held_out_bows_as_heard(case):
+    harm, cents = heard(load_model(MODELS / "soft-range.safetensors"), range_case(case))
+    want_harm, want_cents = RANGE_HEARD[case]
+    assert harm <= 1.5 * want_harm + 0.1 and cents <= 1.5 * want_cents + 0.05, (harm, cents)
+
+
 if __name__ == "__main__":
     m = load_model(MODELS / "soft-range.safetensors")
     for case in RANGE_MEASURED:
         print(f"    {case!r}: {error(m, range_case(case)):.2e},")
+    for case in RANGE_HEARD:
+        print(f"    {case!r}: {tuple(round(v, 3) for v in heard(m, range_case(case)))},")
     for preset in PRESETS:
         m = load_model(MODELS / f"{preset}.safetensors")
         for name, sc in cases(preset).items():

@@ -8,8 +8,10 @@ import pytest
 
 import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth import bench as B
-from bowsynth.metrics import nmse
+from bowsynth.analysis import out_of_sample as B
+from bowsynth.analysis.metrics import nmse
+from bowsynth.engines.fdm import TRUTH_OVERSAMPLE
+from bowsynth.report.bench_report import out_of_sample_tables
 
 
 @pytest.fixture(scope="module")
@@ -42,11 +44,11 @@ def test_out_of_sample_rows_are_the_metrics_nmse(fb100):
                                               "rest trajectory at (m + f) T"]
     sc = make_scene("paper-fb100", duration=0.1)
     assert rows[0]["nmse_p_median"] == pytest.approx(
-        nmse(render_operator(sc, model=fb100).p, render_fdm(sc, oversample=B.REF_OVERSAMPLE).p), rel=1e-9)
+        nmse(render_operator(sc, model=fb100).p, render_fdm(sc, oversample=TRUTH_OVERSAMPLE).p), rel=1e-9)
     for r in rows:
         assert r["failed"] == 0 and 0 < r["nmse_p_median"] <= r["nmse_p_worst"] < 1e-3, r
         assert r["lsd_db_median"] >= 0 and abs(r["cents_worst"]) < 1
-    md = B.out_of_sample_tables([{"model": "paper-fb100.safetensors", "renders": rows, "windows": [],
+    md = out_of_sample_tables([{"model": "paper-fb100.safetensors", "renders": rows, "windows": [],
                                   "parameter_points": B.bench_parameter_points(fb100)}])
     assert "| paper-fb100 | 96 kHz |" in md and "point model" in md
 
@@ -58,6 +60,6 @@ def test_window_errors_score_one_window_against_the_fdm(fb100):
     # the first window of the render from rest, which NMSE over the render's first window must reproduce
     n = 442
     r = render_operator(sc.replace(duration=n / sc.sample_rate), model=fb100)
-    ref = render_fdm(sc.replace(duration=n / sc.sample_rate), oversample=B.REF_OVERSAMPLE)
+    ref = render_fdm(sc.replace(duration=n / sc.sample_rate), oversample=TRUTH_OVERSAMPLE)
     assert e[0] == pytest.approx(nmse(r.p, ref.p), rel=1e-6)
     assert e[0] < 4e-5  # measured 9.1e-6: the first window from rest is the worst of the trained window starts

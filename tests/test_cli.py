@@ -2,14 +2,15 @@
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_main
 from typer.testing import CliRunner
 
-from bowsynth.cli import app
-from conftest import run_main
-from bowsynth.wav import read_wav
+from bowsynth.cli.main import app
+from bowsynth.io.audio import read_wav
 
 runner = CliRunner()
 
@@ -36,9 +37,8 @@ def test_train_render_compare(tmp_path, monkeypatch, capsys):
     assert info.scene.fb == 100 and info.sample_rate == 44100
     # the file holds what the API renders (float32 samples scaled to their peak)
     from bowsynth import load_model, render_fdm, render_operator
-    from bowsynth.metrics import nmse
-
-    from bowsynth.wav import remove_dc
+    from bowsynth.analysis.metrics import nmse
+    from bowsynth.io.audio import remove_dc
 
     assert info.dc_removed  # the default: the static offset is not sound
     expect = remove_dc(render_operator(info.scene, model=load_model(model), fallback="fdm").u, info.sample_rate)
@@ -72,7 +72,7 @@ def test_fdm_wav_compares_to_zero(tmp_path, monkeypatch, capsys):
 
 def test_metadata_round_trip_after_move(tmp_path):
     from bowsynth import Scene, render_fdm
-    from bowsynth.wav import remove_dc, write_wav
+    from bowsynth.io.audio import remove_dc, write_wav
 
     sc = Scene(fb=30, vb=0.15, f0=123.5, duration=0.2, sample_rate=48000, q0=0.01)
     r = render_fdm(sc)
@@ -92,7 +92,7 @@ def test_metadata_round_trip_after_move(tmp_path):
 
 def test_no_model_covers_scene(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
+    monkeypatch.setattr("bowsynth.engines.operator.choose.SHIPPED_DIR", tmp_path / "none")
     code, _, err = run_main(["render", "--fb", "123", "--vb", "0.3", str(tmp_path / "x.wav")], capsys, monkeypatch)
     assert code == 1
     assert "no model covers" in err and "bowsynth train --fb 123 --f0 100 --vb 0.3 --a 100" in err
@@ -125,7 +125,7 @@ def test_model_by_name(tmp_path, tiny_model, monkeypatch, capsys):
 
 def test_rollout_forced_out_of_domain_stops_cleanly(tmp_path, tiny_model, monkeypatch, capsys):
     from bowsynth import Scene, render_operator
-    from bowsynth.model import load_model
+    from bowsynth.engines.operator.modelfile import load_model
 
     m = load_model(tiny_model)
     # shrink the domain around the start so the rollout leaves it within the first windows
@@ -142,7 +142,7 @@ def test_rollout_forced_out_of_domain_stops_cleanly(tmp_path, tiny_model, monkey
     code, out, err = run_main(["render", "--fb", "100", "-d", "0.2", "--model", str(small), "--fallback", "fdm",
                                str(wav)], capsys, monkeypatch)
     assert code == 0 and "finished with the FDM" in out
-    from bowsynth.wav import remove_dc
+    from bowsynth.io.audio import remove_dc
 
     expect = remove_dc(render_operator(Scene(fb=100, duration=0.2), model=small, fallback="fdm").u, 44100)
     np.testing.assert_allclose(read_wav(wav).physical, expect, rtol=0, atol=1e-6 * np.abs(expect).max())
@@ -163,3 +163,36 @@ def test_rest_linear_is_refused_where_it_cannot_apply(args, why, tmp_path, capsy
                             monkeypatch)
     assert code == 2 and why in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
+    from bowsynth.training.recipe import load_recipe
+
+    models = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
+    recipes = sorted(models.glob("*.toml"))
+    assert {r.stem for r in recipes} == {m.stem for m in models.glob("*.safetensors")}
+    for r in recipes:
+        rec = load_recipe(r)
+        assert rec["out"] == r.with_suffix(".safetensors") and 0 < rec["minutes"] <= 45
+
+
+def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monkeypatch):
+    bad = tmp_path / "bad.toml"
+    for text, what in [("fb = 100\nminute = 5\n", "unknown key 'minute'"), ("minutes = \"ten\"\n", "minutes must be"),
+                       ("fb = [1, 2\n", "not valid TOML")]:
+        bad.write_text(text)
+        code, out, err = run_main(["train", "--config", str(bad)], capsys, monkeypatch)
+        assert code == 2 and what in err and "Traceback" not in err, err
+    code, out, err = run_main(["train", "--config", str(tmp_path / "none.toml")], capsys, monkeypatch)
+    assert code == 2 and "no such file" in err
+
+
+def test_train_config_fills_flags_and_flags_override(tmp_path, capsys, monkeypatch):
+    rec = tmp_path / "r.toml"
+    rec.write_text('preset = "paper-fb100"\nsteps = 3\nseed = 1\nout = "m.safetensors"\n')
+    code, out, err = run_main(["train", "--config", str(rec), "--steps", "2", "-q"], capsys, monkeypatch)
+    assert code == 0, err
+    from bowsynth.engines.operator.modelfile import load_model
+
+    m = load_model(tmp_path / "m.safetensors")  # out resolved against the recipe's folder
+    assert m.meta.scene["fb"] == 100 and m.meta.training["steps_done"] == 2

@@ -4,13 +4,13 @@ import json
 
 import numpy as np
 import pytest
+from conftest import run_main
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, SceneError, render_fdm
+from bowsynth.analysis.metrics import nmse
 from bowsynth.controls import Curve, parse_control
-from bowsynth.metrics import nmse
-from conftest import run_main
 
 
 @pytest.mark.parametrize("pts,needle", [
@@ -102,7 +102,7 @@ def test_cli_renders_a_gesture_with_the_fdm_and_stores_the_curve(tmp_path, monke
     code, _, err = run_main(["render", "--method", "fdm", "--fb", "50@0,200@0.2", "-d", "0.3", str(out)],
                             capsys, monkeypatch)
     assert code == 0, err
-    from bowsynth.wav import read_wav
+    from bowsynth.io.audio import read_wav
 
     sc = read_wav(out).scene
     assert sc.fb == Curve(((0.0, 50.0), (0.2, 200.0)))

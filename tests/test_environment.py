@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bowsynth import cache
+from bowsynth.io import cache
 
 ROOT = Path(__file__).resolve().parents[1]
 

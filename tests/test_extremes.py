@@ -6,10 +6,9 @@ import math
 import numpy as np
 import pytest
 import soundfile as sf
+from conftest import run_main
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from conftest import run_main
 
 EXTREME_FLOATS = [1e-300, -1e-300, 5e-324, 1e308, -1e308, 1.7976931348623157e308, -0.0, 0.0, 1.0, -1.0, 0.5, 1e9,
                   1e-9, 15000.0, 18000.0, 22049.0, 22050.0, 22051.0, 3600.0, 3600.0001, 1e6]
@@ -39,7 +38,7 @@ RENDER_FLOATS = ["--f0", "--fb", "--vb", "--a", "--q0", "--p0", "--duration", "-
 @pytest.fixture
 def no_shipped_models(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
+    monkeypatch.setattr("bowsynth.engines.operator.choose.SHIPPED_DIR", tmp_path / "none")
 
 
 @SETTINGS
@@ -77,7 +76,7 @@ def test_huge_oversample_is_refused_with_the_estimate(tmp_path, monkeypatch, cap
 @pytest.mark.parametrize("f0", [14500.0, 15000.0, 18000.0, 22000.0, 22049.0])
 def test_pitches_near_nyquist_render_finite(f0, tmp_path, monkeypatch, capsys):
     """The audio-rate scheme is unstable above sample_rate / pi (f0 14 kHz at 44.1 kHz): the FDM oversamples."""
-    from bowsynth.fdm import OversampleWarning
+    from bowsynth.engines.fdm import OversampleWarning
 
     out = tmp_path / "n.wav"
     with pytest.warns(OversampleWarning, match="stability bound"):

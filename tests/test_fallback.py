@@ -2,15 +2,15 @@
 (sample at - 1, `at` the first sample of the window where the rollout left), and the samples before it are the
 operator's; single voices, both rollout loops, and through the CLI."""
 
-import sys
 import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 from bowsynth import Scene, load_model, render_fdm, render_operator
-from bowsynth.rollout import BATCH_FROM, rollout_states
-from bowsynth.wav import read_wav
+from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
+from bowsynth.io.audio import read_wav
 
 
 def thin(model):
@@ -57,7 +57,7 @@ def test_single_voice_continuation_is_the_fdm_from_the_hand_off_state(tiny_model
     sc = Scene(fb=100, duration=0.1)
     r = render_operator(sc, model=m, fallback="fdm")
     [at] = check_continuations(m, [sc], [r])
-    assert r.method == "operator+fdm" and f"t = {at / sc.sample_rate:.4f} s" in r.info["notes"][0]
+    assert r.method == "operator+fdm" and f"t = {at / sc.sample_rate:.4f} s" in r.info.notes[0]
 
 
 @pytest.mark.parametrize("voices", [2, BATCH_FROM + 1], ids=["voice-loop", "batch-loop"])
@@ -82,7 +82,7 @@ def test_cli_fallback_writes_the_continuation(tmp_path, tiny_model):
     sc = Scene(fb=100, duration=0.1)
     expect = render_operator(sc, model=load_model(small), fallback="fdm")
     info = read_wav(wav)
-    from bowsynth.wav import remove_dc
+    from bowsynth.io.audio import remove_dc
 
     assert info.dc_removed  # the default; the continuation is compared through the same filter
     want = remove_dc(expect.p, sc.sample_rate)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from bowsynth import Scene, SceneError, physics, render_fdm
-from bowsynth.fdm import OversampleWarning, fdm_batch, run_fdm_raw
+from bowsynth.engines.fdm import OversampleWarning, fdm_batch, run_fdm_raw
 
 
 def test_fb0_is_harmonic_oscillator_to_second_order():
@@ -63,10 +63,10 @@ def test_uniqueness_bound_raises_oversampling():
     assert 1 / 44100 > physics.max_stable_step(10_000, 100)
     with pytest.warns(OversampleWarning, match="oversampling raised from 1 to 2"):
         r = render_fdm(s)
-    assert r.info["oversample"] == 2 and np.all(np.isfinite(r.p))
+    assert r.info.oversample == 2 and np.all(np.isfinite(r.p))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert render_fdm(s, oversample=4).info["oversample"] == 4
+        assert render_fdm(s, oversample=4).info.oversample == 4
     with pytest.raises(SceneError, match="limit is x1024"):
         render_fdm(Scene(fb=1e6, a=1e6, duration=0.01))
     with pytest.raises(ValueError, match="uniqueness"):
@@ -85,7 +85,7 @@ def test_energy_balance():
 
 def test_paper_operator_scores_reproduced(anchors):
     """Our FDM x100 and NMSE score the paper's own rollouts as the anchors README says they score."""
-    from bowsynth.bench import bench_paper_anchors
+    from bowsynth.analysis.bench import bench_paper_anchors
 
     rows = {r["case"]: r for r in bench_paper_anchors(anchors)}
     expect = {"paper_deeponet_fb10": (1.4e-4, 2.5e-4), "paper_deeponet_fb100": (8.1e-7, 9.5e-7),

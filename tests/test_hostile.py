@@ -7,7 +7,6 @@ import sys
 import numpy as np
 import pytest
 import soundfile as sf
-
 from conftest import run_main
 
 
@@ -120,7 +119,7 @@ def test_a_second_training_to_the_same_out_is_refused_and_a_stale_lock_taken_ove
 
 def test_a_file_that_appears_at_out_while_training_is_kept(tmp_path, tiny_model, recwarn):
     from bowsynth.api import _save_new
-    from bowsynth.model import load_model
+    from bowsynth.engines.operator.modelfile import load_model
 
     out = tmp_path / "m.safetensors"
     out.write_bytes(b"someone else's file")

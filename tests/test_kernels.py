@@ -6,9 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from bowsynth import Scene, kernels
-from bowsynth.model import load_model
-from bowsynth.rollout import BATCH_FROM, FAILURES, render_operator, rollout_states
+from bowsynth import Scene
+from bowsynth.engines.operator import loops as kernels
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
+from bowsynth.engines.operator.windows import FAILURES
 
 
 def test_tanh32_matches_tanh_and_keeps_nan():
@@ -99,14 +102,14 @@ def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path
         render_operator(scenes, model=m)
     renders = render_operator(scenes, model=m, fallback="fdm")
     for r in renders:
-        assert r.method == "operator+fdm" and "finished with the FDM" in r.info["notes"][0]
+        assert r.method == "operator+fdm" and "finished with the FDM" in r.info.notes[0]
         assert len(r.q) == r.scene.n_samples  # what the continuation holds: tests/test_fallback.py
 
 
 @pytest.mark.parametrize("loop,voices", [("numpy", 5), ("numba", 3), ("numba", BATCH_FROM + 1)],
                          ids=["numpy-loop", "numba-voice-loop", "numba-batch-loop"])
 def test_voices_at_different_pitches_roll_in_one_batch(loop, voices):
-    from bowsynth.rollout import SHIPPED_DIR
+    from bowsynth.engines.operator.choose import SHIPPED_DIR
 
     m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")
     f0 = 100 * 2 ** (np.arange(voices) / 7)  # windows of 441 samples down to ~240, mostly not whole numbers
@@ -140,8 +143,9 @@ def test_numpy_loop_stops_a_failing_voice_like_the_compiled_ones(tiny_model):
 
 
 def test_trunk_features_interpolated_for_many_pitches_match_the_network():
-    from bowsynth import npnet
-    from bowsynth.rollout import SHIPPED_DIR, TRUNK_GRID, _operator
+    from bowsynth.engines.operator import npnet
+    from bowsynth.engines.operator.basis import TRUNK_GRID, _operator
+    from bowsynth.engines.operator.choose import SHIPPED_DIR
 
     for name in ("paper-fb10", "paper-fb100", "paper-fb1000"):
         op = _operator(load_model(SHIPPED_DIR / f"{name}.safetensors"))

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from bowsynth import Scene, physics
-from bowsynth.fdm import render_fdm
-from bowsynth.metrics import harmonic_levels, listener_errors, onset_time
+from bowsynth.analysis.metrics import harmonic_levels, listener_errors, onset_time
+from bowsynth.engines.fdm import render_fdm
 
 SR = 44100
 LEVELS = np.array([0.0, -10.0, -20.0, -26.0, -35.0, -38.0, -45.0, -48.0, -55.0, -60.0])
@@ -67,9 +67,9 @@ def test_derivative_target_is_the_true_trajectorys_slope():
 
 
 def test_range_weights_carry_the_derivative_term_and_it_trains():
+    from bowsynth.engines.operator.network import DeepONet, NetConfig
     from bowsynth.training import ParamBox
     from bowsynth.training.losses import default_weights, loss_terms
-    from bowsynth.network import DeepONet, NetConfig
 
     box = ParamBox(0.1, 0.3, 0.1, 0.25, 100.0)
     w = default_weights(Scene(), hybrid=True, beta_max=box.beta_hi)
@@ -113,7 +113,8 @@ def test_a_model_that_reaches_v_b_0_plays_a_notes_release_too(tmp_path):
     from conftest import tiny_config
 
     from bowsynth import api
-    from bowsynth.score import note_from_fields, render_notes
+    from bowsynth.music.perform import render_notes
+    from bowsynth.music.score import note_from_fields
     from bowsynth.training import ParamBox
 
     box = ParamBox(0.1, 0.3, 0.0, 0.25, 100.0)
@@ -123,8 +124,8 @@ def test_a_model_that_reaches_v_b_0_plays_a_notes_release_too(tmp_path):
     note = note_from_fields("v", {"f0": 100.0, "beta": 0.2, "vb": 0.2, "duration": 0.2}, "test")
     assert note.release > 0 and note.scene.vb_at(note.scene.duration) == 0.0
     (r,) = render_notes([note], model=path, fallback="fdm")
-    assert r.info["release"] == "operator" and len(r.q) == note.scene.n_samples
+    assert r.info.release == "operator" and len(r.q) == note.scene.n_samples
     paper = api.model_path("paper-fb100")  # a point model: its v_B is 0.2 only, the release is the FDM's
     (r2,) = render_notes([note_from_fields("v", {"f0": 100.0, "beta": 0.159155, "vb": 0.2, "duration": 0.2},
                                            "test")], model=paper)
-    assert r2.info["release"] == "fdm"
+    assert r2.info.release == "fdm"

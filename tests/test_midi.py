@@ -8,13 +8,13 @@ import mido
 import numpy as np
 import pytest
 import soundfile as sf
-
-from bowsynth.metrics import cents, f0_estimate
-from bowsynth.midi import read_midi, velocity_beta, velocity_vb
-from bowsynth.score import load_score
-from bowsynth.wav import read_wav, remove_dc
-from bowsynth.errors import UsageError
 from conftest import run_main
+
+from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.errors import UsageError
+from bowsynth.io.audio import read_wav, remove_dc
+from bowsynth.music.midi import read_midi, velocity_beta, velocity_vb
+from bowsynth.music.score import load_score
 
 TPB = 480
 
@@ -290,8 +290,8 @@ def _chorale(path):
 
 
 def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys, monkeypatch):
-    from bowsynth.midi import read_midi
-    from bowsynth.score import load_score
+    from bowsynth.music.midi import read_midi
+    from bowsynth.music.score import load_score
 
     p = read_midi(_chorale(tmp_path / "chorale.mid"))
     assert len(p.notes) == 8  # both notes of the alto/tenor unison (67 at beat 0) survive
@@ -310,7 +310,8 @@ def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys
 
 def test_timing_matches_mido_through_tempo_changes(tmp_path):
     import mido
-    from bowsynth.midi import _timed_events
+
+    from bowsynth.music.midi import _timed_events
 
     mid = mido.MidiFile(_chorale(tmp_path / "c.mid"))
     ours = [t for t, _, m in _timed_events(mid) if not m.is_meta]
@@ -324,7 +325,7 @@ def test_timing_matches_mido_through_tempo_changes(tmp_path):
 
 @pytest.mark.parametrize("division, says", [(0x0000, "0 ticks per beat"), (0xE728, "SMPTE frames")])
 def test_divisions_that_are_not_ticks_per_beat_are_refused_by_name(tmp_path, division, says):
-    from bowsynth.midi import read_midi
+    from bowsynth.music.midi import read_midi
 
     src = _chorale(tmp_path / "c.mid").read_bytes()
     bad = tmp_path / "bad.mid"
@@ -334,7 +335,7 @@ def test_divisions_that_are_not_ticks_per_beat_are_refused_by_name(tmp_path, div
 
 
 def test_a_header_announcing_more_tracks_than_present_is_truncated(tmp_path):
-    from bowsynth.midi import read_midi
+    from bowsynth.music.midi import read_midi
 
     src = _chorale(tmp_path / "c.mid").read_bytes()
     bad = tmp_path / "bad.mid"

@@ -10,12 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import run_main
 
 from bowsynth import ModelFileError, Scene
-from bowsynth import npnet
-from bowsynth.model import OperatorModel, digest, load_model
-from bowsynth.rollout import SHIPPED_DIR, available_models, check_physics, render_operator
-from conftest import run_main
+from bowsynth.engines.operator import npnet
+from bowsynth.engines.operator.check import check_physics
+from bowsynth.engines.operator.choose import SHIPPED_DIR, available_models
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import OperatorModel, digest, load_model
 
 FB100 = SHIPPED_DIR / "paper-fb100.safetensors"
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,7 +69,7 @@ def test_numpy_network_matches_torch():
 def test_rollout_from_a_file_equals_the_torch_built_model(tmp_path):
     from safetensors.torch import load_file
 
-    from bowsynth.network import DeepONet, NetConfig
+    from bowsynth.engines.operator.network import DeepONet, NetConfig
 
     loaded = load_model(FB100)
     tensors = load_file(str(FB100))
@@ -153,13 +155,13 @@ def test_the_best_validated_covering_model_wins(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     rewrite(FB100, models / "worse.safetensors", lambda m: m["validation"].update(nmse=1e-3))
     sc = Scene(fb=100, duration=0.05)
-    assert render_operator(sc).info["model_path"] == str(FB100)  # shipped 9.9e-7 beats 1e-3
+    assert render_operator(sc).info.model_path == str(FB100)  # shipped 9.9e-7 beats 1e-3
     rewrite(FB100, models / "better.safetensors", lambda m: m["validation"].update(nmse=1e-9))
-    assert render_operator(sc).info["model_path"] == str(models / "better.safetensors")
+    assert render_operator(sc).info.model_path == str(models / "better.safetensors")
     rewrite(FB100, models / "broken.safetensors", lambda m: m["validation"].update(nmse=None, error="diverged"))
     rewrite(FB100, models / "poor.safetensors", lambda m: m["validation"].update(nmse=0.5))
     rewrite(FB100, models / "nan.safetensors", lambda m: m["validation"].update(nmse=float("nan")))
-    assert render_operator(sc).info["model_path"] == str(models / "better.safetensors")
+    assert render_operator(sc).info.model_path == str(models / "better.safetensors")
     failed = {m.path.name: m.failure for m in available_models() if m.failure}
     assert set(failed) == {"broken.safetensors", "poor.safetensors", "nan.safetensors"}
 
@@ -188,7 +190,8 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
     import math
 
     from bowsynth import physics
-    from bowsynth.rollout import CHECK_FLOOR, CHECK_STEPS, CHECK_WINDOWS, _operator, reference_tau
+    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.check import CHECK_FLOOR, CHECK_STEPS, CHECK_WINDOWS, reference_tau
 
     m = load_model(SHIPPED_DIR / f"{name}.safetensors")
     op, d = _operator(m), m.domain
@@ -207,7 +210,7 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
                                   ["score", "--score", "s.toml", "--mix", "m.wav"]], ids=["render-pitch", "score"])
 def test_a_repeated_pitch_and_an_operator_score_load_no_numba(tmp_path, args):
     """The first `--pitch` measures the sounding pitch with the compiled FDM; the same note again reads the on-disk
-    table (bowsynth.cache) and loads no numba. An operator score (its releases in the numpy FDM batch) loads none
+    table (bowsynth.io.cache) and loads no numba. An operator score (its releases in the numpy FDM batch) loads none
     from the first run on."""
     (tmp_path / "s.toml").write_text('[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.2\n'
                                      '[[voice]]\nname = "w"\nf0 = 150.0\nbeta = 0.159155\nduration = 0.3\n')
@@ -251,12 +254,12 @@ def rewrite_weights(src, dst, edit):
 def test_an_honest_but_inaccurate_model_is_told_from_a_mislabelled_one(tmp_path):
     """Over the check's limit, a model whose windows still fit its claimed bow best renders with a note (an inaccurate
     onset); one whose file claims a bow 10 % off is refused, naming the bow its weights fit as well."""
-    from bowsynth.rollout import PHYSICS_MAX_ERROR
+    from bowsynth.engines.operator.check import PHYSICS_MAX_ERROR
 
     honest = load_model(rewrite_weights(FB100, tmp_path / "noisy.safetensors", noisy_branch))
     assert check_physics(honest) > PHYSICS_MAX_ERROR
     r = render_operator(Scene(fb=100, duration=0.2), model=honest)
-    assert any("not a mislabelled file" in n for n in r.info["notes"])
+    assert any("not a mislabelled file" in n for n in r.info.notes)
 
     def claim_more_force(meta):
         meta["domain"]["beta"] *= 1.1
@@ -294,7 +297,8 @@ def test_a_damaged_model_in_models_is_skipped_and_breaks_no_other(tmp_path, monk
     assert code != 0 and "damaged" in err and len(err.strip().splitlines()) == 1
 
 
-from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st  # noqa: E402
 
 _ODD = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**30, 10**30), st.none(),
                  st.text(max_size=5), st.lists(st.floats(-10, 10), max_size=5), st.booleans())

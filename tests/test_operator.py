@@ -3,14 +3,14 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import tiny_config
 
 from bowsynth import DomainError, ModelFileError, Scene, render_fdm
-from bowsynth.metrics import nmse
-from bowsynth.model import load_model
-from bowsynth.network import DeepONet, NetConfig
-from bowsynth.rollout import render_operator
+from bowsynth.analysis.metrics import nmse
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.network import DeepONet, NetConfig
 from bowsynth.training import Trainer, default_weights, loss_terms
-from conftest import tiny_config
 
 
 def _net():
@@ -48,7 +48,7 @@ def test_linear_flow_is_exact_without_correction():
 
 def _window_error(model, sc):
     """Mean NMSE(p) of one-window predictions from states of the render from rest against an FDM x10."""
-    from bowsynth.rollout import rollout_states
+    from bowsynth.engines.operator.rollout import rollout_states
 
     path = render_fdm(sc.replace(duration=0.2))
     x0 = np.stack([path.q[::1300], path.p[::1300]], 1)
@@ -150,7 +150,7 @@ def test_wrong_shapes_and_version_rejected(tmp_path, tiny_model):
     with safe_open(str(tiny_model), framework="pt") as f:
         meta = json.loads(f.metadata()["bowsynth"])
         tensors = {k: f.get_tensor(k) for k in f.keys()}
-    from bowsynth.model import digest
+    from bowsynth.engines.operator.modelfile import digest
 
     bad = dict(tensors, **{"bias": torch.zeros(5)})
     save_file(bad, str(tmp_path / "shape.safetensors"), metadata={"bowsynth": json.dumps(meta)})
@@ -235,7 +235,7 @@ def test_selection_keeps_the_best_scored_weights(monkeypatch, tmp_path):
 
 def test_selection_scores_a_rollout_from_a_state_the_validation_and_the_window_starts_never_use(tiny_model):
     from bowsynth import render_fdm, render_operator
-    from bowsynth.metrics import nmse
+    from bowsynth.analysis.metrics import nmse
     from bowsynth.training.data import window_starts
 
     tr = Trainer(Scene(fb=100), tiny_config(steps=1, sampling="box"), "t")  # the tiny model's own settings
@@ -274,7 +274,7 @@ def test_reporter_heartbeat_prints_during_a_silent_phase():
 
     from rich.console import Console
 
-    from bowsynth.progress import Reporter
+    from bowsynth.io.progress import Reporter
 
     buf = io.StringIO()
     with Reporter(Console(file=buf), every=0.2) as rep:
@@ -288,7 +288,7 @@ def test_reporter_lines_are_never_cut_at_the_console_width():
 
     from rich.console import Console
 
-    from bowsynth.progress import Reporter
+    from bowsynth.io.progress import Reporter
 
     buf = io.StringIO()
     info = "step 900 " + " ".join(f"term{i} 1.0e-03" for i in range(12))

@@ -9,16 +9,16 @@ import sys
 import threading
 
 import numpy as np
-from hypothesis import given, settings
-from hypothesis import strategies as st
 import pytest
 import soundfile as sf
+from conftest import run_main
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bowsynth import Scene, render_fdm
 from bowsynth.errors import UsageError
-from bowsynth.outfile import atomic_write, resolve
-from bowsynth.wav import read_wav, remove_dc, write_wav
-from conftest import run_main
+from bowsynth.io.audio import read_wav, remove_dc, write_wav
+from bowsynth.io.outfile import atomic_write, resolve
 
 FDM = ["render", "--method", "fdm", "-d", "0.2"]
 
@@ -177,7 +177,7 @@ def _harmonics_db(x, rate, f0, n=10):
                                    Scene(f0=65.4, fb=65.4, duration=2.0)], ids=["fb100", "fb1000-31Hz", "f0-65"])
 def test_dc_removal_leaves_the_harmonics(scene):
     """Measured: the 5 Hz zero-phase high-pass changes no harmonic (all above 20 Hz) by 0.01 dB."""
-    from bowsynth.metrics import f0_estimate
+    from bowsynth.analysis.metrics import f0_estimate
 
     u = render_fdm(scene).u
     f0 = f0_estimate(u, scene.sample_rate)
@@ -257,7 +257,7 @@ def test_edited_header_data_size_is_refused(tmp_path):
 @given(st.integers(1, 3_000_000))
 @settings(max_examples=200, deadline=None)
 def test_fft_length_is_the_next_5_smooth_length(n):
-    from bowsynth.wav import fft_length
+    from bowsynth.io.audio import fft_length
 
     m = fft_length(n)
     assert m >= n
@@ -274,7 +274,7 @@ def test_dc_removal_on_a_fast_length_equals_the_exact_length(n):
     """The zero fill up to a fast FFT length changes nothing audible: the same filter applied at the padded signal's
     own length (pocketfft handles any length, slowly) gives the same samples to 1e-5 of the peak (-100 dB; each
     differs from the ideal filter by what rings round from its far end, ~e^-11 of the jump there)."""
-    from bowsynth.wav import DC_HZ, DC_PAD_S, remove_dc
+    from bowsynth.io.audio import DC_HZ, DC_PAD_S, remove_dc
 
     rng = np.random.default_rng(n)
     x = 0.05 + np.cumsum(rng.standard_normal(n)) * 1e-3 + np.sin(np.arange(n) * 0.014)

@@ -5,15 +5,15 @@ import math
 
 import numpy as np
 import pytest
+from conftest import run_main
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, UsageError, make_scene
-from bowsynth.fdm import render_fdm
-from bowsynth.metrics import cents, f0_estimate
-from bowsynth.pitch import (SilentNoteError, held_value, midi_to_hz, note_name, note_number, parse_pitch,
-                            sounding_pitch, sounding_ratio, tune)
-from conftest import run_main
+from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.engines.fdm import render_fdm
+from bowsynth.music.notes import midi_to_hz, note_name, note_number, parse_pitch
+from bowsynth.music.tuning import SilentNoteError, held_value, sounding_pitch, sounding_ratio, tune
 
 
 def et(semitones_from_a4, a4=440.0):
@@ -120,7 +120,7 @@ def test_cli_render_bad_pitch_is_one_line_exit_2_nothing_written(tmp_path, capsy
 
 
 def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
-    from bowsynth.wav import read_wav
+    from bowsynth.io.audio import read_wav
 
     out = tmp_path / "a.wav"
     code, so, err = run_main(["render", str(out), "--method", "fdm", "--pitch", "Bb3", "--fb", "200", "-d", "0.5"],
@@ -128,11 +128,34 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
     assert code == 0, err
     sc = read_wav(out).scene
     # --method fdm: tuned with the audio-rate FDM's own ratio (its dispersion), not the truth's
-    from bowsynth.pitch import fdm_ratio
+    from bowsynth.music.engine_tuning import fdm_ratio
 
     assert sc.fb == 200 and math.isclose(sc.f0, tune("Bb3", 200.0, ratio=fdm_ratio(44100)).f0)
     assert not math.isclose(sc.f0, tune("Bb3", 200.0).f0, rel_tol=1e-6)
     assert "233.08 Hz (A#3)" in so and "tuned for the FDM at x1" in so
+
+
+def test_score_notes_are_tuned_for_the_engine_that_plays_them(tmp_path, capsys, monkeypatch):
+    """An A5 in a score played by the audio-rate FDM sounds at 880 Hz: tuned with the FDM's own ratio (its dispersion
+    made it +2.2 cents sharp when tuned with the truth's). Measured on the written mix, in a real score run."""
+    from bowsynth.analysis.metrics import cents, f0_estimate
+    from bowsynth.io.audio import read_wav
+
+    (tmp_path / "a5.toml").write_text('[[voice]]\nname = "v"\n[[voice.note]]\npitch = "A5"\nfb = 553.0\n'
+                                      'duration = 2.0\nrelease = 0.0\n')
+    out = tmp_path / "a5.wav"
+    code, so, err = run_main(["score", "--score", str(tmp_path / "a5.toml"), "--method", "fdm", "--mix", str(out)],
+                             capsys, monkeypatch)
+    assert code == 0, err
+    x = read_wav(out).samples
+    sr = 44100
+    heard = cents(f0_estimate(x[int(0.8 * sr):int(1.5 * sr)], sr, tail=1.0), 880.0)
+    assert abs(heard) < 0.3, heard
+    # the same note tuned with the truth's ratio is the sharp one this replaced
+    from bowsynth.music.engine_tuning import fdm_ratio
+    from bowsynth.music.tuning import tune
+
+    assert cents(tune("A5", 553.0).f0, tune("A5", 553.0, ratio=fdm_ratio(44100)).f0) > 1.5
 
 
 # --- the on-disk table of sounding ratios ---------------------------------------------------------------------------
@@ -140,7 +163,7 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
 @pytest.fixture
 def fresh_cache(tmp_path, monkeypatch):
     """An empty cache directory, and no ratio remembered by this process."""
-    from bowsynth import pitch
+    from bowsynth.music import tuning as pitch
 
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path / "cache"))
     monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
@@ -151,7 +174,7 @@ def fresh_cache(tmp_path, monkeypatch):
 
 def _forget(monkeypatch):
     """A new process: nothing in memory, and measuring is forbidden (only the disk can answer)."""
-    from bowsynth import pitch
+    from bowsynth.music import tuning as pitch
 
     pitch.sounding_ratio.cache_clear()
     monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
@@ -159,7 +182,7 @@ def _forget(monkeypatch):
 
 
 def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
-    from bowsynth import pitch
+    from bowsynth.music import tuning as pitch
 
     first = pitch.sounding_ratio(0.159, 0.2, 100.0)
     with pytest.raises(pitch.SilentNoteError) as silent:
@@ -177,7 +200,7 @@ def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
                                      b'{"version": null, "entries": []}', b"[1, 2]"])
 def test_a_bad_cache_file_is_measured_over(fresh_cache, content):
     """Truncated, binary, foreign-version or wrong-shaped tables are ignored and replaced, never an error."""
-    from bowsynth import pitch
+    from bowsynth.music import tuning as pitch
 
     fresh_cache.mkdir()
     (fresh_cache / "sounding-ratio.json").write_bytes(content)
@@ -188,7 +211,7 @@ def test_a_bad_cache_file_is_measured_over(fresh_cache, content):
 
 
 def test_an_edited_entry_is_measured_again(fresh_cache, monkeypatch):
-    from bowsynth import pitch
+    from bowsynth.music import tuning as pitch
 
     r = pitch.sounding_ratio(0.159, 0.2, 100.0)
     path = fresh_cache / "sounding-ratio.json"
@@ -202,7 +225,7 @@ def test_an_edited_entry_is_measured_again(fresh_cache, monkeypatch):
 
 
 def test_no_cache_when_off_or_unwritable(fresh_cache, tmp_path, monkeypatch):
-    from bowsynth import pitch
+    from bowsynth.music import tuning as pitch
 
     monkeypatch.setenv("BOWSYNTH_CACHE", "off")
     assert pitch.sounding_ratio(0.159, 0.2, 100.0).r > 0
@@ -217,7 +240,7 @@ def test_no_cache_when_off_or_unwritable(fresh_cache, tmp_path, monkeypatch):
     link = tmp_path / "link.json"
     link.symlink_to(tmp_path / "target.json")
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
-    from bowsynth.cache import DiskTable
+    from bowsynth.io.cache import DiskTable
 
     t = DiskTable("link", "v")
     t.put("k", 1)  # the link is replaced by a file; what it pointed to is never written
@@ -230,9 +253,9 @@ def test_a_note_is_tuned_by_the_engine_that_plays_it(pitch, fb, engine):
     """The audio-rate FDM's dispersion makes A5 +1.9 cents sharp and 1 kHz +3.0 when tuned with the truth's ratio;
     the range model plays its own ratio (-0.30 cents here): tuned with the engine's own, each sounds within 0.1 cent."""
     from bowsynth import api
-    from bowsynth.metrics import cents, f0_estimate
-    from bowsynth.pitch import parse_pitch
-    from bowsynth.scene import make_scene
+    from bowsynth.analysis.metrics import cents, f0_estimate
+    from bowsynth.music.notes import parse_pitch
+    from bowsynth.music.request import make_scene
 
     hz = parse_pitch(pitch)
     base = make_scene(pitch=pitch, fb=fb, vb=0.2, duration=3.0)

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from bowsynth import Scene
-from bowsynth.fdm import render_fdm
-from bowsynth.metrics import f0_estimate
+from bowsynth.engines.fdm import render_fdm
+from bowsynth.analysis.metrics import f0_estimate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_stream import MODEL, offline, play  # noqa: E402
@@ -45,27 +45,27 @@ def test_the_fdm_follows_a_glissando_to_the_pitch_a_held_note_plays():
 
 
 def test_the_operator_plays_a_pitch_curve_per_window_near_the_fdm():
-    from bowsynth.rollout import render_operator
+    from bowsynth.engines.operator.engine import render_operator
 
     sc = glide([(0.0, 200.0), (0.6, 200.0), (1.0, 400.0)], 1.6)
     op = render_operator(sc, model=MODEL)
     ref = render_fdm(sc, oversample=4)
-    assert op.info["loop"] == "live per-window pitch"
+    assert op.info.loop == "per-window pitch"
     for a, b in ((0.3, 0.6), (1.2, 1.6)):
         assert abs(cents(pitch(op.q, a, b), pitch(ref.q, a, b))) < 1.5
 
 
 def test_a_pitch_curve_needs_a_held_bow_for_the_operator():
     from bowsynth.errors import SceneError
-    from bowsynth.rollout import render_operator
+    from bowsynth.engines.operator.engine import render_operator
 
     with pytest.raises(SceneError, match="--method fdm"):
         render_operator(Scene(f0=[(0, 200.0), (1, 300.0)], fb=100.0, vb=VB, duration=1.0), model=MODEL)
 
 
 def test_a_score_takes_pitch_breakpoints_and_cents(tmp_path):
-    from bowsynth import pitch as P
-    from bowsynth.score import load_toml_score
+    from bowsynth.music import tuning as P
+    from bowsynth.music.score import load_toml_score
 
     path = tmp_path / "s.toml"
     path.write_text('[defaults]\nbeta = 0.15915494\nvb = 0.2\n[[voice]]\nname = "v"\n[[voice.note]]\nstart = 0.0\n'
@@ -97,8 +97,8 @@ def _midi(path, msgs):
 def test_a_midi_file_bends_with_the_pitch_wheel_and_vibrates_with_cc1(tmp_path):
     import mido
 
-    from bowsynth import pitch as P
-    from bowsynth.score import load_midi_score
+    from bowsynth.music import tuning as P
+    from bowsynth.music.score import load_midi_score
 
     path = tmp_path / "b.mid"
     _midi(path, [(0, mido.Message("control_change", control=1, value=127)), (0, mido.Message("note_on", note=57,

@@ -6,14 +6,16 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import run_main, tiny_config
 
 from bowsynth import Scene
+from bowsynth.engines.operator.basis import _operator
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import RANGE_VERSION, load_model
+from bowsynth.engines.operator.rollout import rollout_states, scene_bows
+from bowsynth.engines.operator.windows import window_bounds
 from bowsynth.errors import DomainError
-from bowsynth.model import RANGE_VERSION, load_model
-from bowsynth.rollout import render_operator, rollout_states, scene_bows, window_bounds, _operator
 from bowsynth.training.ranges import ParamBox
-
-from conftest import run_main, tiny_config
 
 BOX = ParamBox(0.1, 0.3, 0.15, 0.25, 100.0)
 
@@ -96,7 +98,7 @@ def test_batched_and_single_voice_loops_agree_on_gestures(which, request):
     x0 = np.zeros((B, 2))
     a = rollout_states(m, x0, n, dt, check_domain=False, loop="numpy", params=par)
     b = rollout_states(m, x0, n, dt, check_domain=False, loop="numba", params=par)  # roll_batch (B >= 8)
-    from bowsynth import kernels
+    from bowsynth.engines.operator import loops as kernels
 
     c = [rollout_states(m, x0[i:i + 1], n, dt[i], check_domain=False, loop="numba", params=par[i:i + 1])
          for i in range(2)]  # roll_voices
@@ -109,8 +111,8 @@ def test_batched_and_single_voice_loops_agree_on_gestures(which, request):
 def test_bow_scaling_follows_the_playing_amplitude(scaled_range_model):
     """A stick-slip limit cycle grows with F_B / w (q's half-range ~0.63 at 0.6, ~1.13 at 1.1): the fitted scaling
     follows the renders' own amplitudes at both ends of the box, where one scaling for the box cannot."""
-    from bowsynth import npnet
-    from bowsynth.fdm import render_fdm
+    from bowsynth.engines.fdm import render_fdm
+    from bowsynth.engines.operator import npnet
 
     m = load_model(scaled_range_model)
     assert m.cfg.bow_scaled
@@ -181,8 +183,8 @@ def test_a_bow_that_leaves_the_range_is_named_with_its_time(range_model):
     # --fallback fdm: the operator plays until the bow leaves, the FDM from there, following the same curve
     r = render_operator(sc, model=m, fallback="fdm")
     assert r.method == "operator+fdm" and np.isfinite(r.p).all()
-    assert any("bow left the model's range" in n for n in r.info["notes"])
-    from bowsynth.fdm import render_fdm
+    assert any("bow left the model's range" in n for n in r.info.notes)
+    from bowsynth.engines.fdm import render_fdm
 
     ref = render_fdm(sc)
     leave = int(np.argmax(~m.domain.box_contains(r.controls["fb"] / w, r.controls["vb"])))
@@ -222,7 +224,8 @@ def test_train_score_refuses_flags_it_replaces(capsys, monkeypatch, tmp_path):
 def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_path):
     """`train --score`: the model's box is the bows the notes' sustains visit (a gesture's whole curve included), and
     the model then covers every note of the score (the coverage check before rendering finds nothing missing)."""
-    from bowsynth.score import load_score, uncovered
+    from bowsynth.music.perform import uncovered
+    from bowsynth.music.score import load_score
 
     score = tmp_path / "s.toml"
     score.write_text('[[voice]]\n[[voice.note]]\nstart = 0\nduration = 0.4\nf0 = 100\nfb = [[0.0, 80.0], [0.3, 160.0]]\n'
@@ -246,9 +249,9 @@ def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_pat
 def test_bench_scores_held_out_bows_of_a_range_model(range_model):
     """bench: a range model's held-out bows are the grid of cell centres of its box, each scored against the FDM
     x100 where the note speaks (nmse is the metrics' NMSE of p), reported finite where it does not."""
-    from bowsynth.bench import bench_parameter_points, parameter_summary
-    from bowsynth.fdm import render_fdm
-    from bowsynth.metrics import nmse
+    from bowsynth.analysis.metrics import nmse
+    from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
+    from bowsynth.engines.fdm import render_fdm
 
     m = load_model(range_model)
     rows = bench_parameter_points(m, n=2, duration=0.1)

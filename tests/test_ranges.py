@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, UsageError, render_fdm
-from bowsynth.fdm import fdm_batch
+from bowsynth.engines.fdm import fdm_batch
 from bowsynth.training.ranges import ParamBox, parse_range, speaks
 
 

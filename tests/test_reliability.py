@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_main
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, SceneError
-from conftest import run_main
 
 BOW = [sys.executable, "-m", "bowsynth"]
 
@@ -48,7 +48,7 @@ BAD = [
 @pytest.mark.parametrize("args,code,needle", BAD, ids=[" ".join(b[0][:3]) for b in BAD])
 def test_bad_input_one_line(args, code, needle, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("bowsynth.rollout.SHIPPED_DIR", tmp_path / "none")
+    monkeypatch.setattr("bowsynth.engines.operator.choose.SHIPPED_DIR", tmp_path / "none")
     (tmp_path / "garbage.safetensors").write_bytes(b"\x00garbage" * 10)
     (tmp_path / "garbage.wav").write_bytes(b"RIFF0000WAVEjunk" * 4)
     (tmp_path / "bad.toml").write_text("[[voice]\nfb = ")
@@ -88,11 +88,11 @@ def test_existing_wav_is_replaced_atomically_and_kept_on_failure(tmp_path, monke
 
 
 def test_no_nan_reaches_a_wav(tmp_path):
-    from bowsynth.render import Render
-    from bowsynth.wav import write_wav
+    from bowsynth.io.audio import write_wav
+    from bowsynth.render import Played, Render
 
     sc = Scene(duration=0.01)
-    r = Render(sc, np.zeros(441), np.full(441, np.nan), np.zeros(441), method="x")
+    r = Render(sc, np.zeros(441), np.full(441, np.nan), np.zeros(441), method=Played("fdm"))
     with pytest.raises(ValueError, match="non-finite"):
         write_wav(tmp_path / "n.wav", r)
     assert not list(tmp_path.iterdir())
@@ -147,8 +147,9 @@ def test_kill_training_then_resume(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert ckpt.exists() and not out.exists()
-    from safetensors import safe_open
     import json
+
+    from safetensors import safe_open
 
     with safe_open(str(ckpt), framework="pt") as f:
         step = json.loads(f.metadata()["bowsynth_checkpoint"])["step"]
@@ -157,7 +158,7 @@ def test_kill_training_then_resume(tmp_path):
                        timeout=300)
     assert r.returncode == 0, r.stderr
     assert out.exists() and not ckpt.exists()
-    from bowsynth.model import load_model
+    from bowsynth.engines.operator.modelfile import load_model
 
     assert load_model(out).meta.training["steps_done"] == step + 20
 

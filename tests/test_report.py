@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import run_main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,7 +106,7 @@ def metrics_cells(info: dict, cls: str = "metrics") -> list[dict]:
 
 def assert_table_holds(table: dict, j: dict) -> None:
     """The page's metrics table: the numbers `compare --json` gives, formatted as `compare` prints them."""
-    from bowsynth.compare import ROWS
+    from bowsynth.analysis.compare import ROWS
 
     cols = list(j["metrics"])
     assert table["head"][1:-1] == cols
@@ -216,7 +215,7 @@ def test_models_report(browser, tmp_path, capsys, monkeypatch):
     code, out, err = run_main(["models", "--report", str(page), "--report-grid", "2"], capsys, monkeypatch)
     assert code == 0, err
     assert "models report: soft-range.safetensors: bow 4/4" in err  # progress lines
-    from bowsynth.rollout import scan_models
+    from bowsynth.engines.operator.choose import scan_models
 
     found = [(p, m) for p, m, _ in scan_models()]
     points = [p for p, m in found if m is not None and not m.domain.is_range]
@@ -308,7 +307,7 @@ def test_harmonic_levels_each_at_its_own_pitch():
 
 
 def test_onset_and_pitch_track():
-    from bowsynth.metrics import onset_time
+    from bowsynth.analysis.metrics import onset_time
     from bowsynth.report.listen import cents, pitch_track
 
     t = np.arange(SR) / SR

@@ -52,8 +52,8 @@ def test_presets_sound_at_their_names_and_name_their_model(capsys, monkeypatch):
             assert "model: paper-fb100.safetensors" in line
             assert f"({name[-2:].upper()})" in line  # sounds at the named note
         # the model named is the one a render picks; none only where no model covers the preset (curves included)
+        from bowsynth.engines.operator.choose import find_model, train_hint
         from bowsynth.errors import DomainError
-        from bowsynth.rollout import find_model, train_hint
 
         try:
             assert f"model: {find_model(make_scene(name)).path.name}" in line
@@ -62,7 +62,7 @@ def test_presets_sound_at_their_names_and_name_their_model(capsys, monkeypatch):
 
 
 def test_make_scene_with_pitch_and_beta():
-    from bowsynth.pitch import sounding_pitch
+    from bowsynth.music.tuning import sounding_pitch
 
     s = make_scene(pitch="A3", beta=1 / (2 * math.pi))
     assert math.isclose(s.beta, 1 / (2 * math.pi), rel_tol=1e-12)

@@ -1,13 +1,13 @@
 """Many voices: a batched rollout equals the voices rendered one by one; scores and mixes from the CLI."""
 
 import numpy as np
+from conftest import run_main
 
 from bowsynth import Scene
-from bowsynth.model import load_model
-from bowsynth.rollout import render_operator
-from bowsynth.score import load_score
-from bowsynth.wav import read_wav
-from conftest import run_main
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.io.audio import read_wav
+from bowsynth.music.score import load_score
 
 
 def test_batched_rollout_equals_single_voices(tiny_model):
@@ -25,7 +25,7 @@ def test_batched_rollout_equals_single_voices(tiny_model):
 
 
 def test_batch_loop_equals_voice_loop(tiny_model):
-    from bowsynth.rollout import BATCH_FROM, rollout_states
+    from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
 
     m = load_model(tiny_model)
     sc = Scene(fb=100)
@@ -64,8 +64,8 @@ def test_score_file_and_mix(tmp_path, tiny_model, monkeypatch, capsys):
 def test_voices_without_a_named_model_share_one_rollout(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # no ./models: the shipped paper-fb100 covers both (same F_B / w, other pitches)
     renders = render_operator([Scene(fb=100, duration=0.02), Scene(fb=150, f0=150, duration=0.02, q0=0.001)])
-    assert [r.info["batched"] for r in renders] == [2, 2]
-    assert all(r.info["model_path"].endswith("paper-fb100.safetensors") for r in renders)
+    assert [r.info.batched for r in renders] == [2, 2]
+    assert all(r.info.model_path.endswith("paper-fb100.safetensors") for r in renders)
 
 
 def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch, capsys):
@@ -93,15 +93,15 @@ def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch,
 
 # --- the score format (docs/score.md) -----------------------------------------------------------------------------
 
-import math  # noqa: E402
-
 import json  # noqa: E402
+import math  # noqa: E402
 
 import pytest  # noqa: E402
 import soundfile as sf  # noqa: E402
 
-from bowsynth.metrics import cents, f0_estimate  # noqa: E402
-from bowsynth.pitch import parse_pitch, tune  # noqa: E402
+from bowsynth.analysis.metrics import cents, f0_estimate  # noqa: E402
+from bowsynth.music.notes import parse_pitch  # noqa: E402
+from bowsynth.music.tuning import tune  # noqa: E402
 
 SCORE = '''
 a4 = 442.0
@@ -226,8 +226,8 @@ def test_example_scores_load(tmp_path):
                                     {"pitch": "A4", "beta": 0.159}, {"pitch": "C2", "beta": 2.5}])
 def test_bow_stop_brings_the_mass_to_rest_before_the_render_ends(fields):
     """A pressed bow holds the mass aside after it stops; the tail runs until it has crept back (-60 dB)."""
-    from bowsynth.fdm import render_fdm
-    from bowsynth.score import note_from_fields
+    from bowsynth.engines.fdm import render_fdm
+    from bowsynth.music.score import note_from_fields
 
     n = note_from_fields("v", {"duration": 0.4, **fields}, "test")
     u = render_fdm(n.scene).u
@@ -267,16 +267,17 @@ def test_score_outputs_follow_the_output_rules(tmp_path, capsys, monkeypatch):
     assert code == 2 and "not standard output" in err, err
 
 
-@pytest.mark.filterwarnings("ignore::bowsynth.fdm.OversampleWarning")  # the reference of the fb 12000 note
+@pytest.mark.filterwarnings("ignore::bowsynth.engines.fdm.OversampleWarning")  # the reference of the fb 12000 note
 @pytest.mark.parametrize("loop", ["numpy", "numba"])
 def test_batched_releases_are_the_fdm_of_each_release(loop):
     """The releases of many notes run as one numpy FDM batch (or, where numba is loaded, by the compiled loop);
     each equals `render_fdm` of that note's release scene (same start, scheme and Newton), for notes at several
     pitches, bow forces, speeds and release times, one of them needing the FDM oversampled, and a note without a
     release passes through untouched."""
-    from bowsynth.fdm import check_oversample, render_fdm
-    from bowsynth.render import Render
-    from bowsynth.score import _release_scene, finish_releases, note_from_fields
+    from bowsynth.engines.fdm import check_oversample, render_fdm
+    from bowsynth.music.perform import _release_scene, finish_releases
+    from bowsynth.music.score import note_from_fields
+    from bowsynth.render import Played, Render
 
     fields = [{"pitch": "C2", "beta": 0.637, "release": 0.02}, {"pitch": "A4", "beta": 0.159, "vb": 0.3},
               {"f0": 150.0, "fb": 150.0, "vb": 0.1, "release": 0.08}, {"pitch": "G3", "fb": 12000.0},
@@ -288,7 +289,7 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
         sc = n.rollout_scene()
         assert sc.n_samples == n.scene.n_samples or n.release <= 0
         q, p = rng.uniform(-0.5, 0.5, sc.n_samples), rng.uniform(-0.5, 0.5, sc.n_samples)
-        sustains.append(Render(sc, np.arange(sc.n_samples) / sc.sample_rate, q, p, "operator", 0.0, {}))
+        sustains.append(Render(sc, np.arange(sc.n_samples) / sc.sample_rate, q, p, Played("operator")))
         before.append((q.copy(), p.copy()))
     refs = [render_fdm(_release_scene(n, s)) if n.release > 0 else None for n, s in zip(notes, sustains)]
     out = finish_releases(notes, sustains, loop=loop)

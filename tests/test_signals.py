@@ -73,7 +73,7 @@ def test_signal_during_a_long_fdm_render(sig, tmp_path):
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
 def test_sigterm_during_compare_high_reference(tmp_path):
     from bowsynth import Scene, render_fdm
-    from bowsynth.wav import write_wav
+    from bowsynth.io.audio import write_wav
 
     wav = tmp_path / "long.wav"
     write_wav(wav, render_fdm(Scene(duration=60.0)))  # its x100 reference: 2.6e8 steps, ~20 s
@@ -143,7 +143,8 @@ def test_fdm_in_chunks_equals_one_call(monkeypatch):
     the bow follows a curve (the chunk's start time carries over)."""
     import numpy as np
 
-    from bowsynth import Scene, fdm
+    from bowsynth import Scene
+    from bowsynth.engines import fdm
 
     sc = Scene(fb=[[0.0, 50.0], [0.05, 300.0]], vb=[[0.0, 0.1], [0.08, 0.25]], duration=0.1)
     monkeypatch.setattr(fdm, "CHUNK_STEPS", 10**12)

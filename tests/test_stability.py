@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 
 from bowsynth import Scene, render_fdm
-from bowsynth.metrics import cents, f0_estimate, nmse
-from bowsynth.rollout import SHIPPED_DIR, render_operator, rollout_states
-from bowsynth.model import load_model
+from bowsynth.analysis.metrics import cents, f0_estimate, nmse
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.engine import render_operator
+from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.rollout import rollout_states
 
 SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.endswith(".ckpt.safetensors"))
 
@@ -66,7 +68,7 @@ def test_fdm_high_force_oversamples_and_stays_finite(fb):
         warnings.simplefilter("ignore")
         r = render_fdm(Scene(fb=fb, duration=0.2))
     # the smallest factor whose step keeps the scheme's solution unique: k < e / (F_B sqrt(2a))
-    os_ = r.info["oversample"]
+    os_ = r.info.oversample
     k_max = math.e / (fb * math.sqrt(2 * 100.0))
     assert 1 / (44100 * os_) < k_max and (os_ == 1 or 1 / (44100 * (os_ - 1)) > 0.99 * k_max)
     assert np.all(np.isfinite(r.p)) and np.abs(r.p).max() < 50

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from bowsynth.live import Stream
-from bowsynth.live import voices as V
-from bowsynth.score import load_midi_score, mix_notes, render_notes
+from bowsynth.engines.operator import voices as V
+from bowsynth.music.mix import mix_notes
+from bowsynth.music.perform import render_notes
+from bowsynth.music.score import load_midi_score
 
 RATE = 44100
 MODEL = "soft-range"
@@ -43,7 +45,14 @@ def play(stream, events, n, block):
 def offline(tmp_path, events, n, method, amp, dc_r):
     path = tmp_path / "e.mid"
     write_midi(path, events)
-    notes = load_midi_score(path)
+    # tuned as `bowsynth score` tunes (the operator model's own ratio); the live FDM tunes with the truth's
+    # (docs/live.md): the FDM's ratio depends on each pitch, too many to measure before playing
+    ratio_for = None
+    if method == "operator":
+        from bowsynth.music.engine_tuning import ratio_for_engine
+
+        ratio_for = lambda sc: ratio_for_engine(sc, "operator", MODEL)[0]  # noqa: E731
+    notes = load_midi_score(path, ratio_for=ratio_for)
     x, _ = mix_notes(notes, render_notes(notes, method=method, model=MODEL if method == "operator" else None))
     ref = np.zeros(n)
     ref[:min(n, len(x))] = amp * x[:n]
@@ -73,9 +82,10 @@ def test_a_stream_is_the_offline_render_of_the_same_events(tmp_path, method, blo
 
 
 def test_a_note_struck_with_moved_controllers_plays_the_bow_score_gives_it(tmp_path):
-    """CC2 and CC11 set before the note: the bow is the file reader's (one mapping); the tuning comes from the
-    grid's spline instead of an exact measurement, a fraction of a cent away."""
-    from bowsynth.metrics import f0_estimate
+    """CC2 and CC11 set before the note: the bow is the file reader's (one mapping), so the onset is the offline
+    onset; the tuning comes from the truth's ratio on a grid (the operator's own ratio at this bow, which `score`
+    uses, is 0.99 cents away: docs/live.md)."""
+    from bowsynth.analysis.metrics import f0_estimate
 
     ev = [(0, b"\xb0\x02\x50"), (0, b"\xb0\x0b\x64"), (100, b"\x90\x3c\x3c"), (30000, b"\x80\x3c\x00")]
     s = Stream(block=512, voices=2, model=MODEL)
@@ -84,8 +94,8 @@ def test_a_note_struck_with_moved_controllers_plays_the_bow_score_gives_it(tmp_p
     ref = offline(tmp_path, ev, n, "operator", s.amp, s.dc_r)
     body = slice(15000, 30000)
     cents = 1200 * np.log2(f0_estimate(out[body], RATE, tail=1.0) / f0_estimate(ref[body], RATE, tail=1.0))
-    assert abs(cents) < 0.3
-    assert np.corrcoef(out, ref)[0, 1] > 0.99
+    assert abs(cents) < 1.5
+    assert np.corrcoef(out[:3000], ref[:3000])[0, 1] > 0.999
 
 
 def test_the_callback_creates_no_array_and_imports_nothing(monkeypatch):

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..text import num as text_num
+
 PEAK = 10 ** (-1 / 20)  # -1 dBFS, as the renders are written
 
 CSS = """
@@ -50,9 +52,7 @@ def esc(x) -> str:
 
 def num(v, fmt: str) -> str:
     """A number as compare prints it ('n/a' for a missing or non-finite one)."""
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "n/a"
-    return format(v, fmt.strip("{}:")) if fmt.startswith("{") else format(v, fmt)
+    return text_num(v, fmt)
 
 
 def wav_data_uri(x, sample_rate: int, gain: float) -> str:
@@ -141,9 +141,9 @@ def page(title: str, body: str) -> str:
 
 
 def write_page(path, text: str, force: bool = False) -> None:
-    """Through the project's output rules (bowsynth.outfile): a temp file renamed into place, so a failure leaves
+    """Through the project's output rules (bowsynth.io.outfile): a temp file renamed into place, so a failure leaves
     no half page; a symlink is written through, a FIFO written to, a read-only file refused without force."""
-    from ..outfile import atomic_write
+    from ..io.outfile import atomic_write
 
     atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), force=force)
 

@@ -13,10 +13,10 @@ from datetime import datetime, timezone
 
 import numpy as np
 
+from ..engines.fdm import TRUTH_OVERSAMPLE
 from . import html as H
 from . import listen as L
 
-REF_OVERSAMPLE = 100
 SECONDS = 1.0
 
 
@@ -34,14 +34,14 @@ def held_out_bows(domain, n: int) -> np.ndarray:
 def measure(model, scene) -> dict:
     """The model's render of `scene` against the x100 FDM, on p (as the validation the file carries): NMSE, pitch
     (cents, steady half), harmonics 1-10 each at its own pitch (mean |dB|); and u as a file would hold it, to play."""
+    from ..analysis.metrics import cents, f0_estimate, nmse
+    from ..engines.fdm import render_fdm
+    from ..engines.operator.engine import render_operator
     from ..errors import DomainError
-    from ..fdm import render_fdm
-    from ..metrics import cents, f0_estimate, nmse
-    from ..rollout import render_operator
-    from ..wav import remove_dc
+    from ..io.audio import remove_dc
 
     t0 = time.perf_counter()
-    ref = render_fdm(scene, oversample=REF_OVERSAMPLE)
+    ref = render_fdm(scene, oversample=TRUTH_OVERSAMPLE)
     out = {"fdm_seconds": time.perf_counter() - t0, "truth_u": remove_dc(ref.u, scene.sample_rate)}
     try:
         r = render_operator(scene, model=model)
@@ -160,7 +160,7 @@ def _players_for(rows: list[dict], sr: int, what) -> str:
         items.append(H.player(f"model, {what(r)}", f"cents {H.num(r.get('cents'), '+.2f')}, harmonics "
                               f"{H.num(r.get('harm_db'), '.2f')} dB, NMSE(p) {H.num(r.get('nmse'), '.3g')}",
                               r["file_u"], sr, g))
-        items.append(H.player(f"truth, {what(r)}", f"FDM x{REF_OVERSAMPLE}, the same bow, at the model's level",
+        items.append(H.player(f"truth, {what(r)}", f"FDM x{TRUTH_OVERSAMPLE}, the same bow, at the model's level",
                               r["truth_u"], sr, g))
     return f'<div class="players">{"".join(items)}</div>' if items else ""
 
@@ -179,12 +179,12 @@ def model_section(path, m, grid: int, progress, plt) -> tuple[str, dict]:
     summary = {"name": path.name, "kind": kind, "anchor": anchor, "failure": m.failure,
                "validation": (m.meta.validation or {}).get("nmse")}
     if not m.domain.is_range:
-        progress(f"models report: {path.name}: its own scene, {SECONDS:g} s against a x{REF_OVERSAMPLE} FDM")
+        progress(f"models report: {path.name}: its own scene, {SECONDS:g} s against a x{TRUTH_OVERSAMPLE} FDM")
         r = measure(m, base)
         summary.update(cents=r.get("cents"), harm=r.get("harm_db"), error=r.get("error"))
         body = ["<h3>Measured now: its own scene</h3>",
                 f'<p class="why">{SECONDS:g} s from the scene\'s initial state ({H.esc(base.describe())}), the model '
-                f'against the FDM x{REF_OVERSAMPLE}, on p: pitch over the steady half, harmonics 1-10 each at its own '
+                f'against the FDM x{TRUTH_OVERSAMPLE}, on p: pitch over the steady half, harmonics 1-10 each at its own '
                 f'pitch.</p>']
         if r.get("error"):
             body.append(f'<p class="note bad">{H.esc(r["error"])}</p>')
@@ -203,7 +203,7 @@ def model_section(path, m, grid: int, progress, plt) -> tuple[str, dict]:
         row = {"beta": float(b), "vb": float(v), "speaks": bool(speaks(b, v, m.domain.a, base.f0, SECONDS))}
         if row["speaks"]:
             progress(f"models report: {path.name}: bow {i + 1}/{len(bows)} (F_B / w {b:.4g}, v_B {v:.4g}), "
-                     f"{SECONDS:g} s against a x{REF_OVERSAMPLE} FDM")
+                     f"{SECONDS:g} s against a x{TRUTH_OVERSAMPLE} FDM")
             row.update(measure(m, sc))
         else:
             progress(f"models report: {path.name}: bow {i + 1}/{len(bows)} (F_B / w {b:.4g}, v_B {v:.4g}) does "
@@ -225,7 +225,7 @@ def model_section(path, m, grid: int, progress, plt) -> tuple[str, dict]:
     body = [f"<h3>Measured now: {len(bows)} held-out bows</h3>",
             f'<p class="why">{grid} x {grid} bows over the box, a quarter cell off the validation grid above (so '
             f'neither training, selection nor validation used them), {SECONDS:g} s from rest at f0 {base.f0:g} Hz '
-            f'against a x{REF_OVERSAMPLE} FDM each, on p. Median over the {len(ok)} measured: pitch '
+            f'against a x{TRUTH_OVERSAMPLE} FDM each, on p. Median over the {len(ok)} measured: pitch '
             f'{H.num(summary["cents"], ".2f")} cents, harmonics {H.num(summary["harm"], ".2f")} dB. '
             f'<code>--report-grid N</code> sets the grid (N x N FDM runs: the time grows as N squared).</p>',
             H.figure(_map_plot(rows, m.domain, plt),
@@ -279,7 +279,7 @@ def write_models_report(path, found: list, grid: int = 3, force: bool = False, p
 
 def check_report_path(path, grid: int, force: bool = False) -> None:
     from ..errors import UsageError
-    from ..outfile import check_output_path, is_stdout
+    from ..io.outfile import check_output_path, is_stdout
 
     if is_stdout(path):
         raise UsageError("--report writes a page to open in a browser; give an .html file, not - (standard output)")

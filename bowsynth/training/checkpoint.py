@@ -8,7 +8,7 @@ from pathlib import Path
 import torch
 
 from ..errors import UsageError
-from ..outfile import signals_held  # noqa: F401  (written once, beside the other output rules)
+from ..io.outfile import signals_held  # noqa: F401  (written once, beside the other output rules)
 from .config import checkpoint_path  # noqa: F401
 
 META_KEY = "bowsynth_checkpoint"
@@ -42,7 +42,7 @@ def save(path: Path, state: dict) -> None:
     """state: {"tensors": {name: tensor}, "optimizer": opt.state_dict(), "meta": JSON-able dict}."""
     from safetensors.torch import save_file
 
-    from ..wav import atomic_write
+    from ..io.audio import atomic_write
 
     with signals_held():
         tensors = dict(state["tensors"])

@@ -6,8 +6,9 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from ..engines.operator.domain import MAX_WINDOW
+from ..engines.operator.npnet import NetConfig  # torch-free: model files are read without torch
 from ..errors import UsageError
-from ..npnet import NetConfig  # torch-free: model files are read without torch
 
 MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
 MAX_STEPS = 10_000_000
@@ -69,13 +70,11 @@ class TrainConfig:
             raise UsageError(f"--minutes must be > 0 and at most {MAX_MINUTES} (a day), got {self.minutes:g}")
         if self.steps is not None and not (1 <= self.steps <= MAX_STEPS):
             raise UsageError(f"--steps must be >= 1 and at most {MAX_STEPS}, got {self.steps}")
-        if not 0 <= self.seed < 2**32:
-            raise UsageError(f"--seed must be in [0, 2^32), got {self.seed}")
         if not (self.minutes or self.steps):
             raise UsageError("give a budget: --minutes or --steps")
         if not 0 <= self.lbfgs_fraction <= 0.9:
             raise UsageError(f"--lbfgs must be in [0, 0.9], got {self.lbfgs_fraction:g}")
-        if self.window is not None and not (math.isfinite(self.window) and 0 < self.window <= 100 * math.pi):
+        if self.window is not None and not (math.isfinite(self.window) and 0 < self.window <= MAX_WINDOW):
             raise UsageError(f"the window must be > 0 and at most 50 periods, got {self.window:g} in tau")
         if not (1 <= self.net.width <= 1024 and 1 <= self.net.depth <= 32):
             raise UsageError(f"--width must be in [1, 1024] and --depth in [1, 32], got {self.net.width}, "
@@ -118,7 +117,7 @@ def check_refine(init, cfg: TrainConfig, scene, box) -> None:
     and the network options it fixes are not given again."""
     import math
 
-    from ..model import REL_TOL
+    from ..engines.operator.domain import REL_TOL
 
     what = init.path or init.meta.name
     if not init.domain.is_range:

@@ -10,9 +10,9 @@ import numpy as np
 from scipy import ndimage
 
 from .. import physics
-from ..fdm import fdm_batch, render_fdm
-from ..model import Domain
-from ..npnet import NetConfig, linear_part
+from ..engines.fdm import fdm_batch, render_fdm
+from ..engines.operator.domain import Domain
+from ..engines.operator.npnet import NetConfig, linear_part
 from ..scene import Scene
 from .config import TrainConfig
 

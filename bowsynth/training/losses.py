@@ -16,7 +16,7 @@ import math
 import torch
 
 from .. import physics
-from ..network import DeepONet
+from ..engines.operator.network import DeepONet
 from ..scene import Scene
 
 STIFF = 10.0  # beta sqrt(2a) e^1/2 above this: the friction residual is dropped from the hybrid loss by default

@@ -59,7 +59,7 @@ class ParamBox:
 
     def contains(self, beta, vb) -> np.ndarray:
         """Elementwise: is the bow inside the box (the same test as a model file's, model.within)?"""
-        from ..model import within
+        from ..engines.operator.domain import within
 
         return within(beta, self.beta_lo, self.beta_hi) & within(vb, self.vb_lo, self.vb_hi)
 
@@ -162,7 +162,7 @@ def range_band(box: ParamBox, points: np.ndarray, f0: float, sample_rate: int, s
     visits), plus `stops` bow stops (stop_runs). Every run gets the same total sampling weight. stride: keep every
     stride-th state (neighbouring samples are nearly the same state; the window starts are kept whatever the
     stride)."""
-    from ..fdm import render_fdm
+    from ..engines.fdm import render_fdm
     from ..scene import Scene
 
     w = physics.omega(f0)

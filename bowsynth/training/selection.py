@@ -13,19 +13,14 @@ import warnings
 
 import numpy as np
 
+from ..analysis.metrics import compare_signals, listener_errors, nmse
+from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import BowsynthError, DomainError
-from ..fdm import render_fdm
-from ..metrics import compare_signals, listener_errors, nmse
 from ..scene import Scene
+from ..text import jsonable
 from .data import window_starts
 
-REF_OVERSAMPLE = 100
 SELECT_OFFSET_S = 0.3  # into the note (past the onset), then 0.37 of a window further: between two window starts
-
-
-def json_number(x: float):
-    """x for JSON metadata: inf and NaN (no score) become null."""
-    return x if math.isfinite(x) else None
 
 
 def selection_scene(scene: Scene, band: np.ndarray, window: float, contains) -> Scene:
@@ -49,13 +44,13 @@ class Selector:
         self.best: dict = {"score": math.inf, "step": None, "state": None, "scored": 0}
 
     def score(self, model) -> float:
-        from ..rollout import render_operator
+        from ..engines.operator.engine import render_operator
 
         try:
             if self._ref is None:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    self._ref = render_fdm(self.scene, oversample=REF_OVERSAMPLE).p
+                    self._ref = render_fdm(self.scene, oversample=TRUTH_OVERSAMPLE).p
             s = float(nmse(render_operator(self.scene, model=model).p, self._ref))
         except BowsynthError:  # the rollout left its domain
             return math.inf
@@ -69,7 +64,7 @@ class Selector:
 
     def record(self) -> dict:
         return {"step": self.best["step"], "scored": self.best["scored"],
-                "score_nmse_p": json_number(self.best["score"]),
+                "score_nmse_p": jsonable(self.best["score"]),
                 "from_state": [self.scene.q0, self.scene.p0]}
 
 
@@ -103,13 +98,13 @@ class RangeSelector(Selector):
         self._refs = None
 
     def score(self, model) -> float:
-        from ..rollout import render_operator
+        from ..engines.operator.engine import render_operator
 
         try:
             if self._refs is None:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    self._refs = [render_fdm(s, oversample=REF_OVERSAMPLE).p for s in self.scenes]
+                    self._refs = [render_fdm(s, oversample=TRUTH_OVERSAMPLE).p for s in self.scenes]
             rs = render_operator(self.scenes, model=model)
             s = float(np.mean([listener_score(r.p, ref, sc.sample_rate)
                                for r, ref, sc in zip(rs, self._refs, self.scenes)]))
@@ -119,12 +114,12 @@ class RangeSelector(Selector):
 
     def record(self) -> dict:
         return {"step": self.best["step"], "scored": self.best["scored"],
-                "score_mean_listener": json_number(self.best["score"]),
+                "score_mean_listener": jsonable(self.best["score"]),
                 "bows": [[s.beta, s.vb] for s in self.scenes]}
 
 
 def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
-                   ref_oversample: int = REF_OVERSAMPLE) -> dict:
+                   ref_oversample: int = TRUTH_OVERSAMPLE) -> dict:
     """validate() at the n x n grid of the box (from rest, the scene's pitch) where the note speaks: the median
     NMSE(p) is the model's score ('nmse'), the worst beside it; the silent corners must stay finite."""
     from .ranges import distinct, speaks
@@ -153,9 +148,9 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
     return out
 
 
-def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = REF_OVERSAMPLE) -> dict:
+def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = TRUTH_OVERSAMPLE) -> dict:
     """NMSE etc. of a rollout from the scene's initial state against a high-rate FDM, over `seconds`."""
-    from ..rollout import render_operator
+    from ..engines.operator.engine import render_operator
 
     s = scene.replace(duration=seconds)
     ref = render_fdm(s, oversample=ref_oversample)
@@ -170,4 +165,4 @@ def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = RE
     m["nmse_q"] = float(np.mean((r.q - ref.q) ** 2) / np.var(ref.q))
     m["seconds"] = seconds
     m["ref_oversample"] = ref_oversample
-    return {k: (json_number(v) if isinstance(v, float) else v) for k, v in m.items()}
+    return {k: (jsonable(v) if isinstance(v, float) else v) for k, v in m.items()}

@@ -11,15 +11,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..engines.operator.modelfile import ModelMeta, OperatorModel
+from ..engines.operator.network import DeepONet, NetConfig
 from ..errors import UsageError
-from ..model import ModelMeta, OperatorModel
-from ..network import DeepONet, NetConfig
 from ..scene import Scene
+from ..text import jsonable
 from . import checkpoint
 from .config import TrainConfig, check_net_options, default_model_name  # noqa: F401
 from .data import build, build_range
 from .losses import default_weights, loss_terms, weighted
-from .selection import RangeSelector, Selector, json_number, selection_scene
+from .selection import RangeSelector, Selector, selection_scene
 
 
 @dataclass
@@ -177,7 +178,7 @@ class Trainer:
         meta = {"step": self.step, "elapsed": self.elapsed, "rng": self.rng.bit_generator.state,
                 "scene": self.scene.to_dict(), "box": self._box_json(), "config": self.cfg.to_dict(),
                 "init": self._init_id(), "history": self.history[-200:],
-                "best": {"score": json_number(self.best["score"]), "step": self.best["step"],
+                "best": {"score": jsonable(self.best["score"]), "step": self.best["step"],
                          "scored": self.best["scored"]}}
         checkpoint.save(path, {"tensors": tensors, "optimizer": self.opt.state_dict(), "meta": meta})
 

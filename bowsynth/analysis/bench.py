@@ -1,0 +1,145 @@
+"""Benchmarks: wall time per second of audio against error, for the FDM and the operators."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..engines.fdm import TRUTH_OVERSAMPLE, fdm_batch, render_fdm
+from ..scene import Scene
+
+
+def _median_time(fn, repeats: int) -> float:
+    fn()  # warm: compile, caches
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def bench_fdm(quick: bool = False) -> list[dict]:
+    """Single-voice real-time factor at 44.1 kHz and 4.41 MHz, and batch throughput for 4096 initial states."""
+    rows = []
+    reps = 3 if quick else 7
+    for label, dur, os_ in (("single voice, 44.1 kHz", 2.0 if quick else 10.0, 1),
+                            ("single voice, 4.41 MHz (x100)", 0.05 if quick else 0.5, 100)):
+        s = Scene(fb=100, duration=dur)
+        sec = _median_time(lambda: render_fdm(s, oversample=os_), reps)
+        rows.append({"case": label, "audio_s": dur, "wall_s": sec, "realtime_factor": dur / sec,
+                     "steps_per_s": s.n_samples * os_ / sec})
+    s = Scene(fb=100)
+    rng = np.random.default_rng(0)
+    n_states, n_steps = 4096, 441 if quick else 4410
+    q0, p0 = rng.uniform(-0.2, 0.2, n_states), rng.uniform(-0.2, 0.2, n_states)
+    sec = _median_time(lambda: fdm_batch(q0, p0, n_steps, 1, 1 / 44100, s.omega, s.fb, s.vb, s.a), 1 if quick else 3)
+    rows.append({"case": f"batch, {n_states} states, 44.1 kHz", "audio_s": n_steps / 44100, "wall_s": sec,
+                 "realtime_factor": n_states * n_steps / 44100 / sec, "steps_per_s": n_states * n_steps / sec})
+    return rows
+
+
+# --- speed against error -----------------------------------------------------------------------------------------
+
+
+def _score(r, ref) -> dict:
+    """NMSE(p) over the whole render and over its first 0.1 s and 0.5 s (the paper's spans), with the
+    phase-insensitive measures beside it: pitch (cents, on q), harmonic amplitudes and log-spectral distance (on p)."""
+    from .metrics import compare_signals, nmse
+
+    sr = r.scene.sample_rate
+    m = compare_signals(r.p, ref.p, sr, r.q, ref.q)
+    out = {"nmse_p": m["nmse"], "cents": m["cents"], "harmonic_db": m["harmonic_error_db"], "lsd_db": m["lsd_db"]}
+    for span in (0.1, 0.5):
+        n = int(round(span * sr))
+        if n < len(ref.p):
+            out[f"nmse_p_0-{span:g}s"] = nmse(r.p[:n], ref.p[:n])
+    return out
+
+
+def bench_scene(scene: Scene, models, repeats: int, oversamples=(1, 2, 4, 8)) -> list[dict]:
+    """Every method on one scene: FDM at each oversampling, and each operator that covers the scene."""
+    from ..engines.operator.engine import render_operator
+
+    ref = render_fdm(scene, oversample=TRUTH_OVERSAMPLE)
+    rows = []
+    for os_ in oversamples:
+        r = render_fdm(scene, oversample=os_)
+        sec = _median_time(lambda: render_fdm(scene, oversample=os_), repeats)
+        rows.append({"scene": scene, "method": f"FDM x{os_}", "sec_per_audio_s": sec / scene.duration,
+                     **_score(r, ref)})
+    for m in models:
+        if not m.covers(scene):
+            continue
+        r = render_operator(scene, model=m)
+        sec = _median_time(lambda: render_operator(scene, model=m), repeats)
+        rows.append({"scene": scene, "method": f"operator {m.path.name if m.path else m.meta.name}",
+                     "sec_per_audio_s": sec / scene.duration, "train_s": m.meta.training.get("seconds"),
+                     **_score(r, ref)})
+    front = pareto(rows)
+    for i, r in enumerate(rows):
+        r["pareto"] = i in front
+    return rows
+
+
+def pareto(rows) -> set:
+    """Indices of rows no other row beats on both time and error."""
+    out = set()
+    for i, a in enumerate(rows):
+        if not any(b["sec_per_audio_s"] <= a["sec_per_audio_s"] and b["nmse_p"] <= a["nmse_p"]
+                   and (b["sec_per_audio_s"], b["nmse_p"]) != (a["sec_per_audio_s"], a["nmse_p"])
+                   for b in rows):
+            out.add(i)
+    return out
+
+
+def bench_batch(model, n_voices: int, duration: float, repeats: int) -> dict:
+    """Throughput of n voices in one batched operator rollout against n sequential FDM renders.
+
+    The voices are a sweep of initial states along the model's band (the states of an FDM render from rest,
+    so each voice starts at another point of the note): same pitch, one batch."""
+    from ..engines.operator.engine import render_operator
+
+    sc = Scene(**{**model.meta.scene, "duration": duration})
+    path = render_fdm(sc.replace(duration=0.5))
+    idx = np.linspace(0, len(path.q) - 1, n_voices).astype(int)
+    scenes = [sc.replace(q0=float(path.q[i]), p0=float(path.p[i])) for i in idx]
+    scenes = [s for s in scenes if model.covers(s)]
+    t_op = _median_time(lambda: render_operator(scenes, model=model), repeats)
+    t_fdm = _median_time(lambda: [render_fdm(s) for s in scenes], max(1, repeats // 2))
+    audio = duration * len(scenes)
+    return {"voices": len(scenes), "audio_s_per_voice": duration, "operator_batched_s": t_op, "fdm_sequential_s": t_fdm,
+            "operator_rtf_aggregate": audio / t_op, "fdm_rtf_aggregate": audio / t_fdm, "speedup": t_fdm / t_op,
+            "model": model.path.name if model.path else model.meta.name}
+
+
+def bench_paper_anchors(anchor_dir) -> list[dict]:
+    """The paper's own operator rollouts (shared/anchors) scored against our high-rate FDM over 0.1 and 0.5 s."""
+    from .metrics import ncc, nmse
+
+    rows = []
+    for fb, fname in ((10, "paper_deeponet_fb10"), (100, "paper_deeponet_fb100"), (1000, "paper_deeponet_fb1000"),
+                      (1000, "paper_deeponet_hybrid_fb1000")):
+        path = Path(anchor_dir) / f"{fname}.npz"
+        if not path.is_file():
+            continue
+        d = np.load(path)
+        n = len(d["p"])
+        rate = int(round((n - 1) / 0.5))
+        ref = render_fdm(Scene(fb=fb, sample_rate=rate, duration=n / rate), oversample=TRUTH_OVERSAMPLE)
+        m01 = int(0.1 * rate) + 1
+        rows.append({"case": fname, "nmse_p_0.1s": nmse(d["p"][:m01], ref.p[:m01]), "nmse_p_0.5s": nmse(d["p"], ref.p[:n]),
+                     "ncc_p_0.5s": ncc(d["p"], ref.p[:n])})
+    return rows
+
+
+# --- out of sample -----------------------------------------------------------------------------------------------
+#
+# Training sees the band of states a render from the scene's initial state visits (with noise), and takes the exact
+# window-start states of that render; the validation and the weight selection roll out that same trajectory. These
+# cases start from states training never took exactly, or sample the windows at other offsets.
+
+

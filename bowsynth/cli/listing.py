@@ -1,0 +1,86 @@
+"""`bowsynth presets` and `bowsynth models`: what can be played, and by which trained operators."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .. import physics
+from .app import app, err, fmt_num, out
+
+
+@app.command()
+def presets():
+    """List the preset scenes, the pitch each sounds at, and the model that plays it (or how to get one)."""
+    from rich.markup import escape
+
+    from ..engines.operator.choose import available_models, find_model, train_hint
+    from ..errors import DomainError
+    from ..music.notes import note_name
+    from ..music.request import make_scene
+    from ..music.tuning import sounding_pitch
+    from ..scene import list_presets, load_preset, preset_description
+
+    models = available_models()
+    for name in list_presets():
+        fields = " ".join(f"{k}={v:g}" if isinstance(v, (int, float)) else f"{k}={v}"
+                          for k, v in load_preset(name).items())
+        sc = make_scene(name)
+        if sc.varying:
+            heard = "its pitch when the bow holds its median values"
+        else:
+            hz = sounding_pitch(sc.f0, sc.fb, sc.vb, sc.a)
+            heard = f"{hz:.2f} Hz ({note_name(hz)})"
+        try:
+            m = find_model(sc, models)
+            who = m.path.name if m.path else m.meta.name
+        except DomainError:
+            who = f"none: FDM only, train with `{train_hint(sc)}`"
+        out.print(f"[bold]{name}[/bold]  {escape(fields)}\n    {escape(preset_description(name))}\n    f0 {sc.f0:.4g} Hz "
+                  f"sounds at {heard}; model: {escape(who)}", soft_wrap=True)
+
+
+@app.command()
+def models(
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write an HTML report: each model's metadata, a map of its error over its box at held-out bows, players. Renders against a x100 FDM: tens of seconds."),
+    report_grid: int = typer.Option(3, "--report-grid", help="--report: held-out bows per side of a range model's box (N x N FDM runs)."),
+    force: bool = typer.Option(False, "--force", help="Replace a read-only --report file."),
+):
+    """List the operator models found in ./models and the shipped ones, with their domains and scores."""
+    from rich.markup import escape
+
+    from ..engines.operator.choose import scan_models
+
+    if report is not None:
+        from ..report.models_page import check_report_path
+
+        check_report_path(report, report_grid, force)
+    found = scan_models()
+    if not found:
+        out.print("no models found (train one with `bowsynth train --fb 100`)")
+    for path, m, why in found:
+        if m is None:
+            out.print(f"[bold]{escape(str(path))}[/bold]  UNREADABLE: {escape(why)}", soft_wrap=True)
+            continue
+        d, v = m.domain, m.meta.validation
+        sc = m.meta.scene
+        mark = f"  FAILED ({escape(m.failure)}): not picked by default" if m.failure else ""
+        fmt = "" if m.meta.format_version >= 2 else " (format 1: no digest; checked by its physics at render time)"
+        if d.is_range:
+            b0, b1, v0, v1 = d.box
+            w = physics.omega(sc["f0"])
+            what = (f"range model: F_B/w {b0:.4g}..{b1:.4g} (F_B {b0 * w:.4g}..{b1 * w:.4g} at f0 {sc['f0']:g}), "
+                    f"vb {v0:g}..{v1:g}, a={d.a:g}, any pitch, follows gestures; window {d.window:.3g} tau; validation "
+                    f"median NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, worst {fmt_num(v.get('nmse_max'), '.3g')}")
+        else:
+            what = (f"trained for fb={sc['fb']:g} f0={sc['f0']:g} vb={d.vb:g} a={d.a:g} (F_B/w={d.beta:.4g}), window "
+                    f"{d.window:.3g} tau; validation NMSE(p) {fmt_num(v.get('nmse'), '.3g')}")
+        out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    {escape(what)}, "
+                  f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
+    if report is not None:
+        from ..report.models_page import write_models_report
+
+        write_models_report(report, found, report_grid, force, progress=lambda s: err.print(s, soft_wrap=True))
+        out.print(f"report written to {report}")

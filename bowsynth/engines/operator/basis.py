@@ -1,0 +1,154 @@
+"""The trained operator in numpy, without torch: the branch and trunk weights as arrays, and the trunk evaluated once
+per pitch at the samples' offsets inside a window (the bases every loop multiplies)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...errors import DomainError
+from . import npnet
+from .modelfile import OperatorModel
+
+
+class NumpyOperator:
+    """The trained network's weights as float32 numpy arrays (the precision it was trained in), laid out for the
+    rollout loops (numpy here, compiled in `kernels`)."""
+
+    def __init__(self, model: OperatorModel):
+        w = model.weights
+        self.cfg = cfg = model.cfg
+        self._w = w
+        f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+        g = lambda name: (f32(w[f"branch.{name}.weight"].T), f32(w[f"branch.{name}.bias"]))  # noqa: E731
+        rest = [g(f"hidden.{i}") for i in range(1, cfg.depth)]
+        width = cfg.width
+        self.ff = np.ascontiguousarray(2 * np.pi * w["branch.ff.B"].astype(np.float64))
+        gates = [g(name) for name in ("U", "V", "hidden.0")]  # one product for the three (kernels.roll_voices)
+        self.weights = (f32(np.hstack([m for m, _ in gates])), f32(np.concatenate([b for _, b in gates])),
+                        f32(np.array([m for m, _ in rest]).reshape(-1, width, width)),
+                        f32(np.array([b for _, b in rest]).reshape(-1, width)), *g("out"))
+        d64 = lambda name: w[name].astype(np.float64)  # noqa: E731
+        self.center, self.halfrange = d64("center"), d64("halfrange")
+        self.corr_scale, self.window, self.bias = d64("corr_scale"), float(w["window"]), d64("bias")
+        self.lin = tuple(float(v) for v in w["lin"]) if cfg.rest_linear else None  # (d, q_s), see NetConfig
+
+    def window_inputs(self, par: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Bows (B, W, 2) (beta, v_B) per window -> the loops' pin (B, W, n_par), gain (B, W) and the state's
+        scaling center, halfrange (B, W, 2) (npnet.state_scaling), float64."""
+        B, W = par.shape[:2]
+        if not self.cfg.params:
+            c = np.ascontiguousarray(np.broadcast_to(self.center, (B, W, 2)))
+            h = np.ascontiguousarray(np.broadcast_to(self.halfrange, (B, W, 2)))
+            return np.zeros((B, W, 0)), np.ones((B, W)), c, h
+        flat = par.reshape(-1, 2)
+        pin = npnet.param_inputs(self._w, flat)
+        c, h = npnet.state_scaling(self._w, self.cfg, pin)
+        f = lambda a, *shape: np.ascontiguousarray(np.reshape(a, (B, W, *shape)))  # noqa: E731
+        return f(pin, -1), f(npnet.gain(self._w, self.cfg, flat[:, 0])), f(c, 2), f(h, 2)
+
+    def trunk_features(self, s_list: list) -> list:
+        """The trunk features (M, 2, k) at each array of window fractions in s_list, float64.
+
+        Up to TRUNK_GRID points in all, evaluated directly; beyond, by cubic interpolation from TRUNK_GRID points
+        evaluated once (a score at 100 pitches needs ~33,000 points: evaluating them took ~10x longer). The trunk is
+        smooth in s (Fourier features of scale sigma_trunk): measured interpolation error below 1e-9 of the features'
+        size, far below float32 rounding (tests/test_kernels.py checks it).
+        """
+        if sum(len(a) for a in s_list) <= TRUNK_GRID:
+            f = npnet.trunk_features(self._w, self.cfg, np.concatenate(s_list))
+            return np.split(f, np.cumsum([len(a) for a in s_list])[:-1])
+        h = max(a.max() for a in s_list) / (TRUNK_GRID - 3)
+        grid = npnet.trunk_features(self._w, self.cfg, (np.arange(TRUNK_GRID) - 1) * h).reshape(TRUNK_GRID, -1)
+        out = []
+        for s in s_list:  # cubic Lagrange interpolation on the uniform grid (nodes i - 1 .. i + 2)
+            u = s / h + 1
+            i = np.clip(np.floor(u).astype(np.int64), 1, TRUNK_GRID - 3)
+            t = u - i
+            w = np.stack([-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2,
+                          -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6], axis=1)
+            f = np.einsum("mj,mjc->mc", w, grid[i[:, None] + np.arange(-1, 3)])
+            out.append(f.reshape(len(s), 2, -1))
+        return out
+
+    def samples_per_window(self, dtau: float) -> float:
+        spw = self.window / dtau
+        if abs(spw - round(spw)) < 1e-9 * spw:  # a whole number of samples, up to rounding: every window alike
+            spw = float(round(spw))
+        return spw
+
+    def window_basis(self, dtau: float, tf: np.ndarray | None = None):
+        """The output side of the windows of a render whose samples are dtau apart in tau.
+
+        A window holds n_lo = floor(T / dtau) or n_hi = ceil(T / dtau) samples (windows.window_end: window w starts
+        at the sample nearest w T; at a pitch where T / dtau is not a whole number, windows of n_lo samples alone
+        would start ever earlier than the states the model trained on, measured 2.6x the error at 200 Hz). A window
+        of n_hi samples runs past T by less than one sample spacing.
+        Returns spw = T / dtau, n_lo; Bq, Bp (k + 3, n_hi) float32: the trunk features times s c at the sample
+        offsets, then cos, sin and the bias term (see kernels.roll_voices); for the end state after n_lo and after
+        n_hi samples, in float64, the features endb (2, 2, k) and endlin (2, 6) = (m11, m12, bias_q, bias_p, m22,
+        -m21) of the linear flow M (the rotation: cos, sin, ..., cos, sin; see physics.flow_coefficients).
+        The trunk is evaluated in numpy, float64 (once per render and pitch); tf: its features at the offsets
+        j dtau / T, j <= n_hi, if already computed (trunk_features).
+        """
+        spw = self.samples_per_window(dtau)
+        n_lo, n_hi = math.floor(spw), math.ceil(spw)
+        tau = np.arange(n_hi + 1) * dtau
+        s = tau / self.window
+        if tf is None or len(tf) != n_hi + 1:
+            tf = self.trunk_features([s])[0]  # (n_hi+1, 2, k)
+        basis = np.transpose(tf, (1, 2, 0)) * (s * self.corr_scale[:, None])[:, None, :]  # (2, k, n_hi+1)
+        bias = self.bias[:, None] * self.corr_scale[:, None] * s[None, :]  # (2, n_hi+1)
+        m11, m12, m21, m22, kq, kp = npnet.linear_part(self.cfg, tau, self.lin)
+        # q rows act on (q0, p0), p rows on (p0, -q0) (kernels._samples); the flow's constant joins the bias row
+        # (a point model's gain is 1)
+        bias = bias + np.stack([kq, kp])
+        lin = ((m11, m12), (m22, -m21))
+        rows = lambda i: np.ascontiguousarray(  # noqa: E731
+            np.vstack([basis[i, :, :n_hi], lin[i][0][:n_hi], lin[i][1][:n_hi], bias[i, :n_hi]]), dtype=np.float32)
+        ends = (n_lo, n_hi)
+        endb = np.ascontiguousarray(np.stack([basis[:, :, e] for e in ends]))
+        endlin = np.array([[m11[e], m12[e], bias[0, e], bias[1, e], m22[e], -m21[e]] for e in ends])
+        return spw, n_lo, rows(0), rows(1), endb, endlin
+
+
+def _operator(model: OperatorModel) -> NumpyOperator:
+    op = model.__dict__.get("_numpy_op")
+    if op is None:  # weights don't change after loading: convert once per model
+        op = model.__dict__["_numpy_op"] = NumpyOperator(model)
+    return op
+
+
+def _bases(model: OperatorModel, dtaus: np.ndarray):
+    """The window bases (NumpyOperator.window_basis) of the distinct sample spacings `dtaus`, stacked and padded to
+    the longest window: spw (P,), n_lo (P,), Bq, Bp (P, k + 3, n_max), endb (P, 2, 2, k), endlin (P, 2, 6).
+    Cached per model: the last stack, and each spacing's basis."""
+    key = tuple(float(d) for d in dtaus)
+    last = model.__dict__.get("_stack")
+    if last is not None and last[0] == key:
+        return last[1]
+    op = _operator(model)
+    cache = model.__dict__.setdefault("_basis_cache", {})
+    new = [d for d in key if d not in cache]
+    if new:  # one trunk evaluation for every new pitch
+        offsets = [np.arange(math.ceil(op.samples_per_window(d)) + 1) * d / op.window for d in new]
+        for d, tf in zip(new, op.trunk_features(offsets)):
+            cache[d] = op.window_basis(d, tf)
+    parts = [cache[d] for d in key]
+    if min(p[1] for p in parts) < 1:
+        raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
+    n_max = max(p[2].shape[1] for p in parts)
+    k3 = parts[0][2].shape[0]
+    Bq = np.zeros((len(parts), k3, n_max), np.float32)
+    Bp = np.zeros((len(parts), k3, n_max), np.float32)
+    for i, p in enumerate(parts):
+        Bq[i, :, :p[2].shape[1]] = p[2]
+        Bp[i, :, :p[3].shape[1]] = p[3]
+    stack = (np.array([p[0] for p in parts]), np.array([p[1] for p in parts], np.int64), Bq, Bp,
+             np.ascontiguousarray(np.stack([p[4] for p in parts])), np.ascontiguousarray(np.stack([p[5] for p in parts])))
+    model.__dict__["_stack"] = (key, stack)
+    return stack
+
+
+TRUNK_GRID = 4096

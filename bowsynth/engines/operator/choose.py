@@ -1,0 +1,179 @@
+"""Which model plays a scene: the registry of model files (./models, then the shipped ones, read once per change),
+the covering model for a scene, and what to say when none covers it."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ...errors import DomainError, ModelFileError
+from ...scene import Scene
+from .basis import _operator
+from .domain import span_text
+from .modelfile import OperatorModel, load_model
+from .rollout import scene_bows
+from .windows import window_bounds
+
+SHIPPED_DIR = Path(__file__).resolve().parents[2] / "models"  # inside the package: a wheel carries them
+
+
+def model_dirs() -> list[Path]:
+    dirs = [Path.cwd() / "models", SHIPPED_DIR]
+    out = []
+    for d in dirs:
+        if d.is_dir() and d.resolve() not in [o.resolve() for o in out]:
+            out.append(d)
+    return out
+
+
+def model_path(name) -> Path:
+    """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`): what
+    `--model` and `train --from` take."""
+    path = Path(name)
+    if path.exists() or path.suffix or len(path.parts) > 1:
+        return path
+    for d in model_dirs():
+        if (d / f"{name}.safetensors").is_file():
+            return d / f"{name}.safetensors"
+    names = sorted({f.stem for d in model_dirs() for f in d.glob("*.safetensors")})
+    raise ModelFileError(f"model {name} not found: no such file, and no model of that name in ./models or the "
+                         f"shipped models ({', '.join(names) or 'none'})")
+
+
+def as_model(model) -> OperatorModel:
+    """An OperatorModel as given, or read from a file path or a model's name (model_path)."""
+    return model if isinstance(model, OperatorModel) else load_model(model_path(model))
+
+
+# Model files read in this process, by resolved path: (size, mtime_ns) when read, and the model or why it failed to
+# load. A file is read again only when its size or modification time changes, so `render_operator(scene)` with no
+# model costs a few stat calls, not a load per call (measured ~110-160 ms per call with torch before).
+_SCANNED: dict = {}
+
+
+def scan_models() -> list[tuple[Path, OperatorModel | None, str | None]]:
+    """Every model file in ./models and the shipped ones: (path, model, None) or (path, None, why it is unreadable).
+    Models are shared by all callers in this process: do not modify them."""
+    found = []
+    for d in model_dirs():
+        for p in sorted(d.glob("*.safetensors")):
+            if p.name.endswith(".ckpt.safetensors"):
+                continue
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            key, stamp = p.resolve(), (st.st_size, st.st_mtime_ns)
+            hit = _SCANNED.get(key)
+            if hit is None or hit[0] != stamp:
+                try:
+                    hit = (stamp, load_model(p), None)
+                except ModelFileError as e:
+                    hit = (stamp, None, str(e))
+                _SCANNED[key] = hit
+            found.append((p, hit[1], hit[2]))
+    return found
+
+
+def unreadable_notes() -> list[str]:
+    """One line per model file the default lookup skipped because it cannot be used (damaged, foreign, forged)."""
+    return [f"note: skipped {p}: {why.replace(str(p), p.name)}" for p, m, why in scan_models() if m is None]
+
+
+def available_models() -> list[OperatorModel]:
+    """The readable models (./models first, then the shipped ones), including those whose validation failed."""
+    return [m for _, m, _ in scan_models() if m is not None]
+
+
+def train_hint(scene: Scene) -> str:
+    """The `bowsynth train` command whose model would cover the scene (a range for a scene whose bow moves)."""
+    from ...controls import bounds
+
+    def arg(v):
+        lo, hi = bounds(v)
+        return f"{lo:g}" if lo == hi else f"{lo:g}:{hi:g}"
+    return (f"bowsynth train --fb {arg(scene.fb)} --f0 {arg(scene.f0)} --vb {arg(scene.vb)} --a {scene.a:g}"
+            + (f" --q0 {scene.q0:g} --p0 {scene.p0:g}" if scene.q0 or scene.p0 else ""))
+
+
+def first_bow_outside(model: OperatorModel, scene: Scene) -> tuple[float, str] | None:
+    """Where the scene's bow first leaves the model's range, in the windows the operator would play it: (time in s,
+    'F_B = ... at t = ...' naming the parameter and value), or None if it never does."""
+    spw = _operator(model).samples_per_window(scene.dtau)
+    out = _bow_exit(model, scene, spw, scene_bows(scene, spw))
+    return None if out is None else (out[1] / scene.sample_rate, out[2])
+
+
+def _bow_exit(model: OperatorModel, scene: Scene, spw: float, bows: np.ndarray) -> tuple[int, int, str] | None:
+    """The first window whose bow (of `bows`, scene_bows) is outside the model's range: (window, its first sample,
+    what left and when), or None."""
+    d = model.domain
+    bad = np.flatnonzero(~d.box_contains(bows[:, 0], bows[:, 1]))
+    if not bad.size:
+        return None
+    w = int(bad[0])
+    start = int(window_bounds(spw, scene.n_samples)[0][w])
+    t = start / scene.sample_rate
+    beta, vb = bows[w]
+    v_in = d.vb if d.box is None else min(max(vb, d.box[2]), d.box[3])  # v_B moved inside: does beta alone leave?
+    if not d.box_contains(beta, v_in):
+        return w, start, f"F_B = {beta * scene.omega:.4g} (F_B / w {beta:.4g}) at t = {t:.3f} s"
+    return w, start, f"v_B = {vb:.4g} at t = {t:.3f} s"
+
+
+def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
+    """The best validated model (lowest validation NMSE(p); ./models before the shipped ones on a tie) among those
+    (found, or the given list) that cover the scene. A model whose validation failed is never picked here (see
+    model.validation_failure): pass it explicitly to use it. Otherwise a DomainError says which models come nearest
+    and how to train one that covers the scene."""
+    if models is None:
+        models = available_models()
+    covering = [m for m in models if m.covers(scene)]
+    good = [m for m in covering if m.failure is None]
+    if good:
+        return min(good, key=lambda m: m.meta.validation["nmse"])  # min keeps the first of equals
+    if covering:
+        bad = "; ".join(f"{m.path or m.meta.name} ({m.failure})" for m in covering)
+        raise DomainError(f"the models that cover this scene failed their validation: {bad}. Pass one with --model "
+                          f"to use it anyway, train longer with `{train_hint(scene)} --minutes 10`, or render with "
+                          f"--method fdm")
+
+    (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
+
+    def dist(m):
+        d = m.domain
+        b0, b1, v0, v1 = d.box if d.box else (d.beta, d.beta, d.vb, d.vb)
+        db = max(0.0, math.log(max(b0, 1e-9) / max(blo, 1e-9)), math.log(max(bhi, 1e-9) / max(b1, 1e-9)))
+        return db + max(0.0, v0 - vlo, vhi - v1) + abs(math.log(scene.a / d.a))
+    near = sorted(models, key=dist)[:3]
+
+    def why(m):
+        out = m.domain.mismatch(scene)
+        where = first_bow_outside(m, scene) if m.domain.is_range else None
+        if where:
+            out = [f"{where[1]} leaves its {m.domain.describe_bows()}"] + [
+                o for o in out if not o.startswith(("F_B", "v_B"))]
+        return ", ".join(out)
+    lines = "; ".join(f"{m.path.name if m.path else m.meta.name} ({why(m)})" for m in near) or "none found"
+    bow = (f"F_B / w = {span_text(blo, bhi)}, v_B = {span_text(vlo, vhi)}")
+    raise DomainError(f"no model covers this scene ({bow}, a = {scene.a:g}); nearest: {lines}. Train one with "
+                      f"`{train_hint(scene)}`, or render with --method fdm (or --fallback fdm)")
+
+
+def partial_model(scene: Scene, models: list[OperatorModel] | None = None):
+    """For --fallback fdm when no model covers the whole scene: the validated model that plays its opening longest
+    (the start state and first bow inside, the bow leaving later), and the time it leaves; or None."""
+    if models is None:
+        models = available_models()
+    best = None
+    for m in models:
+        if m.failure is not None or not m.domain.is_range or not m.domain.contains(scene.q0, scene.p0):
+            continue
+        if not math.isclose(scene.a, m.domain.a, rel_tol=1e-6):
+            continue
+        where = first_bow_outside(m, scene)
+        if where and where[0] > 0 and (best is None or where[0] > best[1]):
+            best = (m, where[0])
+    return best

@@ -1,0 +1,166 @@
+"""What a model covers: the box of states (and, for a range model, of bows) it was trained on, its bounds on what a file
+may claim, and the one in-box test."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ... import physics
+from ...controls import Curve
+from ...scene import Scene
+
+REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the network does not take them as input
+MAX_BETA = 1e3  # F_B / w: the playing space ends at 2, the FDM's uniqueness bound at audio rate near 16
+MAX_A = 1e6
+MAX_WINDOW = 100 * math.pi  # 50 free periods: what training allows (TrainConfig.validate) and a file may claim
+
+
+def within(x, lo: float, hi: float, rel_tol: float = REL_TOL) -> np.ndarray:
+    """Elementwise lo <= x <= hi up to rel_tol of the larger end (a box's side, or a point when lo == hi): the one
+    test of a bow against a range, for model files (Domain) and training boxes (ParamBox) alike."""
+    x = np.asarray(x, float)
+    if lo == hi:
+        return np.isclose(x, lo, rtol=rel_tol, atol=1e-12)
+    tol = rel_tol * max(abs(hi), 1e-12)
+    return (x >= lo - tol) & (x <= hi + tol)
+
+
+@dataclass
+class Domain:
+    """Where a model is valid: its dimensionless physics, window, and the states it was trained on."""
+
+    beta: float
+    vb: float
+    a: float
+    window: float  # T in tau
+    q_lo: float
+    q_hi: float
+    p_lo: float
+    p_hi: float
+    mask: np.ndarray = field(repr=False, default=None)  # (G, G) bool over the box: cells near training states
+    # a range model: [beta_lo, beta_hi, vb_lo, vb_hi], the bows it plays (beta, vb above: the box's centre, where the
+    # render-time physics check runs); None: a point model, which plays (beta, vb) only
+    box: list | None = None
+    # a range model whose correction is scaled by beta / beta_ref (npnet.gain) plays bows below its box's bottom down
+    # to F_B = 0 (a bow lifted, an attack from rest): what friction adds over a window is first order in beta, so the
+    # branch's bow input is held at the bottom (npnet.param_inputs) and the gain carries beta to 0, where the flow is
+    # exactly the free rotation. Set from the network's settings (OperatorModel), not stored in files.
+    plays_below: bool = field(default=False, repr=False, compare=False)
+
+    @property
+    def is_range(self) -> bool:
+        return self.box is not None
+
+    def check(self) -> None:
+        """Refuse a domain no trainer writes (ValueError, one line): every later use (the physics check's RK4 steps
+        grow with beta and the window, the mask is indexed by cell) stays bounded and in range."""
+        nums = {"beta": self.beta, "vb": self.vb, "a": self.a, "window": self.window, "q_lo": self.q_lo,
+                "q_hi": self.q_hi, "p_lo": self.p_lo, "p_hi": self.p_hi}
+        for k, v in nums.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"domain.{k} is {v!r}, not a finite number")
+        if not (0 <= self.beta <= MAX_BETA and 0 < self.a <= MAX_A and 0 < self.window <= MAX_WINDOW):
+            raise ValueError(f"domain beta {self.beta:g}, a {self.a:g}, window {self.window:g} are outside what a "
+                             f"model can be trained for (0..{MAX_BETA:g}, 0..{MAX_A:g}, 0..{MAX_WINDOW:.4g})")
+        if not (self.q_lo < self.q_hi and self.p_lo < self.p_hi):
+            raise ValueError("domain state box is empty")
+        m = self.mask
+        if m is not None and not (m.ndim == 2 and m.shape[0] == m.shape[1] and 1 <= m.shape[0] <= 4096 and m.any()):
+            raise ValueError(f"domain.mask has shape {m.shape} and {int(m.sum())} cells: an empty or odd grid")
+        if self.box is not None:
+            b = self.box
+            if not (isinstance(b, list) and len(b) == 4 and all(isinstance(x, (int, float)) and math.isfinite(x)
+                                                                 for x in b)
+                    and 0 <= b[0] <= b[1] <= MAX_BETA and b[2] <= b[3]):
+                raise ValueError(f"domain.box {b!r} is not [beta_lo, beta_hi, vb_lo, vb_hi]")
+
+    def beta_in(self, beta) -> np.ndarray:
+        """Elementwise: is F_B / w inside this model's box (a point model: equal to its own)?"""
+        return within(beta, self.beta, self.beta) if self.box is None else within(beta, *self.box[:2])
+
+    def vb_in(self, vb) -> np.ndarray:
+        """Elementwise: is v_B inside this model's box (a point model: equal to its own)?"""
+        return within(vb, self.vb, self.vb) if self.box is None else within(vb, *self.box[2:])
+
+    def beta_plays(self, beta) -> np.ndarray:
+        """Elementwise: does the model play F_B / w: inside its box, or below it down to 0 (plays_below)?"""
+        inside = self.beta_in(beta)
+        if not self.plays_below:
+            return inside
+        return inside | ((np.asarray(beta, float) >= 0) & (np.asarray(beta, float) <= self.box[0]))
+
+    def box_contains(self, beta, vb) -> np.ndarray:
+        """Elementwise: does the model play the bow (beta, v_B) (a point model: equal to its point; a range model:
+        inside its box, or below it in beta, beta_plays)?"""
+        return self.beta_plays(beta) & self.vb_in(vb)
+
+    def describe_bows(self) -> str:
+        if self.box is None:
+            return f"F_B / w {self.beta:.4g}, v_B {self.vb:g}"
+        b0, b1, v0, v1 = self.box
+        return f"F_B / w {b0:.4g}..{b1:.4g}, v_B {v0:g}..{v1:g}"
+
+    def contains(self, q, p) -> np.ndarray:
+        """Elementwise: is the state (q, p) inside the box and on a cell of the mask?"""
+        q, p = np.asarray(q, float), np.asarray(p, float)
+        inside = (q >= self.q_lo) & (q <= self.q_hi) & (p >= self.p_lo) & (p <= self.p_hi)
+        if self.mask is None:
+            return inside
+        i, j = self.cell(q, p, self.mask.shape[0])
+        return inside & self.mask[i, j]
+
+    def cell(self, q, p, grid: int):
+        """Indices (i, j) of the cells of a grid x grid partition of the box holding the states (clipped to it)."""
+        with np.errstate(invalid="ignore"):
+            i = ((np.asarray(q, float) - self.q_lo) / (self.q_hi - self.q_lo) * grid).astype(int, casting="unsafe")
+            j = ((np.asarray(p, float) - self.p_lo) / (self.p_hi - self.p_lo) * grid).astype(int, casting="unsafe")
+        return np.clip(i, 0, grid - 1), np.clip(j, 0, grid - 1)
+
+    def physics_mismatch(self, scene: Scene) -> list[str]:
+        """Reasons the scene's dimensionless physics differs from the model's (empty when it matches). A range model
+        covers a scene whose bow stays in its box all the time (the curves are linear between breakpoints, so their
+        extremes are breakpoint values)."""
+        out = []
+        if not math.isclose(scene.a, self.a, rel_tol=REL_TOL, abs_tol=1e-12):
+            out.append(f"a = {scene.a:.6g}, model has {self.a:.6g}")
+        if self.box is None:
+            # a pitch curve whose force follows it (F_B / w held, as a MIDI note's) is still one bow
+            (blo, bhi), vb_moves = scene.beta_range, isinstance(scene.vb, Curve)
+            if not math.isclose(blo, bhi, rel_tol=1e-9) or vb_moves:
+                out.append(f"the bow changes during the scene; this model plays one bow ({self.describe_bows()})")
+                return out
+            for name, have, want in (("F_B / w", blo, self.beta), ("v_B", scene.vb, self.vb)):
+                if not math.isclose(have, want, rel_tol=REL_TOL, abs_tol=1e-12):
+                    out.insert(0, f"{name} = {have:.6g}, model has {want:.6g}")
+            return out
+        b0, b1, v0, v1 = self.box
+        (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
+        if not (self.beta_plays(blo) and self.beta_plays(bhi)):
+            out.append(f"F_B / w {span_text(blo, bhi)} leaves the model's {0 if self.plays_below else b0:.4g}..{b1:.4g}")
+        if not (self.vb_in(vlo) and self.vb_in(vhi)):
+            out.append(f"v_B {span_text(vlo, vhi, '.4g')} leaves the model's {v0:g}..{v1:g}")
+        return out
+
+    def mismatch(self, scene: Scene) -> list[str]:
+        """Reasons this model cannot render the scene (empty when it can)."""
+        out = self.physics_mismatch(scene)
+        if not self.contains(scene.q0, scene.p0):
+            out.append(f"initial state (q0, p0) = ({scene.q0:g}, {scene.p0:g}) is outside the trained states "
+                       f"(q in [{self.q_lo:.3g}, {self.q_hi:.3g}], p in [{self.p_lo:.3g}, {self.p_hi:.3g}], on its band)")
+        if self.window / physics.dtau(scene.f0_max, scene.sample_rate) < 1:
+            out.append(f"the window ({self.window:.3g} in tau) holds no sample at {scene.sample_rate} Hz, f0 "
+                       f"{scene.f0_max:g}")
+        return out
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d.pop("mask")
+        d.pop("plays_below")
+        return d
+
+
+def span_text(lo: float, hi: float, fmt: str = ".4g") -> str:
+    return f"{lo:{fmt}}" if lo == hi else f"{lo:{fmt}}..{hi:{fmt}}"

@@ -1,0 +1,204 @@
+"""The operator as an engine: a scene (or many, batched) in, a Render out; the covering model chosen, the bow
+checked before the loop, a voice that leaves its model finished by the FDM when asked."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ...errors import DomainError, ModelFileError, UsageError
+from ...render import Played, Render, RenderInfo
+from ...scene import Scene
+from .basis import _operator
+from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_fits_best
+from .choose import (
+    _bow_exit,
+    as_model,
+    available_models,
+    find_model,
+    first_bow_outside,
+    partial_model,
+    train_hint,
+    unreadable_notes,
+)
+from .curve import render_curve
+from .modelfile import OperatorModel
+from .rollout import applied_controls, choose_loop, rollout_states, scene_bows
+from .windows import FAIL_BOW, FAILURES
+
+
+def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fallback: str = "none"):
+    if model is None:
+        try:
+            return find_model(scene, models)
+        except DomainError:
+            part = partial_model(scene, models) if fallback == "fdm" else None
+            if part is None:
+                raise
+            return part[0]
+    model = as_model(model)
+    why = model.domain.mismatch(scene)
+    where = first_bow_outside(model, scene) if why and model.domain.is_range else None
+    if where and where[0] > 0 and fallback == "fdm" and model.domain.contains(scene.q0, scene.p0):
+        return model  # it plays the opening; the FDM the rest
+    if where:  # name the parameter, its value and the time it leaves the range
+        why = [f"{where[1]} leaves its {model.domain.describe_bows()}"] + [
+            w for w in why if not w.startswith(("F_B", "v_B"))]
+    if why:
+        raise DomainError(f"model {model.path or model.meta.name} does not cover this scene: {'; '.join(why)}. "
+                          f"Train one with `{train_hint(scene)}`, or render with --method fdm")
+    return model
+
+
+def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[str]:
+    """A voice whose rollout stopped: finish it with the FDM from its last good sample (fallback 'fdm', in place;
+    returns the note to show) or raise DomainError."""
+    at, code = int(fail[0]), int(fail[1])
+    if at < 0 or at >= scene.n_samples:  # a shorter voice of a batch may fail after its own end
+        return []
+    why = f"{FAILURES[code]} at t = {at / scene.sample_rate:.4f} s"
+    if code == FAIL_BOW and len(fail) > 2 and fail[2]:
+        why = f"{FAILURES[code]}: {fail[2]}"
+    if fallback != "fdm":
+        raise DomainError(f"{voice}{why}; the render was stopped (use --fallback "
+                          f"fdm to finish with the FDM, or --method fdm)")
+    from ..fdm import render_fdm
+
+    start = max(at - 1, 0)
+    q0, p0 = (float(q[start]), float(p[start])) if at else (scene.q0, scene.p0)
+    # the FDM goes on from sample `start` with the curves as they stand there
+    rest = render_fdm(scene.after(start / scene.sample_rate, duration=(scene.n_samples - start) / scene.sample_rate,
+                                  q0=q0, p0=p0))
+    q[start:], p[start:] = rest.q[:scene.n_samples - start], rest.p[:scene.n_samples - start]
+    return [f"note: {voice}{why}; finished with the FDM from there"]
+
+
+def _physics_notes(m: OperatorModel) -> list[str]:
+    """Check a model read from a file against the physics its metadata claims (check_physics). A model that passed
+    its validation must pass: else ModelFileError. One whose validation failed (never picked by default, so it was
+    asked for by name) renders with a note instead. Models built in memory (the trainer's) are not checked here."""
+    if not m.from_file:
+        return []
+    err = check_physics(m)
+    if err <= PHYSICS_MAX_ERROR:  # NaN fails too
+        return []
+    d = m.domain
+    what = (f"its first {CHECK_WINDOWS} windows differ from the physics it claims (F_B / w = {d.beta:.4g}, "
+            f"v_B = {d.vb:g}, a = {d.a:g}) by {err:.3g} (relative mean square; the limit is {PHYSICS_MAX_ERROR:g})")
+    if m.failure is None and math.isfinite(err):
+        honest, b_alt, v_alt = claim_fits_best(m, err)
+        if honest:  # an inaccuracy, not a lie: the claimed bow is still the one the weights play
+            return [f"note: model {m.path or m.meta.name}: {what}, but they fit the claimed bow {MISLABEL_MARGIN:g}x "
+                    f"better than bows 10 % away: an inaccurate onset, not a mislabelled file"]
+        raise ModelFileError(f"model {m.path or m.meta.name} does not do what it claims: {what}, and they fit "
+                             f"F_B / w = {b_alt:.4g}, v_B = {v_alt:.4g} as well or better: its metadata does not "
+                             f"describe its weights. Retrain it, or render with --method fdm")
+    if m.failure is None:
+        raise ModelFileError(f"model {m.path or m.meta.name} does not do what it claims: {what}; its metadata does "
+                             f"not describe its weights. Retrain it, or render with --method fdm")
+    return [f"note: model {m.path or m.meta.name} is not validated ({m.failure}) and {what}: expect a poor render"]
+
+
+def render_operator(scene, model=None, fallback: str = "none"):
+    """Render one scene (or a list of scenes, batched in one rollout) with a trained operator.
+
+    model: an OperatorModel, a path, or None to pick the best validated model that covers the scene (see
+    find_model). A range model follows the scene's bow curves window by window (scene_bows); a point model plays
+    scenes of its one bow. fallback='fdm' finishes a rollout that leaves the model's domain, or a bow that leaves
+    every model's range, with the FDM (and says so in info.notes); 'none' raises DomainError. Every render first
+    checks the model's physics (check_physics) and raises ModelFileError if the model does not do what its metadata
+    claims. The arrays of an operator render are float32, the network's precision.
+    """
+    if fallback not in ("none", "fdm"):
+        raise UsageError(f"fallback must be none or fdm, got {fallback!r}")
+    if isinstance(scene, (list, tuple)):
+        return render_operator_batch(list(scene), model=model, fallback=fallback)
+    return render_operator_batch([scene], model=model, fallback=fallback, _single=True)[0]
+
+
+def _voice_bows(m: OperatorModel, scenes: list[Scene]):
+    """Per voice: the bows of its windows (padded to a common length) and where the bow first leaves the model's
+    range ((sample, what) or None: only a --fallback fdm render gets here with one)."""
+    op = _operator(m)
+    rows, leave = [], []
+    for sc in scenes:
+        spw = op.samples_per_window(sc.dtau)
+        bows = scene_bows(sc, spw)
+        out = None
+        if m.domain.is_range:
+            exit_ = _bow_exit(m, sc, spw, bows)
+            if exit_ is not None:
+                out = exit_[1:]
+                lo_b, hi_b, lo_v, hi_v = m.domain.box
+                bows = np.stack([np.clip(bows[:, 0], lo_b, hi_b), np.clip(bows[:, 1], lo_v, hi_v)], axis=1)
+        rows.append(bows)
+        leave.append(out)
+    W = max(len(r) for r in rows)
+    par = np.stack([np.concatenate([r, np.repeat(r[-1:], W - len(r), axis=0)]) for r in rows])
+    return par, rows, leave
+
+
+def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none", _single: bool = False) -> list[Render]:
+    """Many voices in one batched rollout. Voices sharing a model roll together, at any mix of pitches, sample
+    rates and bow curves; a voice that leaves its model's domain (or its bow the model's range) is finished with the
+    FDM (fallback 'fdm') or stops the render (DomainError)."""
+    t_setup = time.perf_counter()
+    # load each model file once: the voices must share model objects to be grouped into one rollout
+    model = None if model is None else as_model(model)
+    models = available_models() if model is None else None
+    groups: dict = {}
+    out: list = [None] * len(scenes)
+    for i, sc in enumerate(scenes):
+        if sc.pitch_varies:  # a pitch curve: per window its own sample spacing (the live engine's voice loop)
+            out[i] = render_curve(sc, _resolve(sc, model, models, fallback))
+            continue
+        m = _resolve(sc, model, models, fallback)
+        groups.setdefault(id(m), (m, []))[1].append(i)
+    for m, idx in groups.values():
+        checked = _physics_notes(m) + (unreadable_notes() if model is None else [])
+        group = [scenes[i] for i in idx]
+        n = max(sc.n_samples for sc in group)
+        x0 = np.array([[sc.q0, sc.p0] for sc in group])
+        dtau = np.array([sc.dtau for sc in group])
+        par, bows, leave = _voice_bows(m, group)
+        loop = choose_loop(m, n, dtau)
+        # warm-up: converts the weights, computes the trunk features at these sample offsets and loads the compiled
+        # loop if it is used, so that `seconds` measures the rollout itself (start-up: info.setup_seconds)
+        rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
+        t0 = time.perf_counter()
+        q, p, fail = rollout_states(m, x0, n, dtau, loop=loop, params=par)
+        fails = [list(f) for f in fail]
+        for row, lv in enumerate(leave):
+            if lv is not None and (fails[row][0] < 0 or lv[0] < fails[row][0]):
+                fails[row] = [lv[0], FAIL_BOW, lv[1]]
+                q[row, lv[0]:] = np.nan
+                p[row, lv[0]:] = np.nan
+        notes = {i: _finish(scenes[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], fails[row],
+                            fallback, voice="" if _single else f"voice {i + 1}: ") + checked
+                 for row, i in enumerate(idx)}
+        secs = (time.perf_counter() - t0) / len(idx)
+        op = _operator(m)
+        t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
+        for row, i in enumerate(idx):
+            sc = scenes[i]
+            ns = sc.n_samples
+            if sc.sample_rate not in t_all:
+                t_all[sc.sample_rate] = np.arange(n) / sc.sample_rate
+            info = RenderInfo(model_id=m.id, model_path=str(m.path) if m.path else None, notes=notes[i], loop=loop,
+                              setup_seconds=t0 - t_setup, batched=None if _single else len(idx))
+            if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
+                v = m.meta.validation or {}
+                info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid")}
+            ctrl = None
+            if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
+                ctrl = applied_controls(sc, op.samples_per_window(sc.dtau), bows[row])
+                if leave[row] is not None:  # the FDM played the rest: its controls are the curves themselves
+                    at = leave[row][0]
+                    tt = np.arange(at, ns) / sc.sample_rate
+                    ctrl["fb"][at:], ctrl["vb"][at:] = sc.fb_at(tt), sc.vb_at(tt)
+            out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns],
+                            method=Played("operator", fdm_fallback=len(notes[i]) > len(checked)), seconds=secs,
+                            info=info, **({"controls": ctrl} if ctrl is not None else {}))
+    return out

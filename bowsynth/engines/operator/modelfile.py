@@ -1,0 +1,252 @@
+"""Model files: safetensors weights + JSON metadata (no pickle) bound together by a digest, and the domain a model
+covers. Reading a model needs numpy only (no torch).
+
+A model is trained for one dimensionless scene (beta = F_B / w, v_B, a) over a window of T in tau, on the band of
+states a render visits. The domain records that band as a box plus an occupancy mask on a grid over the box.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ... import __version__
+from ...errors import ModelFileError
+from ...scene import Scene
+from .domain import Domain
+from .npnet import NetConfig, weight_shapes
+
+FORMAT = "bowsynth-operator"
+FORMAT_VERSION = 2  # 2: a digest binds the metadata to the weights
+RANGE_VERSION = 3  # 3: a range model (its domain has a box of bows, its branch takes them); point models stay 2
+READ_VERSIONS = (1, 2, 3)
+META_KEY = "bowsynth"
+
+# A model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above this is
+# not picked by default: the shipped models score 1e-7 to 3e-4; 0.1 is a note visibly off in phase or pitch.
+MAX_VALIDATION_NMSE = 0.1
+
+
+@dataclass
+class ModelMeta:
+    """Everything in a model file besides the weights."""
+
+    name: str
+    domain: Domain
+    net: dict
+    training: dict
+    validation: dict
+    scene: dict  # the scene it was trained for (f0, fb, ... ), for messages and `bowsynth train` hints
+    version: str = __version__
+    format: str = FORMAT
+    format_version: int = FORMAT_VERSION
+    id: str = ""
+    digest: str = ""  # format 2: see `digest`
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["domain"] = self.domain.to_json()
+        return json.dumps(d)
+
+
+def model_id(name: str, tensors: dict) -> str:
+    h = hashlib.sha256()
+    for k in sorted(tensors):
+        h.update(k.encode())
+        h.update(np.ascontiguousarray(tensors[k]).tobytes())
+    return f"{name}@{h.hexdigest()[:10]}"
+
+
+def digest(meta: dict, tensors: dict) -> str:
+    """What binds a file's metadata to its weights: sha256 over the canonical metadata JSON (sorted keys, without the
+    digest itself) and every tensor's name, dtype, shape and bytes. An edit to either no longer matches."""
+    h = hashlib.sha256()
+    h.update(json.dumps({k: v for k, v in meta.items() if k != "digest"}, sort_keys=True,
+                        separators=(",", ":")).encode())
+    for k in sorted(tensors):
+        a = np.ascontiguousarray(tensors[k])
+        h.update(f"\0{k}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return "sha256:" + h.hexdigest()
+
+
+def validation_failure(meta: ModelMeta) -> str | None:
+    """Why a model's validation rollout disqualifies it from being picked by default (None when it passed): it
+    failed, has no finite NMSE(p), or its NMSE(p) exceeds MAX_VALIDATION_NMSE."""
+    v = meta.validation or {}
+    if v.get("error"):
+        return f"validation failed: {v['error']}"
+    n = v.get("nmse")
+    if not isinstance(n, (int, float)) or isinstance(n, bool) or not math.isfinite(n):
+        return "no validation score"
+    if n > MAX_VALIDATION_NMSE:
+        return f"validation NMSE(p) {n:.3g} > {MAX_VALIDATION_NMSE:g}"
+    return None
+
+
+class OperatorModel:
+    """A trained operator: its weights and metadata.
+
+    Built from a torch DeepONet (the trainer) or, by `load_model`, from the numpy weights of a file: a render reads
+    only `weights` (float32 numpy arrays), and `net`, the torch network, is built on first use.
+    """
+
+    def __init__(self, net, meta: ModelMeta, path: Path | None = None, weights: dict | None = None):
+        if net is None and weights is None:
+            raise ValueError("an OperatorModel needs a torch network or its weights")
+        self._net = net.eval() if net is not None else None
+        self._weights = weights
+        # read from a file (load_model): its metadata are claims about its weights, checked at render time
+        self.from_file = net is None
+        self.meta = meta
+        self.path = path
+        meta.domain.plays_below = bool(meta.domain.is_range and NetConfig(**meta.net).corr_beta)
+
+    @property
+    def net(self):
+        """The torch DeepONet (built from the weights on first use: importing torch takes seconds)."""
+        if self._net is None:
+            import torch
+
+            from .network import DeepONet
+
+            net = DeepONet(NetConfig(**self.meta.net))
+            net.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self._weights.items()}, strict=True)
+            self._net = net.eval()
+        return self._net
+
+    @property
+    def weights(self) -> dict:
+        """The network's tensors as float32 numpy arrays (state_dict names); a snapshot when built from a net."""
+        if self._net is not None:  # the trainer's net may still change: read it afresh
+            return {k: v.detach().cpu().float().contiguous().numpy().copy() for k, v in self._net.state_dict().items()}
+        return self._weights
+
+    @property
+    def cfg(self) -> NetConfig:
+        return NetConfig(**self.meta.net)
+
+    @property
+    def domain(self) -> Domain:
+        return self.meta.domain
+
+    @property
+    def id(self) -> str:
+        return self.meta.id
+
+    @property
+    def failure(self) -> str | None:
+        """Why this model is not picked by default (see validation_failure), or None."""
+        return validation_failure(self.meta)
+
+    def covers(self, scene: Scene) -> bool:
+        return not self.domain.mismatch(scene)
+
+    def save(self, path, force: bool = False) -> Path:
+        """Write the model (format version FORMAT_VERSION, with its digest); sets meta.id and meta.digest."""
+        from safetensors.numpy import save_file
+
+        from ...io.audio import atomic_write
+
+        path = Path(path)
+        tensors = dict(self.weights)
+        tensors["domain.mask"] = np.ascontiguousarray(self.domain.mask, dtype=np.uint8)
+        self.meta.id = model_id(self.meta.name, tensors)
+        self.meta.format_version = RANGE_VERSION if self.domain.is_range else FORMAT_VERSION
+        self.meta.digest = ""
+        self.meta.digest = digest(json.loads(self.meta.to_json()), tensors)
+        try:  # without force the file is placed by a link, which refuses a name taken even a moment ago
+            atomic_write(path, lambda tmp: save_file(tensors, tmp, metadata={META_KEY: self.meta.to_json()}),
+                         exclusive=not force)
+        except FileExistsError:
+            raise ModelExistsError(f"{path} exists; pass --force to overwrite it") from None
+        self.path = path
+        return path
+
+
+def _check_regular(path: Path) -> None:
+    """A model file is a regular file: say what it is instead (never open a FIFO, which blocks, or a device such as
+    /dev/zero, which never ends)."""
+    import errno
+    import stat
+
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise ModelFileError(f"model file {path} not found" + (" (a symlink to nothing)" if path.is_symlink()
+                                                                else "")) from None
+    except OSError as e:
+        why = "is a symlink loop" if e.errno == errno.ELOOP else f"cannot be read ({e.strerror})"
+        raise ModelFileError(f"model file {path} {why}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ModelFileError(f"model file {path} is a directory, not a model file")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(
+            st.st_mode) else "not a regular file"
+        raise ModelFileError(f"model file {path} is {kind}" + (f" (the target of a symlink: {os.path.realpath(path)})"
+                                                              if path.is_symlink() else "") + ", not a model file")
+
+
+class ModelExistsError(ModelFileError, FileExistsError):
+    """A model file would replace an existing file without force."""
+
+
+def load_model(path) -> OperatorModel:
+    """Load a model file (numpy only: no torch); any problem (missing, corrupt, foreign, other version, metadata that
+    does not match the weights) raises ModelFileError."""
+    from safetensors import safe_open
+
+    path = Path(path)
+    _check_regular(path)
+    try:
+        with safe_open(str(path), framework="numpy") as f:
+            raw = (f.metadata() or {}).get(META_KEY)
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except Exception as e:  # safetensors raises several types for bad headers and truncation
+        raise ModelFileError(f"{path} is not a readable model file ({type(e).__name__}: {e})") from None
+    if raw is None:
+        raise ModelFileError(f"{path} is a safetensors file but not a bowsynth model (no '{META_KEY}' metadata)")
+    try:
+        d = json.loads(raw)
+        if not isinstance(d, dict):
+            raise ValueError("the metadata is not a JSON object")
+        if d.get("format") != FORMAT:
+            raise ModelFileError(f"{path} is not a bowsynth operator (format {d.get('format')!r})")
+        if d.get("format_version") not in READ_VERSIONS:
+            raise ModelFileError(f"{path} has model format version {d.get('format_version')}, this bowsynth reads "
+                                 f"versions {', '.join(map(str, READ_VERSIONS))}; retrain it with `bowsynth train`")
+        # version 1 files carry no digest: the physics check at render time (operator.check) still catches
+        # metadata that lies about the weights
+        if d["format_version"] >= 2 and d.get("digest") != digest(d, tensors):
+            raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited (digest mismatch)")
+        mask = tensors.pop("domain.mask").astype(bool)
+        dom = Domain(**d["domain"], mask=mask)
+        dom.check()
+        meta = ModelMeta(**{**d, "domain": dom})
+        cfg = NetConfig(**d["net"])
+        want = weight_shapes(cfg)
+        if set(tensors) != set(want):
+            missing, extra = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
+            raise ValueError(f"tensors missing {missing[:3]}, unexpected {extra[:3]}")
+        for k, shape in want.items():
+            if tensors[k].shape != shape or tensors[k].dtype != np.float32:
+                raise ValueError(f"{k} is {tensors[k].dtype} {tensors[k].shape}, expected float32 {shape}")
+        if not math.isclose(float(tensors["window"]), dom.window, rel_tol=1e-6):
+            raise ValueError(f"the window tensor ({float(tensors['window']):g}) is not the domain's ({dom.window:g})")
+        for k in ("halfrange", "corr_scale"):
+            if not np.all(tensors[k] > 0):
+                raise ValueError(f"{k} must be positive, got {tensors[k]}")
+    except ModelFileError:
+        raise
+    except Exception as e:
+        raise ModelFileError(f"{path} has damaged bowsynth metadata or weights ({type(e).__name__}: {e})") from None
+    for k, v in tensors.items():
+        if not np.all(np.isfinite(v)):
+            raise ModelFileError(f"{path} holds non-finite weights ({k})")
+    return OperatorModel(None, meta, path, weights=tensors)

@@ -1,0 +1,239 @@
+"""Rolling render: the operator applied window to window, each window seeded by the previous window's end state.
+
+The audio samples sit at fixed offsets tau_j = j w / sr inside every window, so the trunk features there are
+computed once per render and pitch; a window then costs one branch evaluation and a small matmul. No torch here; the
+loops run in numpy, or compiled (`kernels`, numba) when the work repays importing numba.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from ...scene import Scene
+from .basis import _bases, _operator
+from .modelfile import OperatorModel
+from .windows import FAIL_DOMAIN, FAIL_NONFINITE, max_windows, window_bounds, window_ends
+
+BATCH_FROM = 8  # compiled loops: from this many voices on, the window-at-a-time loop with BLAS products is faster
+# numba costs ~0.3 s to import and ~0.5 s more on the first call of a cached loop in a process (typing machinery and
+# the cache's code loaded; measured at load ~4-5 on the shared 2-core machine), more than the whole numpy rollout of
+# most renders (a 5 s note at 100 Hz: 0.044 s in numpy, ~0.01 s compiled; 100 voices x 5 s at 100 pitches: 0.81 s in
+# numpy, 0.58 s compiled). So the compiled loops run only where the numpy loop's estimated time exceeds
+# NUMBA_PAYS_FROM, or once numba is imported (a process that ran the FDM: a notebook, training's validation, bench,
+# where the first call's 0.5 s is repaid by every later render). docs/BENCHMARKS.md, issue 12.
+NUMBA_PAYS_FROM = 1.0
+
+
+def _numpy_seconds(rounds: int, voice_windows: int, voice_samples: int) -> float:
+    """Estimated time of `_roll_numpy` (fitted on the shared machine at load ~5: 1 voice x 5 s 0.044 s, 100 voices
+    at 100 pitches x 1 s 0.16 s, x 5 s 0.81 s; importing numba and loading the loops took 0.39 s there)."""
+    return 80e-6 * rounds + 6e-6 * voice_windows + 15e-9 * voice_samples
+
+
+def numba_loaded() -> bool:
+    """Has this process already paid numba's import (the FDM ran, or a compiled rollout)? Then compiled loops cost
+    only their own cache load (~10 ms), and every later render or release repays it."""
+    return "numba" in sys.modules
+
+
+def choose_loop(model: OperatorModel, n_samples: int, dtau) -> str:
+    """'numba' when numba is already imported or the numpy loop's estimated time repays loading it, else 'numpy'."""
+    if numba_loaded():
+        return "numba"
+    spw = _operator(model).window / np.atleast_1d(np.asarray(dtau, dtype=float))
+    slow = _numpy_seconds(int(n_samples / spw.min()) + 1, int(np.sum(n_samples / spw)) + len(spw), n_samples * len(spw))
+    return "numba" if slow > NUMBA_PAYS_FROM else "numpy"
+
+
+def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
+    """The bow (beta, v_B) the operator applies in each window of a render of the scene: the controls at the
+    window's middle (held over the window: second order in the window length; held at its start the error of a
+    crescendo is 200x larger, shared/GUIDE.md 8). (W, 2)."""
+    starts, ends = window_bounds(spw, scene.n_samples if n_samples is None else n_samples)
+    t = 0.5 * (starts + ends) / scene.sample_rate
+    return np.stack([scene.fb_at(t) / scene.omega, scene.vb_at(t)], axis=1)
+
+
+def applied_controls(scene: Scene, spw: float, bows: np.ndarray) -> dict:
+    """Per output sample, the controls the operator applied (Render.controls): fb (m/s^2) and vb, piecewise constant
+    per window."""
+    n = scene.n_samples
+    starts, ends = window_bounds(spw, n)
+    lens = np.minimum(ends, n) - starts
+    rep = lambda v: np.repeat(v[:len(lens)], lens)[:n]  # noqa: E731
+    return {"fb": rep(bows[:, 0] * scene.omega), "vb": rep(bows[:, 1])}
+
+
+def _window_bows(model: OperatorModel, B: int, W: int, params) -> np.ndarray:
+    """params as (B, W, 2) bows per window: None (a range model's own centre; ignored by a point model), one bow for
+    all, one per voice (B, 2), or per voice and window (B, W', 2), padded with each voice's last."""
+    d = model.domain
+    if params is None:
+        params = [d.beta, d.vb]
+    par = np.asarray(params, float)
+    if par.ndim == 1:
+        par = np.broadcast_to(par, (B, 2))
+    if par.ndim == 2:
+        par = np.broadcast_to(par[:, None, :], (B, W, 2))
+    if par.shape[1] < W:
+        par = np.concatenate([par, np.repeat(par[:, -1:], W - par.shape[1], axis=1)], axis=1)
+    return par[:, :W]
+
+
+def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, check_domain: bool = True,
+                   loop: str = "auto", params=None):
+    """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau (one spacing for all voices,
+    or one per voice: voices at different pitches roll in one batch).
+
+    loop: 'numpy', 'numba' (the compiled loops of `kernels`), or 'auto' (numba when it is already imported or the
+    work is long enough to repay importing it).
+    Returns q, p (B, n_samples) float32 and fail (B, 2) int: per voice the first sample of the window where the
+    rollout left the model's domain or went non-finite, and the reason (a key of FAILURES), or (-1, 0). A failed
+    voice stops there (its later samples are NaN); the other voices go on.
+    params: a range model's bows (beta, v_B): one (2,), per voice (B, 2) or per voice and window (B, W, 2) (see
+    scene_bows); None plays the model's own (centre) bow. They are not checked against the model's box here.
+    """
+    x = np.array(x0, dtype=float).reshape(-1, 2)
+    B = len(x)
+    dt = np.broadcast_to(np.asarray(dtau, dtype=float), (B,))
+    uniq, vidx = np.unique(dt, return_inverse=True)
+    spw, n_lo, Bq, Bp, endb, endlin = _bases(model, uniq)
+    vidx = np.ascontiguousarray(vidx, dtype=np.int64)
+    op = _operator(model)
+    q = np.empty((B, n_samples), np.float32)
+    p = np.empty((B, n_samples), np.float32)
+    fail = np.tile(np.array([-1, 0], np.int64), (B, 1))  # the loops write only the voices that fail
+    d = model.domain
+    W = max_windows(n_samples, spw)  # as many windows as the loops may start
+    pin, gain, center, halfrange = op.window_inputs(_window_bows(model, B, W, params))
+    args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, op.ff, pin, gain, *op.weights,
+            np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
+    if loop == "auto":
+        loop = choose_loop(model, n_samples, dt)
+    if loop == "numba":
+        from . import loops as kernels
+
+        (kernels.roll_batch if B >= BATCH_FROM else kernels.roll_voices)(*args)
+    elif loop == "numpy":
+        _roll_numpy(*args)
+    else:
+        raise ValueError(f"loop must be auto, numpy or numba, got {loop!r}")
+    for b in np.flatnonzero(fail[:, 0] >= 0):
+        q[b, fail[b, 0]:] = np.nan
+        p[b, fail[b, 0]:] = np.nan
+    return q, p, fail
+
+
+BLOCK = 256  # windows per pass of the two-pass loops: bounds the stored branch outputs (B x BLOCK x 2k floats)
+
+
+def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, ff, pin, gain, Gw, Gb, Hw,
+                Hb, Ow, Ob, box, mask, check, q_out, p_out, fail):
+    """kernels.roll_batch in numpy (same arguments, same float32 arithmetic up to rounding), in two passes per block
+    of BLOCK windows.
+
+    First the chain: every running voice one window at a time, the branch as matrix products over the voices, the
+    end state from the window's last offset only (endb, endlin), keeping each window's start state and branch
+    output. Then the samples, voice by voice: all of a voice's windows of the block in one matrix product with its
+    pitch's basis. Writing samples inside the chain touches every pitch's basis once per window (23 MB for 100
+    pitches: memory-bound), and per window numpy's call overhead outweighs a small product.
+    """
+    B = x0.shape[0]
+    k = endb.shape[-1]
+    width = Hw.shape[-1]
+    n_hi = np.ceil(spw).astype(np.int64)
+    sp, nl = spw[vidx], n_lo[vidx]
+    W = max_windows(n_samples, sp)
+    ends = window_ends(sp, W)
+    starts = np.concatenate([np.zeros((B, 1), np.int64), ends[:, :-1]], axis=1)
+    jlen = ends - starts - nl[:, None]  # 0: a window of n_lo samples, 1: of n_hi
+    n_run = (starts < n_samples).sum(axis=1)  # windows each voice needs
+    # per window as few numpy calls as possible (each costs microseconds): the features' scaling folded into ff,
+    # and the end state as one product of [o_q, o_p, q0, p0, 1] with E[pitch, length] (float64, kernels._end_state)
+    # (the scaling varies per window only for a bow-scaled range model: then it is applied per window)
+    per_window = not (np.all(center == center[:1, :1]) and np.all(halfrange == halfrange[:1, :1]))
+    c0, h0 = (center[0, 0], halfrange[0, 0]) if center.size else (np.zeros(2), np.ones(2))
+    ffs, off = ff[:2] / h0[:, None], (c0 / h0) @ ff[:2]
+    ffp = ff[2:]  # a range model's bow inputs (pin) enter the same features
+    last_w = pin.shape[1] - 1
+    E = np.zeros((len(spw), 2, 2 * k + 3, 2))
+    E[:, :, :k, 0], E[:, :, k:2 * k, 1] = endb[:, :, 0], endb[:, :, 1]
+    E[:, :, 2 * k, 0], E[:, :, 2 * k + 1, 0], E[:, :, 2 * k + 2, 0] = endlin[..., 0], endlin[..., 1], endlin[..., 2]
+    E[:, :, 2 * k, 1], E[:, :, 2 * k + 1, 1], E[:, :, 2 * k + 2, 1] = -endlin[..., 5], endlin[..., 4], endlin[..., 3]
+    lo, span = np.array([box[0], box[2]]), np.array([box[1] - box[0], box[3] - box[2]])
+    g = mask.shape[0]
+    done = np.zeros(B, np.int64)  # windows computed per voice (the last one may be where it failed)
+    x = x0.astype(np.float64).copy()
+    alive = np.ones(B, bool)
+    rows = np.arange(B)
+    pm = np.array([1, -1], np.float32)
+    for w0 in range(0, W, BLOCK):
+        w1 = min(w0 + BLOCK, W)
+        O_blk = np.empty((B, w1 - w0, 2 * k), np.float32)
+        X_blk = np.empty((B, w1 - w0, 2), np.float64)
+        G_blk = np.empty((B, w1 - w0), np.float64)
+        act = rows
+        for win in range(w0, w1):
+            if win >= n_run.min() or not alive.all():
+                act = rows[alive & (win < n_run)]
+                if not act.size:
+                    break
+            xa = x[act]
+            X_blk[act, win - w0] = xa
+            wi = min(win, last_w)
+            if per_window:
+                z = ((xa - center[act, wi]) / halfrange[act, wi]) @ ff[:2]
+            else:
+                z = xa @ ffs - off
+            if ffp.shape[0]:
+                z += pin[act, wi] @ ffp
+            ga = gain[act, wi]
+            h = np.concatenate([np.cos(z), np.sin(z)], axis=1).astype(np.float32)
+            T = np.tanh(h @ Gw + Gb)
+            V = T[:, width:2 * width]
+            U = T[:, :width] - V  # modified MLP: h = v + tanh(z) (u - v); U is kept as u - v
+            hh = V + T[:, 2 * width:] * U
+            for layer in range(Hw.shape[0]):
+                hh = V + np.tanh(hh @ Hw[layer] + Hb[layer]) * U
+            O = (hh @ Ow + Ob) * ga[:, None].astype(np.float32)  # (A, 2k)
+            O_blk[act, win - w0] = O
+            G_blk[act, win - w0] = ga
+            done[act] = win + 1
+            nx = np.einsum("ai,aij->aj", np.concatenate([O, xa, ga[:, None]], axis=1),
+                           E[vidx[act], jlen[act, win]])
+            ok = np.isfinite(nx).all(axis=1)
+            if check:
+                cell = (nx - lo) / span
+                inside = ok & (cell >= 0).all(axis=1) & (cell <= 1).all(axis=1)
+                ij = np.minimum((np.where(inside[:, None], cell, 0) * g).astype(np.int64), g - 1)
+                ok_dom = inside & mask[ij[:, 0], ij[:, 1]]
+                last = ends[act, win] >= n_samples  # no window follows: nothing to check
+                stop = ~ok | ~(ok_dom | last)
+            else:
+                stop = ~ok
+            if stop.any():
+                bad, out = ~ok, stop & ok
+                fail[act[bad], 0], fail[act[bad], 1] = starts[act[bad], win], FAIL_NONFINITE
+                fail[act[out], 0], fail[act[out], 1] = ends[act[out], win], FAIL_DOMAIN
+                alive[act[stop]] = False
+            x[act] = nx
+        for b in range(B):
+            wb = min(w1, int(done[b]))
+            if wb <= w0:
+                continue
+            nw, nh = wb - w0, n_hi[vidx[b]]
+            xf = X_blk[b, :nw].astype(np.float32)
+            ones = G_blk[b, :nw, None].astype(np.float32)  # the bias rows take the gain
+            # (nw, n_hi): one row per window, this pitch's columns only (the stack is padded to the longest window)
+            Tq = np.concatenate([O_blk[b, :nw, :k], xf, ones], axis=1) @ Bq[vidx[b], :, :nh]
+            Tp = np.concatenate([O_blk[b, :nw, k:], xf[:, ::-1] * pm, ones], axis=1) @ Bp[vidx[b], :, :nh]
+            # sample i lies in window w at offset i - starts[w]
+            first, last = int(starts[b, w0]), min(int(ends[b, wb - 1]), n_samples)
+            lens = np.minimum(ends[b, w0:wb], last) - starts[b, w0:wb]
+            flat = np.repeat(np.arange(nw) * nh - (starts[b, w0:wb] - first), lens) + np.arange(last - first)
+            q_out[b, first:last] = Tq.ravel()[flat]
+            p_out[b, first:last] = Tp.ravel()[flat]
+
+

@@ -1,0 +1,74 @@
+"""The sounding ratio of the engine that plays a note: the FDM at its rate and oversampling (its dispersion included),
+or an operator model (its own pitch, measured once per model and bow and cached), so a note asked at a pitch sounds
+there whichever engine plays it. The truth's ratio and the solve for f0 are in `tuning`."""
+
+from __future__ import annotations
+
+from .. import physics
+from ..errors import DomainError
+from ..scene import Scene
+from .tuning import _measure_ratio, engine_ratio, sounding_ratio
+
+
+def fdm_ratio(sample_rate: float, oversample: int = 1):
+    """The sounding ratio of the FDM at this rate, as `tune(ratio=...)` takes it: the scheme's own, at its step in tau
+    k w = 2 pi f0 / (sample_rate oversample), dispersion included (about (w k)^2 / 24: +2.2 cents at A5 at 44.1 kHz
+    if tuned with the truth's ratio). Cached in the process and on disk like sounding_ratio."""
+    def ratio(beta: float, vb: float, a: float, f0: float) -> float:
+        k = physics.dtau(f0, sample_rate * oversample)
+        return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: _measure_ratio(beta, vb, a, k=k).r)
+    return ratio
+
+
+RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain does not depend on f0, only the samples
+RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
+
+
+def operator_ratio(model):
+    """The sounding ratio of a trained operator, as `pitch.tune(ratio=...)` takes it: the model rolled out from rest
+    at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods. A model's
+    window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached on disk
+    with the model's id)."""
+    from ..analysis.metrics import f0_estimate
+    from ..engines.operator.choose import as_model
+    from ..engines.operator.engine import render_operator
+
+    m = as_model(model)
+
+    def ratio(beta: float, vb: float, a: float, f0: float) -> float:
+        def measure():
+            truth = sounding_ratio(beta, vb, a)
+            seconds = min((truth.settle_periods + RATIO_PERIODS / truth.r) / RATIO_F0, 60.0)
+            sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=seconds)
+            r = render_operator(sc, model=m)
+            tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
+            return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
+        return engine_ratio(f"operator{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
+    return ratio
+
+
+def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1):
+    """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
+    scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it, its own
+    pitch), so that the asked note sounds there whichever engine plays. (None, why) when no model covers the scene:
+    the note is then tuned with the truth's ratio (what compare scores against)."""
+    if str(getattr(engine, "value", engine)) == "fdm":
+        from ..engines.fdm import check_oversample
+
+        os_ = check_oversample(scene, oversample, warn=False)
+        return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
+    from ..engines.operator.choose import as_model, find_model
+
+    try:
+        m = find_model(scene) if model is None else as_model(model)
+    except DomainError as e:
+        return None, str(e).split(";")[0]
+    if not m.covers(scene):
+        return None, f"model {m.id} does not cover the scene"
+
+    def ratio(beta, vb, a, f0):
+        try:
+            return operator_ratio(m)(beta, vb, a, f0)
+        except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
+            return sounding_ratio(beta, vb, a).r
+    return ratio, f"model {m.id}"

@@ -1,0 +1,46 @@
+"""A training recipe: the settings of one model's `bowsynth train` in a TOML file, so that the Makefile, the
+benchmarks and a user who wants the same model again read one source instead of flags copied between them.
+
+    # bowsynth/models/soft-range.toml
+    f0 = 100
+    fb = "6.283:282.7"      # a range LO:HI, as --fb takes it
+    vb = "0:0.3"
+    minutes = 40
+    out = "soft-range.safetensors"   # relative to this file
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+from ..errors import UsageError
+
+# key: the types the value may have (TOML's); each is the `bowsynth train` flag of that name
+KEYS = {"preset": (str,), "f0": (int, float), "fb": (str, int, float), "vb": (str, int, float), "a": (int, float),
+        "minutes": (int, float), "steps": (int,), "seed": (int,), "rest_linear": (bool,), "out": (str,)}
+
+
+def load_recipe(path) -> dict:
+    """The recipe's settings, checked: known keys, the right types, `out` resolved against the recipe's folder."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            raw = tomllib.load(fh)
+    except FileNotFoundError:
+        raise UsageError(f"--config {path}: no such file") from None
+    except IsADirectoryError:
+        raise UsageError(f"--config {path} is a directory, not a recipe file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise UsageError(f"--config {path} is not valid TOML: {e}") from None
+    out = {}
+    for key, value in raw.items():
+        if key not in KEYS:
+            raise UsageError(f"--config {path}: unknown key {key!r}; known: {', '.join(KEYS)}")
+        types = KEYS[key]
+        if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
+            raise UsageError(f"--config {path}: {key} must be {' or '.join(t.__name__ for t in types)}, got {value!r}")
+        out[key] = str(value) if key in ("fb", "vb") else value
+    if "out" in out:
+        out["out"] = path.parent / out["out"]
+    return out
