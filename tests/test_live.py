@@ -348,7 +348,7 @@ def test_no_server_is_one_line_saying_how_to_start_one(tmp_path):
                        capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=60)
     assert r.returncode == 1
     lines = (r.stdout + r.stderr).strip().splitlines()
-    assert len(lines) == 1 and "jackd -d dummy" in lines[0], lines
+    assert len(lines) == 1 and f"jackd -n none-{os.getpid()} -d dummy" in lines[0], lines
 
 
 def test_bad_connect_port_and_zero_voices_are_refused(jackd):

@@ -43,6 +43,8 @@ def play(
     method = parse_choice(Engine, method, "--method").value
     if voices < 1:
         raise UsageError(f"--voices must be >= 1, got {voices}")
+    if not 0 <= bend_range <= 24:
+        raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
     amp = None if gain is None else 10.0 ** (gain / 20.0)
     run(name=name, server=server, connect=connect or (), voices=voices, engine=method, model=model,
         a4=A4_HZ if a4 is None else a4, amp=amp, bend_range=bend_range)

@@ -17,9 +17,6 @@ import numpy as np
 
 from ..errors import BowsynthError, UsageError
 
-START_HINT = "start one with `jackd -d dummy -r 44100 -p 512 &` (no sound card needed; `-d alsa` plays through one)"
-
-
 class ServerGone(BowsynthError):
     """The JACK server shut down (or dropped the client) while playing."""
 
@@ -37,9 +34,9 @@ def open_client(name: str, server: str | None):
     try:
         return jack.Client(name, no_start_server=True, servername=server)
     except jack.JackOpenError:
-        which = f"named {server!r} " if server else ""
-        raise BowsynthError(f"no JACK server {which}is running: {START_HINT}"
-                            + (f" (with -n {server})" if server else "")) from None
+        which, n = (f"named {server!r} ", f"-n {server} ") if server else ("", "")
+        raise BowsynthError(f"no JACK server {which}is running: start one with `jackd {n}-d dummy -r 44100 -p 512 &` "
+                            f"(no sound card needed; `-d alsa` plays through one)") from None
 
 
 def percentiles_ms(times: np.ndarray) -> tuple[float, float, float]:
