@@ -5,7 +5,7 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models bench bench-quick clean chromium core
+.PHONY: setup demo test models bench bench-quick clean chromium jackd core
 
 $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	$(PY) -m pip install -q -e '.[test]'
 	touch $(STAMP)
 
-setup: $(STAMP) chromium
+setup: $(STAMP) chromium jackd
 
 demo: $(STAMP)
 	mkdir -p $(OUTDIR)
@@ -30,7 +30,7 @@ demo: $(STAMP)
 	$(BOW) render --fb 50@0,200@2 --vb 0.15 -d 2 $(OUTDIR)/crescendo.wav
 	$(BOW) compare $(OUTDIR)/crescendo.wav
 
-test: $(STAMP) chromium
+test: $(STAMP) chromium jackd
 	$(PY) -m pytest
 
 # The shipped operators: each is trained by its recipe beside it (bowsynth/models/NAME.toml: the flags of
@@ -43,6 +43,10 @@ models: $(STAMP)
 # The report tests open pages in Debian's chromium, driven by playwright (the test extra) with no browser download.
 chromium:
 	@command -v chromium >/dev/null || { S=$$([ "$$(id -u)" = 0 ] || echo sudo); $$S apt-get update && $$S apt-get install -y chromium; } || echo "chromium could not be installed: the browser tests will skip"
+
+# `bowsynth play` is a JACK client: libjack and the server (its dummy driver needs no sound card) come with jackd2.
+jackd:
+	@command -v jackd >/dev/null || { S=$$([ "$$(id -u)" = 0 ] || echo sudo); $$S apt-get update && DEBIAN_FRONTEND=noninteractive $$S apt-get install -y jackd2; } || echo "jackd2 could not be installed: bowsynth play and its tests will skip"
 
 bench: $(STAMP)
 	$(BOW) bench --out docs/bench

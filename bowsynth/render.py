@@ -95,6 +95,8 @@ class Render:
 
     @property
     def u(self) -> np.ndarray:
+        if self.scene.pitch_varies:
+            return self.q / (2.0 * np.pi * self.scene.f0_at(self.t))
         return self.q / self.scene.omega
 
     @property

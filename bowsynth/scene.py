@@ -8,6 +8,8 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from . import controls, physics
 from .controls import Curve
 from .errors import SceneError, UsageError
@@ -15,7 +17,7 @@ from .errors import SceneError, UsageError
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
 
 MIN_RATE, MAX_RATE = 8_000, 384_000
-CONTROLS = ("fb", "vb")  # the scene fields that may follow a curve
+CONTROLS = ("fb", "vb", "f0")  # the scene fields that may follow a curve (f0: a pitch curve, Hz)
 # Bounds on magnitudes, far outside any playable value, so that every formula downstream (the FDM's step bounds,
 # u = q / w, the gain of a file) stays finite: 1e308 bow forces, speeds or states overflowed into internal errors.
 MIN_F0 = 1.0  # Hz: below it u = q / w grows without bound and nothing sounds
@@ -31,7 +33,8 @@ class Scene:
     Units: f0 Hz; fb bow force per unit mass (m/s^2); vb m/s; a friction shape (s^2/m^2); duration s;
     sample_rate Hz; q0 = w u(0) and p0 = u_t(0) in m/s.
     fb and vb are numbers or curves (a `Curve`, or a list of [t, value] pairs in s: linear between, held outside):
-    bow gestures within the note.
+    bow gestures within the note. f0 may be a curve too (vibrato, glissando, pitch bend): the FDM follows w(t) at
+    every step, the operator per window. A scene whose f0 varies has no single `omega` or `dtau`: use `f0_at`.
     """
 
     f0: float = 100.0
@@ -64,10 +67,11 @@ class Scene:
         object.__setattr__(self, "sample_rate", int(self.sample_rate))
         if not MIN_RATE <= self.sample_rate <= MAX_RATE:
             raise SceneError(f"sample_rate must be in [{MIN_RATE}, {MAX_RATE}] Hz, got {self.sample_rate}")
-        if self.f0 <= 0:
-            raise SceneError(f"f0 must be > 0 Hz, got {self.f0}")
-        if self.f0 >= self.sample_rate / 2:
-            raise SceneError(f"f0 must be below Nyquist ({self.sample_rate / 2:g} Hz), got {self.f0}")
+        f0_lo, f0_hi = controls.bounds(self.f0)
+        if f0_lo <= 0:
+            raise SceneError(f"f0 must be > 0 Hz, got {f0_lo:g}")
+        if f0_hi >= self.sample_rate / 2:
+            raise SceneError(f"f0 must be below Nyquist ({self.sample_rate / 2:g} Hz), got {f0_hi:g}")
         if controls.bounds(self.fb)[0] < 0:
             raise SceneError(f"fb must be >= 0 m/s^2, got {self.fb}")
         if self.a <= 0:
@@ -83,14 +87,28 @@ class Scene:
             big = max(abs(b) for b in controls.bounds(v)) if name in CONTROLS else abs(v)
             if big > lim:
                 raise SceneError(f"{name} must be within +-{lim:g} {unit}, got {big:g}")
-        if self.f0 < MIN_F0:
-            raise SceneError(f"f0 must be >= {MIN_F0:g} Hz, got {self.f0:g}")
+        if f0_lo < MIN_F0:
+            raise SceneError(f"f0 must be >= {MIN_F0:g} Hz, got {f0_lo:g}")
         if self.a < MIN_A:
             raise SceneError(f"a must be >= {MIN_A:g} s^2/m^2, got {self.a:g}")
 
     @property
     def omega(self) -> float:
+        if isinstance(self.f0, Curve):
+            raise SceneError("f0 varies in this scene; it has no single w (see f0_at)")
         return physics.omega(self.f0)
+
+    @property
+    def pitch_varies(self) -> bool:
+        return isinstance(self.f0, Curve)
+
+    def f0_at(self, t) -> "np.ndarray":
+        """f0 (Hz) at times t (s)."""
+        return controls.sample(self.f0, t)
+
+    @property
+    def f0_max(self) -> float:
+        return controls.bounds(self.f0)[1]
 
     @property
     def varying(self) -> bool:
@@ -106,6 +124,10 @@ class Scene:
 
     @property
     def beta_range(self) -> tuple[float, float]:
+        if isinstance(self.f0, Curve):  # fb / w of two piecewise-linear curves: extremes at their breakpoints
+            t = np.union1d(controls.breakpoints(self.fb)[0], self.f0.times)
+            b = self.fb_at(t) / (2.0 * math.pi * self.f0_at(t))
+            return float(b.min()), float(b.max())
         lo, hi = controls.bounds(self.fb)
         return physics.beta(lo, self.f0), physics.beta(hi, self.f0)
 
@@ -128,6 +150,8 @@ class Scene:
     @property
     def dtau(self) -> float:
         """Sample spacing in dimensionless time tau = w t."""
+        if isinstance(self.f0, Curve):
+            raise SceneError("f0 varies in this scene; its sample spacing in tau varies (see f0_at)")
         return physics.dtau(self.f0, self.sample_rate)
 
     @property
@@ -139,7 +163,8 @@ class Scene:
 
     def after(self, t0: float, **changes) -> "Scene":
         """The rest of the scene from t0 s on (its curves shifted so that t0 is 0), with `changes` applied."""
-        return self.replace(fb=controls.after(self.fb, t0), vb=controls.after(self.vb, t0), **changes)
+        return self.replace(fb=controls.after(self.fb, t0), vb=controls.after(self.vb, t0),
+                            f0=controls.after(self.f0, t0), **changes)
 
     def to_dict(self) -> dict:
         """Plain data (curves as lists of [t, value]): for JSON, TOML and WAV metadata."""
@@ -149,7 +174,7 @@ class Scene:
     def describe(self) -> str:
         """The scene's bow in one phrase, for messages and table titles."""
         g = lambda v: str(v) if isinstance(v, Curve) else f"{v:g}"  # noqa: E731
-        return f"fb={g(self.fb)} f0={self.f0:g} vb={g(self.vb)} a={self.a:g}"
+        return f"fb={g(self.fb)} f0={g(self.f0)} vb={g(self.vb)} a={self.a:g}"
 
     @classmethod
     def from_dict(cls, d: dict) -> "Scene":

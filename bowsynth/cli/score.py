@@ -25,6 +25,8 @@ def score(
     stems: Optional[Path] = typer.Option(None, "--stems", help="With --mix: also write one WAV per note into this "
                                                                 "directory (what `compare` on the mix reads)."),
     a4: Optional[float] = typer.Option(None, "--a4", help="MIDI files: the tuning of A4 in Hz (default 440)."),
+    bend_range: Optional[float] = typer.Option(None, "--bend-range", help="MIDI files: semitones at full pitch "
+                                                                          "bend (default 2)."),
     fallback: str = typer.Option("none", "--fallback", help="A note no model covers, or that leaves its model's domain: "
                                                             "none (stop before rendering) or fdm (render it with the FDM)."),
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
@@ -64,7 +66,10 @@ def score(
         from ..music.engine_tuning import ratio_for_engine
 
         # each pitch tuned for the engine that plays it (the FDM's dispersion, the operator model's own ratio)
-        notes = load_score(score_file, a4=a4, ratio_for=lambda sc: ratio_for_engine(sc, method, model)[0])
+        if bend_range is not None and not (0 <= bend_range <= 24):
+            raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
+        notes = load_score(score_file, a4=a4, ratio_for=lambda sc: ratio_for_engine(sc, method, model)[0],
+                           bend_range=bend_range)
     else:
         if a4 is not None:
             raise UsageError("--a4 retunes MIDI files; presets have their own f0")

@@ -44,17 +44,33 @@ def taylor_start(u0, p0, k, w, fb, vb, a):
     return u0 - k * p0 - 0.5 * k * k * (w * w * u0 + fb * physics.phi(p0 - vb, a))
 
 
+def _squared(w):
+    """w^2 for the compiled step: a number squared, or a w Curve as a w^2 Curve (see run_fdm_raw)."""
+    from ..controls import Curve
+
+    if not isinstance(w, Curve):
+        return float(w) * float(w)
+    pts = [w.points[0]]
+    for (t0, w0), (t1, w1) in zip(w.points, w.points[1:]):
+        # linear w, squared, against linear w^2 over a piece: they differ by (dw / 2)^2 at its middle at most
+        pieces = 1 if t1 <= t0 else max(1, math.ceil(abs(w1 - w0) / (2e-5 * max(min(abs(w0), abs(w1)), 1e-9))))
+        pts += [(t0 + (t1 - t0) * i / pieces, w0 + (w1 - w0) * i / pieces) for i in range(1, pieces + 1)]
+    return Curve(tuple((t, v * v) for t, v in pts))
+
+
 def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None, w2=None):
     """The bare scheme from two given displacements (u^{-1}, u^0): returns (u, eta) at every `stride`-th step.
 
-    fb and vb are numbers or Curves (followed per step, from t = 0 at u^0); w2, if given, replaces w * w: a number
-    or a Curve of the squared angular frequency (rad^2/s^2), followed per step like the bow (a pitch that moves)."""
+    w (rad/s), fb and vb are numbers or Curves (followed per step, from t = 0 at u^0); w2, if given, replaces w * w:
+    a number or a Curve of the squared angular frequency (rad^2/s^2). A w Curve is linear in w between its
+    breakpoints (a pitch that moves), as the scheme wants it; the compiled step follows w^2 piecewise linearly, so
+    each segment is cut finely enough that the two differ by less than 1e-10 of w^2 (1e-4 cents)."""
     from ..controls import breakpoints
     from . import core
 
     u_out = np.empty(n_out)
     eta_out = np.empty(n_out)
-    w2_t, w2_v = breakpoints(float(w) * float(w) if w2 is None else w2)
+    w2_t, w2_v = breakpoints(_squared(w) if w2 is None else w2)
     fb_t, fb_v = breakpoints(fb)
     vb_t, vb_v = breakpoints(vb)
     eta = -vb_v[0] if eta0 is None else eta0
@@ -73,7 +89,7 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
     """The oversampling factor to use: the one asked for, raised to respect the uniqueness bound if needed."""
     if oversample < 1 or int(oversample) != oversample:
         raise ValueError(f"oversample must be a whole number >= 1, got {oversample}")
-    need = physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate, scene.f0)
+    need = physics.min_oversample(scene.fb_max, scene.a, scene.sample_rate, scene.f0_max)
     if need > MAX_OVERSAMPLE:
         raise SceneError(f"fb={scene.fb_max:g} with a={scene.a:g} needs the FDM oversampled x{need} at "
                          f"{scene.sample_rate} Hz (uniqueness bound k < e/(fb sqrt(2a))); the limit is "
@@ -84,7 +100,7 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
                 why = (f"fb={scene.fb_max:g} at {scene.sample_rate} Hz breaks the FDM uniqueness bound "
                        f"k < e/(fb sqrt(2a))")
             else:
-                why = f"f0={scene.f0:g} Hz at {scene.sample_rate} Hz breaks the FDM stability bound k < 2/w"
+                why = f"f0={scene.f0_max:g} Hz at {scene.sample_rate} Hz breaks the FDM stability bound k < 2/w"
             warnings.warn(f"{why}; oversampling raised from {oversample} to {need}", OversampleWarning, stacklevel=3)
         return need
     return int(oversample)
@@ -92,19 +108,22 @@ def check_oversample(scene: Scene, oversample: int, warn: bool = True) -> int:
 
 def render_fdm(scene: Scene, oversample: int = 1) -> Render:
     """Render a scene with the FDM at `oversample` times its sample rate, returned at its sample rate. Bow curves
-    are followed at every step of the scheme."""
+    are followed at every step of the scheme, and so is a pitch curve (w(t) = 2 pi f0(t); q = w(t) u)."""
+    from ..controls import Curve
+
     os_ = check_oversample(scene, oversample)
-    w = scene.omega
+    w = Curve(tuple((t, 2.0 * math.pi * f) for t, f in scene.f0.points)) if scene.pitch_varies else scene.omega
+    w0 = float(scene.f0_at(0.0)) * 2.0 * math.pi if scene.pitch_varies else w
     k = 1.0 / (scene.sample_rate * os_)
-    u0 = scene.q0 / w
+    u0 = scene.q0 / w0
     fb0, vb0 = float(scene.fb_at(0.0)), float(scene.vb_at(0.0))
     t0 = time.perf_counter()
-    u_prev = taylor_start(u0, scene.p0, k, w, fb0, vb0, scene.a)
+    u_prev = taylor_start(u0, scene.p0, k, w0, fb0, vb0, scene.a)
     u, eta = run_fdm_raw(u_prev, u0, scene.n_samples, os_, k, w, scene.fb, scene.vb, scene.a,
                          eta0=scene.p0 - vb0)
     secs = time.perf_counter() - t0
     t = np.arange(scene.n_samples) / scene.sample_rate
-    q = w * u
+    q = (2.0 * math.pi * scene.f0_at(t) if scene.pitch_varies else w) * u
     q[0] = scene.q0  # exact by construction; avoid the w * (q0 / w) rounding
     vb = scene.vb_at(t)
     return Render(scene, t, q, eta + vb, method=Played("fdm", os_),

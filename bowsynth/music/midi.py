@@ -6,8 +6,8 @@ a public corpus does), and read as channel = voice, unisons between parts cut ea
 its channel is used by one track only, else `tT-chN` (T the track's index). A note-on with velocity 0 is a note-off; a
 note-on of a note that already sounds in its voice ends the sounding one there (a retrigger); a note with no note-off
 ends at the end of the file; a note of zero length is dropped; each of these is counted in `MidiPiece.remarks`, which
-`score` prints. Controllers act on their channel, whatever the track (as a synthesizer receives them). Sustain (CC64),
-pitch bend and program changes are ignored.
+`score` prints. Controllers act on their channel, whatever the track (as a synthesizer receives them). Sustain (CC64)
+and program changes are ignored.
 
 The bow of a note (docs/score.md, "MIDI"):
 - velocity v (1..127) sets the dimensionless bow force and the bow speed:
@@ -20,6 +20,11 @@ The bow of a note (docs/score.md, "MIDI"):
   1/sqrt(2a) and stops the note).
   A controller holds its last value; a change is a 5 ms ramp (a step would click); before its first message a
   controller is neutral.
+
+The pitch of a note (docs/score.md, "Pitch curves"): the pitch wheel bends it by +-BEND_RANGE semitones at its ends
+(`bend_semitones`), CC1 (modulation) adds a vibrato of depth `vibrato_depth(c)` semitones (+-50 cents at 127) at
+VIBRATO_HZ, its phase starting with the note: f(t) = f 2^((bend(t) + depth(t) sin(2 pi 5.5 t)) / 12). `pitch_curve`
+samples it as the note's f0 curve. `bowsynth play` reads the same messages with the same functions.
 """
 
 from __future__ import annotations
@@ -30,8 +35,12 @@ from pathlib import Path
 
 from ..errors import UsageError
 
-CC_PRESSURE, CC_EXPRESSION = 2, 11
-NEUTRAL = {CC_PRESSURE: 64, CC_EXPRESSION: 127}
+CC_PRESSURE, CC_EXPRESSION, CC_MODULATION = 2, 11, 1
+BEND = "bend"  # the pitch wheel's key in MidiPiece.controllers (value 0..16383, 8192 centre)
+BEND_RANGE = 2.0  # semitones at full bend (the General MIDI default; play --bend-range, score --bend-range)
+VIBRATO_HZ = 5.5  # CC1 (modulation) is vibrato depth at this rate (a violinist's is 5-7 Hz)
+VIBRATO_DEPTH = 0.5  # semitones at CC1 = 127: +-50 cents
+NEUTRAL = {CC_PRESSURE: 64, CC_EXPRESSION: 127, CC_MODULATION: 0, "bend": 8192}
 CC_RAMP = 0.005  # s: a controller step becomes a ramp this long
 MAX_POINTS = 16  # breakpoints a controller curve keeps per note (the WAV metadata holds the scene: ~2000 characters)
 BETA_AT_64 = 1.0 / (2.0 * math.pi)  # paper-fb100's F_B / w
@@ -73,6 +82,28 @@ def pressure_factor(cc: float) -> float:
 
 def expression_factor(cc: float) -> float:
     return cc / 127.0
+
+
+def bow_beta(velocity: int, pressure: float = NEUTRAL[CC_PRESSURE]) -> float:
+    """F_B / w of a note struck at `velocity` with CC2 at `pressure`: the one mapping the MIDI-file reader (through
+    `score`) and the live instrument (`bowsynth.live`) share. Rounded to 7 significant digits, as a score's
+    breakpoints are written, so that a file and a live performance of the same events tune the same bow."""
+    return float(f"{velocity_beta(velocity) * pressure_factor(pressure):.7g}")
+
+
+def bow_vb(velocity: int, expression: float = NEUTRAL[CC_EXPRESSION]) -> float:
+    """v_B of a note struck at `velocity` with CC11 at `expression` (see bow_beta)."""
+    return float(f"{velocity_vb(velocity) * expression_factor(expression):.7g}")
+
+
+def bend_semitones(value: int, bend_range: float = BEND_RANGE) -> float:
+    """The pitch wheel's 14-bit value (0..16383, 8192 centre) in semitones: +-bend_range at its ends."""
+    return (value - 8192) / (8191.0 if value > 8192 else 8192.0) * bend_range
+
+
+def vibrato_depth(cc: float) -> float:
+    """CC1 (modulation) as the vibrato's depth in semitones (0 at 0, VIBRATO_DEPTH at 127)."""
+    return cc / 127.0 * VIBRATO_DEPTH
 
 
 def is_midi(path) -> bool:
@@ -176,8 +207,10 @@ def read_midi(path) -> MidiPiece:
             key = (track, msg.channel, msg.note)
             if key in sounding:
                 close(key, t)
-        elif kind == "control_change" and msg.control in (CC_PRESSURE, CC_EXPRESSION):
+        elif kind == "control_change" and msg.control in (CC_PRESSURE, CC_EXPRESSION, CC_MODULATION):
             piece.controllers.setdefault((msg.channel, msg.control), []).append((t, msg.value))
+        elif kind == "pitchwheel":
+            piece.controllers.setdefault((msg.channel, BEND), []).append((t, msg.pitch + 8192))
     for key in list(sounding):
         unterminated += 1
         close(key, t)
@@ -211,7 +244,8 @@ def _why(e: Exception) -> str:
     return str(e) or type(e).__name__
 
 
-def controller_curve(piece: MidiPiece, channel: int, cc: int, start: float, end: float) -> list[tuple[float, float]]:
+def controller_curve(piece: MidiPiece, channel: int, cc, start: float, end: float,
+                     max_points: int | None = MAX_POINTS) -> list[tuple[float, float]]:
     """The controller's values over [start, end] as breakpoints in seconds from `start` (a step is a CC_RAMP ramp):
     [(0, value)] when it does not change there."""
     events = piece.controllers.get((channel, cc), [])
@@ -233,7 +267,33 @@ def controller_curve(piece: MidiPiece, channel: int, cc: int, start: float, end:
             out.append((t, v))
         else:
             out[-1] = (out[-1][0], v)
-    return thin(out, MAX_POINTS)
+    return out if max_points is None else thin(out, max_points)
+
+
+PITCH_STEP = 0.005  # s between a moving pitch curve's breakpoints (vibrato at 5.5 Hz: 36 a cycle, shape within 0.4 %)
+
+
+def pitch_curve(piece: MidiPiece, channel: int, start: float, end: float, bend_range: float = BEND_RANGE):
+    """The note's pitch as semitones from its written pitch over [start, end] (times from `start`), or None when it
+    does not move: breakpoints of the bend (its ramps) and, while CC1 is above 0, every PITCH_STEP s of the vibrato
+    (`bowsynth play` evaluates the same formula per window)."""
+    bend = controller_curve(piece, channel, BEND, start, end, max_points=None)
+    mod = controller_curve(piece, channel, CC_MODULATION, start, end, max_points=None)
+    if len(bend) == 1 and bend[0][1] == NEUTRAL[BEND] and all(v == 0 for _, v in mod):
+        return None
+    import numpy as np
+
+    from ..controls import Curve
+
+    times = {0.0, end - start, *(t for t, _ in bend), *(t for t, _ in mod)}
+    if any(v for _, v in mod):
+        times.update(np.arange(0.0, end - start, PITCH_STEP).tolist())
+    t = np.array(sorted(x for x in times if 0.0 <= x <= end - start))
+    b = Curve(tuple(bend)).at(t)
+    d = Curve(tuple(mod)).at(t)
+    semis = np.array([bend_semitones(v, bend_range) for v in b]) + np.array([vibrato_depth(v) for v in d]) * np.sin(
+        2.0 * np.pi * VIBRATO_HZ * t)
+    return list(zip(t.tolist(), semis.tolist()))
 
 
 def thin(points: list, max_points: int) -> list:

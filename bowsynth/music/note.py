@@ -66,7 +66,9 @@ class Note:
         """The note without its release: the controls over [0, hold], constant ones as numbers."""
         sc = self.scene
         n = self.hold_samples + extra_samples
-        return sc.replace(fb=_clip(sc.fb, self.hold), vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
+        # a moving pitch keeps its force curve (F_B = beta w(t) follows the pitch through the note)
+        fb = sc.fb if sc.pitch_varies else _clip(sc.fb, self.hold)
+        return sc.replace(fb=fb, vb=_clip(sc.vb, self.hold), duration=n / sc.sample_rate)
 
     @property
     def hold_samples(self) -> int:

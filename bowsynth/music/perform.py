@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from ..controls import after
 from ..errors import DomainError
 from ..render import Render
 from ..scene import Scene
@@ -116,7 +117,12 @@ def _plays_whole(note: Note, model=None) -> bool:
 def _release_scene(note: Note, sus: Render) -> Scene:
     """The note after its sustain: v_B falls to 0 over the release, from the sustain's state at the hold."""
     sc, h = note.scene, note.hold_samples
-    return Scene(f0=sc.f0, fb=float(sc.fb_at(note.hold)), vb=[[0.0, float(sc.vb_at(note.hold))], [note.release, 0.0]],
+    if sc.pitch_varies:  # the pitch (and a force that follows it) go on along their curves from the hold's sample
+        t0 = h / sc.sample_rate
+        f0, fb = after(sc.f0, t0), after(sc.fb, t0)
+    else:
+        f0, fb = sc.f0, float(sc.fb_at(note.hold))
+    return Scene(f0=f0, fb=fb, vb=[[0.0, float(sc.vb_at(note.hold))], [note.release, 0.0]],
                  a=sc.a, duration=(sc.n_samples - h) / sc.sample_rate, sample_rate=sc.sample_rate,
                  q0=float(sus.q[h]), p0=float(sus.p[h]))
 
@@ -148,10 +154,11 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
                              f"{n.scene.n_samples} (render Note.rollout_scene)")
         scenes[i] = rel = _release_scene(n, sus)
         os_ = check_oversample(rel, 1, warn=False)
-        groups.setdefault((rel.sample_rate, os_, rel.a), []).append(i)
-    for (sr, os_, a), idx in groups.items():
+        # a moving pitch: the compiled FDM, which follows w(t) (the numpy batch holds one w per note)
+        groups.setdefault((rel.sample_rate, os_, rel.a, rel.pitch_varies), []).append(i)
+    for (sr, os_, a, moving), idx in groups.items():
         rel = [scenes[i] for i in idx]
-        if loop == "core":
+        if loop == "core" or moving:
             for i, r in zip(idx, rel):
                 f = render_fdm(r, os_)
                 out[i] = _join_release(notes[i], sustains[i], f.q, f.p, f.seconds)

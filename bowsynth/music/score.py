@@ -38,11 +38,12 @@ from ..controls import Curve, as_control
 from ..errors import SceneError, UsageError
 from ..scene import Scene, load_preset
 from .note import MAX_RELEASE, RELEASE, Note, _scale, _with_release, stop_tail
+from .pitch_curve import pitch_points
 
 TOP_KEYS = {"defaults": "table of note defaults", "voice": "array of voice tables", "a4": "tuning, Hz",
             "title": "text"}
 NOTE_KEYS = {"start", "duration", "pitch", "f0", "fb", "beta", "vb", "a", "release", "preset", "sample_rate",
-             "q0", "p0"}
+             "q0", "p0", "cents"}
 VOICE_KEYS = NOTE_KEYS | {"name", "note"}
 DEFAULT_KEYS = NOTE_KEYS - {"start"}
 EXCLUSIVE = (("pitch", "f0"), ("fb", "beta"))
@@ -128,7 +129,21 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
     fb = None if beta is not None else _control(where, "fb", fields.get("fb", d.fb))
     rest = {k: fields[k] for k in ("q0", "p0") if k in fields}
     try:
-        if "pitch" in fields:
+        curve = pitch_points(where, fields, a4)  # a moving pitch: [(t, Hz), ...], else None
+        if curve is not None:  # each breakpoint tuned with the note's held bow (docs/score.md, "Pitch curves")
+            held = dict(vb=P.held_value(vb, hold), a=a, a4=a4)
+
+            def tuned(h):
+                ratio = None
+                if ratio_for is not None:
+                    probe_fb = _scale(beta, physics.omega(h)) if beta is not None else fb
+                    ratio = ratio_for(Scene(f0=h, fb=probe_fb, vb=vb, a=a, duration=hold, sample_rate=rate))
+                if beta is not None:
+                    return P.tune(h, None, beta=P.held_value(beta, hold), ratio=ratio, **held).f0
+                return P.tune(h, P.held_value(fb, hold), ratio=ratio, **held).f0
+            hz = curve[0][1]
+            f0 = as_control([(t, tuned(h)) for t, h in curve])
+        elif "pitch" in fields:
             hz = parse_pitch(fields["pitch"], a4)
             held = dict(vb=P.held_value(vb, hold), a=a)
             ratio = None
@@ -142,11 +157,16 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
         else:
             hz = None
             f0 = _num(where, "f0", fields.get("f0", d.f0))
-        if beta is not None:
+        if beta is not None and isinstance(f0, Curve):  # F_B / w held: the force follows the pitch
+            if isinstance(as_control(beta), Curve):
+                raise ScoreError(f"{where}: a pitch curve plays with a constant beta (or fb)")
+            fb = Curve(tuple((t, float(beta) * physics.omega(f)) for t, f in f0.points))
+        elif beta is not None:
             fb = _scale(beta, physics.omega(f0))
         if release > 0:
             fb_end = float(Scene(f0=f0, fb=fb, a=a).fb_at(hold + release))
-            vb_full, duration = _with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0, a)
+            f0_end = float(Scene(f0=f0, fb=fb, a=a).f0_at(hold + release))
+            vb_full, duration = _with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0_end, a)
         else:
             vb_full, duration = vb, hold
         scene = Scene(f0=f0, fb=fb, vb=vb_full, a=a, duration=duration, sample_rate=rate, **rest)
@@ -220,45 +240,51 @@ class ScoreNotes(list):
         self.remarks = list(remarks)
 
 
-def load_midi_score(path, a4: float = 440.0, ratio_for=None) -> ScoreNotes:
+def load_midi_score(path, a4: float = 440.0, ratio_for=None, bend_range: float | None = None) -> ScoreNotes:
     """The notes of a MIDI file with the bow of `bowsynth.music.midi`'s mapping; a track's channel is a voice."""
     from . import midi as M
     from .midi import read_midi
 
     piece = read_midi(path)
     notes = ScoreNotes(remarks=piece.remarks)
+    bend_range = M.BEND_RANGE if bend_range is None else bend_range
     for n in piece.notes:
         hold = n.end - n.start
-        beta = _midi_control(piece, n, M.CC_PRESSURE, M.velocity_beta(n.velocity), M.pressure_factor)
-        vb = _midi_control(piece, n, M.CC_EXPRESSION, M.velocity_vb(n.velocity), M.expression_factor)
+        beta = _midi_control(piece, n, M.CC_PRESSURE, M.bow_beta)
+        vb = _midi_control(piece, n, M.CC_EXPRESSION, M.bow_vb)
         voice = n.voice
         from .notes import midi_to_hz, note_name
 
         where = f"{Path(path).name}: {voice} note {note_name(midi_to_hz(n.number, a4), a4)} at {n.start:.3f} s"
         if not 12 <= n.number <= 119:
             raise ScoreError(f"{where}: MIDI note {n.number} is outside C0..B8")
-        notes.append(note_from_fields(voice, {"start": n.start, "duration": hold, "pitch": midi_to_hz(n.number, a4),
-                                              "beta": beta, "vb": vb}, where, a4, label=where.split(": ", 1)[1],
-                                      ratio_for=ratio_for))
+        fields = {"start": n.start, "duration": hold, "pitch": midi_to_hz(n.number, a4), "beta": beta, "vb": vb}
+        semis = M.pitch_curve(piece, n.channel, n.start, n.start + hold + RELEASE, bend_range)
+        if semis is not None:  # the pitch wheel and CC1 (vibrato), as `play` reads them
+            fields["cents"] = [[t, 100.0 * v] for t, v in semis]
+        notes.append(note_from_fields(voice, fields, where, a4, label=where.split(": ", 1)[1], ratio_for=ratio_for))
         notes[-1].extra = {"midi_note": n.number, "velocity": n.velocity}
     return notes
 
 
-def _midi_control(piece, n, cc, base: float, factor):
+def _midi_control(piece, n, cc, bow):
+    """The note's bow control (bow: midi.bow_beta or midi.bow_vb, the mapping `play` shares) over its controller."""
     from .midi import controller_curve
 
     pts = controller_curve(piece, n.channel, cc, n.start, n.end)
-    return as_control([(t, float(f"{base * factor(v):.7g}")) for t, v in pts])
+    return as_control([(t, bow(n.velocity, v)) for t, v in pts])
 
 
-def load_score(path, a4: float | None = None, ratio_for=None) -> list[Note]:
+def load_score(path, a4: float | None = None, ratio_for=None, bend_range: float | None = None) -> list[Note]:
     """The notes of a TOML score or a MIDI file (told apart by content and name), each pitch tuned for the engine
     ratio_for(scene) names (see note_from_fields)."""
     from .midi import is_midi
     from .notes import A4_HZ, check_a4
 
     if is_midi(path):
-        return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4), ratio_for=ratio_for)
+        return load_midi_score(path, check_a4(A4_HZ if a4 is None else a4), ratio_for=ratio_for, bend_range=bend_range)
+    if bend_range is not None:
+        raise ScoreError("--bend-range applies to MIDI files' pitch wheel; a TOML score writes its pitch curves")
     if a4 is not None:
         raise ScoreError("--a4 retunes MIDI files; a TOML score sets its own with a top-level a4 = ...")
     return load_toml_score(path, ratio_for=ratio_for)

@@ -94,7 +94,7 @@ def train_hint(scene: Scene) -> str:
     def arg(v):
         lo, hi = bounds(v)
         return f"{lo:g}" if lo == hi else f"{lo:g}:{hi:g}"
-    return (f"bowsynth train --fb {arg(scene.fb)} --f0 {scene.f0:g} --vb {arg(scene.vb)} --a {scene.a:g}"
+    return (f"bowsynth train --fb {arg(scene.fb)} --f0 {arg(scene.f0)} --vb {arg(scene.vb)} --a {scene.a:g}"
             + (f" --q0 {scene.q0:g} --p0 {scene.p0:g}" if scene.q0 or scene.p0 else ""))
 
 

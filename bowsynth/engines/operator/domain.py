@@ -8,6 +8,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ... import physics
+from ...controls import Curve
 from ...scene import Scene
 
 REL_TOL = 1e-6  # beta, v_B, a must match the training scene this closely: the network does not take them as input
@@ -125,10 +127,12 @@ class Domain:
         if not math.isclose(scene.a, self.a, rel_tol=REL_TOL, abs_tol=1e-12):
             out.append(f"a = {scene.a:.6g}, model has {self.a:.6g}")
         if self.box is None:
-            if scene.varying:
+            # a pitch curve whose force follows it (F_B / w held, as a MIDI note's) is still one bow
+            (blo, bhi), vb_moves = scene.beta_range, isinstance(scene.vb, Curve)
+            if not math.isclose(blo, bhi, rel_tol=1e-9) or vb_moves:
                 out.append(f"the bow changes during the scene; this model plays one bow ({self.describe_bows()})")
                 return out
-            for name, have, want in (("F_B / w", scene.beta, self.beta), ("v_B", scene.vb, self.vb)):
+            for name, have, want in (("F_B / w", blo, self.beta), ("v_B", scene.vb, self.vb)):
                 if not math.isclose(have, want, rel_tol=REL_TOL, abs_tol=1e-12):
                     out.insert(0, f"{name} = {have:.6g}, model has {want:.6g}")
             return out
@@ -146,8 +150,9 @@ class Domain:
         if not self.contains(scene.q0, scene.p0):
             out.append(f"initial state (q0, p0) = ({scene.q0:g}, {scene.p0:g}) is outside the trained states "
                        f"(q in [{self.q_lo:.3g}, {self.q_hi:.3g}], p in [{self.p_lo:.3g}, {self.p_hi:.3g}], on its band)")
-        if self.window / scene.dtau < 1:
-            out.append(f"the window ({self.window:.3g} in tau) holds no sample at {scene.sample_rate} Hz, f0 {scene.f0:g}")
+        if self.window / physics.dtau(scene.f0_max, scene.sample_rate) < 1:
+            out.append(f"the window ({self.window:.3g} in tau) holds no sample at {scene.sample_rate} Hz, f0 "
+                       f"{scene.f0_max:g}")
         return out
 
     def to_json(self) -> dict:

@@ -23,6 +23,7 @@ from .choose import (
     train_hint,
     unreadable_notes,
 )
+from .curve import render_curve
 from .modelfile import OperatorModel
 from .rollout import applied_controls, rollout_states, scene_bows
 from .windows import FAIL_BOW, FAILURES
@@ -148,10 +149,13 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     model = None if model is None else as_model(model)
     models = available_models() if model is None else None
     groups: dict = {}
+    out: list = [None] * len(scenes)
     for i, sc in enumerate(scenes):
+        if sc.pitch_varies:  # a pitch curve: per window its own sample spacing (the live engine's voice loop)
+            out[i] = render_curve(sc, _resolve(sc, model, models, fallback))
+            continue
         m = _resolve(sc, model, models, fallback)
         groups.setdefault(id(m), (m, []))[1].append(i)
-    out: list = [None] * len(scenes)
     for m, idx in groups.values():
         checked = _physics_notes(m) + (unreadable_notes() if model is None else [])
         group = [scenes[i] for i in idx]

@@ -1,0 +1,179 @@
+"""A bank of voice slots that play block by block (`voices`): every array they need, allocated once, and the few
+Python steps that set a slot up (a note from rest, its release, its bow's inputs). `bowsynth.live.Stream` drives one
+from MIDI; `curve.render_curve` plays one scene with a pitch curve through it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ... import physics
+from ..fdm import check_oversample  # noqa: F401  (re-exported for curve.render_curve)
+from . import voices as V
+from .basis import _operator
+from .npnet import PARAM_SPAN, trunk_features
+
+TRUNK_POINTS = 8192  # the trunk grid: spacing ~2.4e-4 of a window, interpolation error ~1e-9 (basis.TRUNK_GRID)
+CURVE_POINTS = 4096  # breakpoints a slot's pitch curve may hold (render_curve)
+
+
+class VoiceBank:
+    """`voices` slots at `sample_rate`, rendering up to `block` frames a call. engine 'operator' (model: an
+    OperatorModel) or 'fdm'. lowest_f0: the lowest pitch a slot must hold a window for (it sizes the buffers)."""
+
+    def __init__(self, sample_rate: int, block: int, voices: int, engine: str, model, lowest_f0: float):
+        self.sample_rate, self.block, self.n_voices, self.engine = int(sample_rate), int(block), int(voices), engine
+        self.model = model
+        if engine == "operator":
+            self._prepare_operator(model, lowest_f0)
+        self._allocate_slots()
+
+    def _prepare_operator(self, m, lowest_f0: float) -> None:
+        op = self.op = _operator(m)
+        d = m.domain
+        # the longest window a slot may need, at the lowest pitch it may play
+        self.n_max = int(math.ceil(op.window / physics.dtau(lowest_f0, self.sample_rate))) + 2
+        cfg = op.cfg
+        h_grid = 2.0 / (TRUNK_POINTS - 3)  # window fractions up to n_hi / spw < 1 + 1 / spw <= 2
+        # (2, k, G): each feature's values along s contiguous (trunk_basis reads them sample after sample)
+        self.grid = np.ascontiguousarray(np.transpose(trunk_features(m.weights, cfg, (np.arange(TRUNK_POINTS) - 1.0)
+                                                                     * h_grid), (1, 2, 0)))
+        lin_kind = 2 if not cfg.linear_flow else (0 if op.lin is None else 1)
+        lin_d, lin_qs = op.lin if op.lin is not None else (0.0, 0.0)
+        box = np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi])
+        self.net = (op.ff, *op.weights, box, np.ascontiguousarray(d.mask))
+        self.tb = (self.grid, h_grid, op.corr_scale, op.bias, float(op.window), int(lin_kind), float(lin_d),
+                   float(lin_qs), float(self.sample_rate), int(self.n_max), np.zeros(self.n_max + 1, np.int64),
+                   np.zeros((4, self.n_max + 1)))
+
+    def _allocate_slots(self) -> None:
+        nv, bl = self.n_voices, self.block
+        self.mode = np.zeros(nv, np.int64)
+        self.pos = np.zeros(nv, np.int64)
+        self.end = np.full(nv, -1, np.int64)
+        self.why = np.zeros(nv, np.int64)
+        if self.engine == "operator":
+            k, n, width = self.op.cfg.k, self.n_max, self.op.cfg.width
+            self.ops = (np.zeros((nv, 2)), np.zeros(nv), np.zeros(nv, np.int64),
+                        np.zeros((nv, k + 3, n), np.float32), np.zeros((nv, k + 3, n), np.float32),
+                        np.zeros((nv, 2, 2, k)), np.zeros((nv, 2, 6)), np.zeros((nv, 2)), np.ones((nv, 2)),
+                        np.zeros((nv, self.op.cfg.params)), np.ones(nv), np.zeros(nv, np.int64),
+                        np.zeros(nv, np.int64), np.zeros(nv, np.int64), np.zeros((nv, n), np.float32),
+                        np.zeros((nv, n), np.float32), np.full(nv, -1, np.int64))
+            self.scr = (np.zeros(self.op.ff.shape[1] * 2, np.float32), np.zeros(3 * width, np.float32),
+                        np.zeros(width, np.float32), np.zeros(width, np.float32), np.zeros(width, np.float32),
+                        np.zeros(width, np.float32), np.zeros(2 * k, np.float32))
+        else:  # placeholders of the right types: the compiled loop never reads them without an operator slot
+            self.ops = (np.zeros((1, 2)), np.zeros(1), np.zeros(1, np.int64), np.zeros((1, 3, 1), np.float32),
+                        np.zeros((1, 3, 1), np.float32), np.zeros((1, 2, 2, 0)), np.zeros((1, 2, 6)), np.zeros((1, 2)),
+                        np.ones((1, 2)), np.zeros((1, 0)), np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.int64),
+                        np.zeros(1, np.int64), np.zeros((1, 1), np.float32), np.zeros((1, 1), np.float32),
+                        np.full(1, -1, np.int64))
+            self.scr = tuple(np.zeros(1, np.float32) for _ in range(7))
+            self.net = (np.zeros((2, 1)), np.zeros((2, 3), np.float32), np.zeros(3, np.float32),
+                        np.zeros((0, 1, 1), np.float32), np.zeros((0, 1), np.float32), np.zeros((1, 0), np.float32),
+                        np.zeros(0, np.float32), np.zeros(4), np.ones((1, 1), np.bool_))
+            self.tb = (np.zeros((2, 0, 4)), 1.0, np.zeros(2), np.zeros(2), 1.0, 0, 0.0, 0.0, float(self.sample_rate),
+                       4, np.zeros(5, np.int64), np.zeros((4, 5)))
+        # the FDM: state (u_prev, u_cur, eta, k, w, a, fb), (steps done, stride), v_B breakpoints (and how many), F_B
+        # breakpoints, scratch rows
+        self.fdm = (np.zeros((nv, 7)), np.zeros((nv, 2), np.int64), np.zeros((nv, 3)), np.zeros((nv, 3)),
+                    np.zeros(nv, np.int64), np.zeros((nv, 2)), np.zeros((nv, 2)), np.zeros((nv, bl)),
+                    np.zeros((nv, bl)))
+        # pitch: mode (voices.HELD, CURVE, LIVE), parameters (voices.P_*), a curve's breakpoints, the running window
+        # end, the basis's spacing, the FDM's w breakpoints
+        self.pit = (np.zeros(nv, np.int64), np.zeros((nv, 10)), np.zeros((nv, CURVE_POINTS)),
+                    np.zeros((nv, CURVE_POINTS)), np.ones(nv, np.int64), np.zeros(nv), np.zeros(nv), np.zeros((nv, 2)),
+                    np.zeros((nv, 2)))
+        self._nop = np.zeros(0)
+
+    def render(self, out, off: int, m: int, amp: float, outp=None) -> None:
+        """Add m samples of every sounding slot, times amp, to out[off:off + m] (and their p to outp)."""
+        V.render(self.mode, self.pos, self.end, self.net, self.ops, self.scr, self.fdm, self.pit, self.tb, out,
+                 self._nop if outp is None else outp, off, m, amp, self.why)
+
+    def start_slot(self, slot: int, f0: float, beta: float, vb: float, a: float) -> None:
+        """A note from rest in the slot: its FDM parameters (used whole, or for the release), pitch held at f0."""
+        w = physics.omega(f0)
+        fb = beta * w
+        sr = self.sample_rate
+        fst, fint, vb_t, vb_v, nvb, fb_t, fb_v = self.fdm[:7]
+        stride = physics.min_oversample(fb, a, sr, f0)
+        fst[slot, 3], fst[slot, 4], fst[slot, 5], fst[slot, 6] = 1.0 / (sr * stride), w, a, fb
+        fint[slot, 1] = stride
+        fb_t[slot, 0], fb_v[slot, 0] = 0.0, fb
+        vb_t[slot, 0], vb_v[slot, 0], nvb[slot] = 0.0, vb, 1
+        self.pos[slot], self.end[slot], self.why[slot] = 0, -1, V.WHY_OK
+        pm, pp = self.pit[0], self.pit[1]
+        pp[slot, V.P_F0], pp[slot, V.P_BETA] = f0, beta
+        pm[slot] = V.HELD
+        self.pit[5][slot] = 0.0
+
+    def start_fdm(self, slot: int) -> None:
+        """The slot's note played whole by the FDM, from rest (fdm.render_fdm's start)."""
+        V.to_fdm(slot, 0.0, 0.0, self.fdm, self.pit, float(self.sample_rate), 0)
+        self.mode[slot] = V.FDM
+
+    def start_operator(self, slot: int, f0: float) -> bool:
+        """The slot's note played by the operator from its state x (rest unless set), its bow inputs already in the
+        slot (bow_inputs); False when no window fits the pitch."""
+        dtau = physics.dtau(f0, self.sample_rate)
+        spw = self.op.samples_per_window(dtau)
+        n_lo, n_hi = math.floor(spw), math.ceil(spw)
+        if n_lo < 1 or n_hi + 1 > self.n_max:
+            return False
+        x, spw_a, nlo_a, Bq, Bp, endb, endlin = self.ops[:7]
+        win, wstart, wlen = self.ops[11:14]
+        tb = self.tb
+        V.trunk_basis(tb[0], tb[1], tb[2], tb[3], tb[4], tb[5], tb[6], tb[7], dtau, n_lo, n_hi, Bq[slot], Bp[slot],
+                      endb[slot], endlin[slot], tb[10], tb[11])
+        self.pit[6][slot] = dtau
+        x[slot, 0], x[slot, 1] = 0.0, 0.0
+        spw_a[slot], nlo_a[slot], win[slot], wstart[slot], wlen[slot] = spw, n_lo, -1, 0, 0
+        self.ops[16][slot] = -1
+        self.mode[slot] = V.OPERATOR
+        return True
+
+    def bow_inputs(self, slot: int, beta: float, vb: float) -> None:
+        """The branch's bow inputs, the correction's gain and the state scaling for one bow (npnet.param_inputs,
+        gain, state_scaling), in scalar arithmetic, written into the slot."""
+        w, cfg = self.model.weights, self.op.cfg
+        pin, gain, center, half = self.ops[9], self.ops[10], self.ops[7], self.ops[8]
+        if cfg.params:
+            pc, ps = w["pcenter"], w["pscale"]
+            pin[slot, 0] = max((math.log(max(beta, 1e-12)) - float(pc[0])) / float(ps[0]), -PARAM_SPAN)
+            pin[slot, 1] = (vb - float(pc[1])) / float(ps[1])
+        gain[slot] = beta / math.exp(float(w["pcenter"][0])) if cfg.corr_beta else 1.0
+        for i in range(2):
+            c, h = float(w["center"][i]), float(w["halfrange"][i])
+            if cfg.bow_scaled:
+                cs, hs = w["center_slope"][i], w["halfrange_slope"][i]
+                c += sum(float(cs[j]) * pin[slot, j] for j in range(cfg.params))
+                h *= math.exp(sum(float(hs[j]) * pin[slot, j] for j in range(cfg.params)))
+            center[slot, i], half[slot, i] = c, h
+
+    def release(self, slot: int, vb: float, release: float, tail: float) -> None:
+        """The bow stop from the slot's next sample h: by the FDM from the sustain's state there (operator), or the
+        FDM's own bow following v_B -> 0 over `release` s (a note the FDM plays whole); the slot ends `tail` s
+        after the bow stops."""
+        fst, fint, vb_t, vb_v, nvb = self.fdm[:5]
+        sr = self.sample_rate
+        h = int(self.pos[slot])
+        total = int(round((h / sr + release + tail) * sr))
+        if self.mode[slot] == V.OPERATOR and self.ops[16][slot] < 0:
+            V.advance_to(slot, h, self.net, self.ops, self.scr, self.fdm, self.why, self.pit, self.tb)
+        if self.mode[slot] == V.OPERATOR and (self.ops[16][slot] < 0 or h < self.ops[16][slot]):
+            a = h - self.ops[12][slot]
+            q0, p0 = float(self.ops[14][slot, a]), float(self.ops[15][slot, a])
+            vb_t[slot, 0], vb_t[slot, 1], vb_v[slot, 0], vb_v[slot, 1], nvb[slot] = 0.0, release, vb, 0.0, 2
+            V.to_fdm(slot, q0, p0, self.fdm, self.pit, float(sr), h)
+            self.mode[slot] = V.FDM
+        else:  # the FDM plays on (whole, or after a hand-over): its bow falls from its own time now
+            t = fint[slot, 0] * fst[slot, 3]
+            vb_t[slot, 0], vb_t[slot, 1], vb_t[slot, 2] = 0.0, t, t + release
+            vb_v[slot, 0], vb_v[slot, 1], vb_v[slot, 2], nvb[slot] = vb, vb, 0.0, 3
+        self.end[slot] = total
+
+    def voices_sounding(self) -> int:
+        return int(np.count_nonzero(self.mode != V.FREE))

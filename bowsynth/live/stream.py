@@ -1,0 +1,356 @@
+"""The streaming engine: MIDI events in, blocks of audio out, the same notes `bowsynth score` renders from a MIDI file.
+
+    from bowsynth.live import Stream
+    s = Stream(sample_rate=44100, block=512, voices=16)        # everything prepared here (seconds)
+    out = s.process(512, [(0, b"\\x90\\x45\\x40"), (300, b"\\x80\\x45\\x00")])   # float32 view, 512 samples
+
+A note is what `score` makes of a MIDI note (`music.score.load_midi_score`): its bow from the velocity and the channel's
+CC2 / CC11 at the note-on (`midi.bow_beta`, `midi.bow_vb`, the one mapping), tuned with the truth's sounding ratio,
+its sustain rolled out by the operator from rest starting at the note-on's frame, window after window exactly as
+offline (window w at the sample nearest w T from the note's start), and at the note-off's frame the bow stop
+(v_B -> 0 over `release` s) and tail by the FDM from the sustain's state there. So each live note is the offline note
+sample for sample (up to float32 rounding: offline may run the numpy loop), and the output is their sum times `amp`
+through a causal DC blocker (offline removes the DC with a zero-phase filter over the whole file).
+
+Real time: `__init__` loads the model, evaluates the trunk on a fine grid, compiles (or loads from numba's cache) the
+loops, measures or reads every velocity's sounding ratio and allocates every buffer; `process` then creates no numpy
+array, imports nothing, loads nothing and compiles nothing: per event it writes a few numbers into a voice's slot and
+builds the voice's window basis by interpolation in place (`engines.operator.voices.trunk_basis`), and renders
+with `engines.operator.voices.render` (the slots: `engines.operator.bank.VoiceBank`).
+
+What differs from offline, by design:
+- a controller changed while a note sounds acts on the notes struck after it (the file reader follows it within the
+  note, with a 5 ms ramp, and tunes the note at the bow's median over the note, which a live note cannot know);
+- a note struck with CC2 / CC11 away from neutral is tuned with a ratio interpolated on a grid of measured bows
+  (the 127 velocities at neutral controllers are measured exactly before activation);
+- a note the model does not cover (its bow outside the model's box, its pitch too high for one sample per window) is
+  played whole by the FDM, as `score --fallback fdm` does;
+- with every voice busy a new note takes the voice nearest its end (releasing first, then the oldest): `stolen`;
+- note-ons beyond what the block's time allows (`busy_fraction` of the period spent) wait for the next block and start
+  at its first frame, in order (`deferred`, `max_defer` frames late); past PENDING waiting they are dropped and
+  counted, so a flood of 10,000 notes a second keeps the engine on time; malformed MIDI bytes are dropped, counted.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..engines.operator import voices as V
+from ..engines.operator.bank import VoiceBank
+from ..errors import UsageError
+from ..music import midi as M
+from ..music.note import RELEASE, stop_tail
+from ..music.notes import check_a4, midi_to_hz
+from .tables import Tuning
+
+DC_HZ = 5.0  # the causal DC blocker's corner: a bowed note's static offset is not sound (io.audio.remove_dc: 5 Hz)
+AMP = 0.25  # output = AMP x the sum of the notes' q = w u (m/s): a note's q peaks near 0.3-0.6
+TIMES = 1 << 16  # callback durations kept for the percentiles (the last ~6 minutes at 512 frames)
+PENDING = 64  # note-ons waiting for time (a 64-key chord; a flood beyond it is dropped and counted)
+
+
+class Stream(VoiceBank):
+    """Events in, blocks out; see the module docstring. engine: 'operator' or 'fdm'. model: a model, path or name
+    (default: the validated model covering the most velocities). release: the bow stop's length (s)."""
+
+    def __init__(self, sample_rate: int = 44100, block: int = 512, voices: int = 16, engine: str = "operator",
+                 model=None, a4: float = 440.0, release: float | None = None, amp: float = AMP,
+                 busy_fraction: float = 0.5, dc_hz: float = DC_HZ, bend_range: float = M.BEND_RANGE):
+        if isinstance(voices, bool) or not isinstance(voices, int) or voices < 1:
+            raise UsageError(f"--voices must be a whole number >= 1, got {voices!r}")
+        if engine not in ("operator", "fdm"):
+            raise UsageError(f"engine must be operator or fdm, got {engine!r}")
+        if block < 1:
+            raise UsageError(f"block must be >= 1 frame, got {block}")
+        if not (math.isfinite(bend_range) and 0 <= bend_range <= 24):
+            raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
+        self.a4, self.bend_range = check_a4(a4), float(bend_range)
+        self.release_s = RELEASE if release is None else float(release)
+        self.amp, self.busy_fraction = float(amp), float(busy_fraction)
+        self.a = 100.0  # the friction shape every MIDI note plays (Scene's default, as the file reader's notes)
+        ratio_for = None
+        if engine == "operator":
+            from ..engines.operator.choose import as_model, available_models
+            from ..music.engine_tuning import ratio_for_engine
+
+            if model is None:
+                model = Tuning.default_model(available_models(), self.a)
+            model = as_model(model)
+            ratio_for = lambda sc: ratio_for_engine(sc, "operator", model)[0]  # noqa: E731  (score's tuning)
+        self.tuning = t = Tuning(self.a, self.a4, sample_rate, ratio_for)
+        # the longest window a note may need: the lowest MIDI note (12; r < 1 raises f0), bent down, at the bottom
+        # of its vibrato
+        lowest = midi_to_hz(12, self.a4) * 2.0 ** (-(self.bend_range + M.VIBRATO_DEPTH) / 12.0)
+        super().__init__(sample_rate, block, voices, engine, model if engine == "operator" else None, lowest)
+        if engine == "operator":
+            d = model.domain
+            a_ok = math.isclose(d.a, self.a, rel_tol=1e-9)
+            self.covered = np.array([v > 0 and a_ok and bool(d.box_contains(t.v_beta[v], t.v_vb[v]))
+                                     for v in range(128)])
+            # per velocity (neutral controllers): the branch's bow inputs, the correction's gain, the state scaling
+            # (NumpyOperator.window_inputs: the offline rollout's own code)
+            pin, gain, c, h = self.op.window_inputs(np.stack([t.v_beta, t.v_vb], 1)[None])
+            self.v_pin, self.v_gain, self.v_center, self.v_half = pin[0], gain[0], c[0], h[0]
+        self._allocate_midi(dc_hz)
+        self._warm()
+
+    def _allocate_midi(self, dc_hz: float) -> None:
+        nv, bl = self.n_voices, self.block
+        self.start = np.zeros(nv, np.int64)  # the frame each slot's note started (stealing takes the oldest)
+        self.key = np.full(nv, -1, np.int64)  # channel * 128 + note of the slot's note, -1 once released
+        self.vb_hold = np.zeros(nv)
+        self.chan = np.zeros(nv, np.int64)  # each slot's channel (its bend and vibrato follow it through the release)
+        self.sounding = np.full(16 * 128, -1, np.int64)  # slot of each (channel, note) held
+        self.cc = np.zeros((16, 128), np.int64)  # each channel's controllers, neutral until a message moves them
+        self.cc[:, M.CC_PRESSURE] = M.NEUTRAL[M.CC_PRESSURE]
+        self.cc[:, M.CC_EXPRESSION] = M.NEUTRAL[M.CC_EXPRESSION]
+        self.bend = np.zeros(16)  # semitones, per channel
+        self.depth = np.zeros(16)  # vibrato depth, semitones, per channel
+        self.mix = np.zeros(bl)
+        self.out = np.zeros(bl, np.float32)
+        self.dc_state = np.zeros(2)
+        self.dc_r = 1.0 - 2.0 * math.pi * dc_hz / self.sample_rate
+        self.frame = 0  # frames processed since the start
+        self.times = np.zeros(TIMES)
+        self.n_times = 0
+        # note-ons past the block's time budget wait here (channel, note, velocity, the frame they were due) and
+        # start at the next block's first frame, oldest first; a full queue drops them
+        self.pending = np.zeros((PENDING, 4), np.int64)
+        self.n_pending = self.head = 0
+        self.counts = dict(notes=0, dropped_bytes=0, dropped_busy=0, deferred=0, max_defer=0, stolen=0, fdm_notes=0,
+                           fallbacks=0, silent=0, out_of_range=0, ignored=0, zero_length=0)
+
+    def _warm(self) -> None:
+        """Compile (or load from numba's cache) and run every path once, then reset: the first note after
+        activation costs what every later note costs."""
+        self._busy_until = math.inf
+        on = [(0, bytes((0x90, 69, v))) for v in (64, 100)] + [(1, bytes((0x90, 45, 64))), (2, b"\xb0\x02\x50"),
+                                                                 (3, bytes((0x90, 50, 64))), (4, b"\xe0\x00\x50"),
+                                                                 (5, b"\xb0\x01\x40")]
+        self.process(self.block, on)
+        self.process(self.block, [(0, bytes((0x80, 69, 0))), (5, bytes((0x80, 45, 0))), (6, bytes((0x80, 50, 0)))])
+        for _ in range(int(0.2 * self.sample_rate / self.block) + 2):
+            self.process(self.block, [])
+        self.process(self.block, [(0, b"\xe0\x00\x40"), (0, b"\xb0\x01\x00"), (0, b"\xb0\x02\x40")])
+        self.reset()
+
+    def reset(self) -> None:
+        """Silence: every voice freed, controllers neutral, counters and timings cleared, time back to frame 0."""
+        self.mode[:] = V.FREE
+        self.end[:] = -1
+        self.key[:] = -1
+        self.sounding[:] = -1
+        self.n_pending = self.head = 0
+        self.ops[16][:] = -1
+        self.dc_state[:] = 0.0
+        self.bend[:] = 0.0
+        self.depth[:] = 0.0
+        self.cc[:, M.CC_PRESSURE] = M.NEUTRAL[M.CC_PRESSURE]
+        self.cc[:, M.CC_EXPRESSION] = M.NEUTRAL[M.CC_EXPRESSION]
+        self.frame = 0
+        self.n_times = 0
+        for k in self.counts:
+            self.counts[k] = 0
+
+    # --- the audio side ---------------------------------------------------------------------------------------
+
+    def process(self, n: int, events=()) -> np.ndarray:
+        """Render the next n frames (n <= block) with `events`, (frame offset in this block, MIDI bytes) in time
+        order, applied at their frames. Returns a float32 view of the output (valid until the next call)."""
+        t0 = time.perf_counter()
+        self._busy_until = t0 + self.busy_fraction * n / self.sample_rate
+        mix = self.mix
+        mix[:n] = 0.0
+        at = 0
+        if self.n_pending:
+            self._start_pending()
+        for off, data in events:
+            off = min(max(int(off), at), n)
+            if off > at:
+                self._render(at, off - at)
+                at = off
+            self._event(off, data)
+        if at < n:
+            self._render(at, n - at)
+        V.dc_block(mix, n, self.dc_r, self.dc_state, self.out)
+        self.frame += n
+        self.times[self.n_times % TIMES] = time.perf_counter() - t0
+        self.n_times += 1
+        return self.out[:n]
+
+    def _render(self, off: int, m: int) -> None:
+        self.render(self.mix, off, m, self.amp)
+
+    def _event(self, off: int, data) -> None:
+        """One MIDI message at frame `off` of the block: note on/off, CC 2/11/123; anything malformed is dropped."""
+        n = len(data)
+        if n == 0:
+            self.counts["dropped_bytes"] += 1
+            return
+        status = data[0]
+        if status >= 0xF0:  # system messages (sysex, clock, ...): not for a synthesizer voice
+            self.counts["ignored"] += 1
+            return
+        if status < 0x80 or any(b >= 0x80 for b in data[1:n]):
+            self.counts["dropped_bytes"] += 1
+            return
+        kind, ch = status & 0xF0, status & 0x0F
+        if kind in (0x80, 0x90, 0xB0, 0xE0) and n != 3:
+            self.counts["dropped_bytes"] += 1
+            return
+        if kind == 0x90 and data[2] > 0:
+            self._note_on(off, ch, data[1], data[2])
+        elif kind == 0x80 or kind == 0x90:
+            slot = self.sounding[ch * 128 + data[1]]
+            if slot >= 0:
+                self._note_off(slot)
+            elif self.n_pending:  # still waiting to start: it never sounds (counted as dropped)
+                self._cancel_pending(ch, data[1])
+        elif kind == 0xB0 and data[1] in (120, 123):  # all sound off / all notes off: release the channel's notes
+            for slot in range(self.n_voices):
+                if self.key[slot] >= 0 and self.key[slot] // 128 == ch:
+                    self._note_off(slot)
+        elif kind == 0xB0 and data[1] in (M.CC_PRESSURE, M.CC_EXPRESSION):
+            self.cc[ch, data[1]] = data[2]
+        elif kind == 0xE0:
+            self.bend[ch] = M.bend_semitones((data[2] << 7) | data[1], self.bend_range)
+            self._pitch_moved(ch)
+        elif kind == 0xB0 and data[1] == M.CC_MODULATION:
+            self.depth[ch] = M.vibrato_depth(data[2])
+            self._pitch_moved(ch)
+        else:
+            self.counts["ignored"] += 1
+
+    def _cancel_pending(self, ch: int, note: int) -> None:
+        """A note-off for a note still waiting: it never sounds (marked, velocity 0; counted as dropped)."""
+        q = self.pending
+        for i in range(self.n_pending):
+            k = (self.head + i) % PENDING
+            if q[k, 0] == ch and q[k, 1] == note and q[k, 2] > 0:
+                q[k, 2] = 0
+                self.counts["dropped_busy"] += 1
+                return
+
+    def _start_pending(self) -> None:
+        """The waiting note-ons (a ring: no array is moved), oldest first, at this block's first frame, while the
+        time budget lasts."""
+        q = self.pending
+        while self.n_pending and time.perf_counter() <= self._busy_until:
+            ch, note, vel, due = q[self.head]
+            self.head = (self.head + 1) % PENDING
+            self.n_pending -= 1
+            if vel > 0:
+                self.counts["max_defer"] = max(self.counts["max_defer"], self.frame - int(due))
+                self._start_note(0, int(ch), int(note), int(vel))
+
+    def _note_on(self, off: int, ch: int, note: int, vel: int) -> None:
+        if self.n_pending or time.perf_counter() > self._busy_until:  # later, in order (a chord's top notes)
+            if self.n_pending == PENDING:
+                self.counts["dropped_busy"] += 1
+                return
+            k = (self.head + self.n_pending) % PENDING
+            self.pending[k, 0], self.pending[k, 1], self.pending[k, 2], self.pending[k, 3] = (ch, note, vel,
+                                                                                            self.frame + off)
+            self.n_pending += 1
+            self.counts["deferred"] += 1
+            return
+        self._start_note(off, ch, note, vel)
+
+    def _start_note(self, off: int, ch: int, note: int, vel: int) -> None:
+        if not 12 <= note <= 119:  # the file reader refuses them (C0..B8)
+            self.counts["out_of_range"] += 1
+            return
+        key = ch * 128 + note
+        if self.sounding[key] >= 0:  # a retrigger: the sounding one ends here (as the file reader does)
+            self._note_off(self.sounding[key])
+        t = self.tuning
+        c2, c11 = self.cc[ch, M.CC_PRESSURE], self.cc[ch, M.CC_EXPRESSION]
+        neutral = c2 == M.NEUTRAL[M.CC_PRESSURE] and c11 == M.NEUTRAL[M.CC_EXPRESSION]
+        beta = t.v_beta[vel] if neutral else M.bow_beta(vel, c2)
+        vb = t.v_vb[vel] if neutral else M.bow_vb(vel, c11)
+        f0 = t.f0[vel, note] if neutral else midi_to_hz(note, self.a4) / t.grid_ratio(beta, vb)
+        if not f0 == f0 or vb <= 0 or beta <= 0:  # NaN: a silent bow
+            self.counts["silent"] += 1
+            return
+        slot = self._free_slot()
+        self.start_slot(slot, f0, beta, vb, self.a)
+        self.start[slot], self.key[slot], self.vb_hold[slot], self.chan[slot] = self.frame + off, key, vb, ch
+        pm, pp = self.pit[0], self.pit[1]
+        pp[slot, V.P_B0] = pp[slot, V.P_B1] = self.bend[ch]
+        pp[slot, V.P_D0] = pp[slot, V.P_D1] = self.depth[ch]
+        pp[slot, V.P_BT] = pp[slot, V.P_DT] = 0.0
+        pp[slot, V.P_RATE], pp[slot, V.P_RAMP] = M.VIBRATO_HZ, M.CC_RAMP * self.sample_rate
+        pm[slot] = V.LIVE if (self.bend[ch] != 0 or self.depth[ch] != 0) else V.HELD
+        self.sounding[key] = slot
+        self.counts["notes"] += 1
+        if self.engine == "operator":
+            if self.covered[vel] if neutral else self._plays(beta, vb):
+                pin, gain, center, half = self.ops[9], self.ops[10], self.ops[7], self.ops[8]
+                if neutral:
+                    pin[slot], gain[slot], center[slot], half[slot] = (self.v_pin[vel], self.v_gain[vel],
+                                                                        self.v_center[vel], self.v_half[vel])
+                else:
+                    self.bow_inputs(slot, beta, vb)
+                if self.start_operator(slot, f0):
+                    return
+            self.counts["fdm_notes"] += 1
+        self.start_fdm(slot)
+
+    def _pitch_moved(self, ch: int) -> None:
+        """The channel's bend or vibrato depth changed: each of its notes (held or releasing) ramps to it from its
+        value now (a 5 ms ramp, as the file reader's controllers) and follows it from its next window on."""
+        pm, pp = self.pit[0], self.pit[1]
+        for slot in range(self.n_voices):
+            if self.mode[slot] == V.FREE or self.chan[slot] != ch:
+                continue
+            s = float(self.pos[slot])
+            b = V._ramp(pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT], pp[slot, V.P_RAMP], s)
+            d = V._ramp(pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT], pp[slot, V.P_RAMP], s)
+            pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT] = b, self.bend[ch], s
+            pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT] = d, self.depth[ch], s
+            pm[slot] = V.LIVE
+
+    def _plays(self, beta: float, vb: float) -> bool:
+        """Does the model play this bow (Domain.box_contains for one bow, in scalars)? A point model plays only
+        the velocities the table found it covers."""
+        d = self.model.domain
+        if d.box is None:
+            return False
+        b0, b1, v0, v1 = d.box
+        return (b0 <= beta <= b1 or (d.plays_below and 0.0 <= beta <= b0)) and v0 <= vb <= v1
+
+    def _free_slot(self) -> int:
+        slot = V.pick_slot(self.mode, self.end, self.pos, self.start)
+        if self.mode[slot] == V.FREE:
+            return slot
+        # stolen: the releasing voice nearest its end, else the oldest held one
+        self.counts["stolen"] += 1
+        if self.key[slot] >= 0:
+            self.sounding[self.key[slot]] = -1
+        self.key[slot] = -1
+        self.mode[slot] = V.FREE
+        return slot
+
+    def _note_off(self, slot: int) -> None:
+        """The bow stop from the slot's next sample (VoiceBank.release); a note of zero length is dropped, as the
+        file reader drops it."""
+        key = self.key[slot]
+        if key >= 0:
+            self.sounding[key] = -1
+        self.key[slot] = -1
+        if self.pos[slot] == 0:
+            self.mode[slot] = V.FREE
+            self.counts["zero_length"] += 1
+            return
+        fst = self.fdm[0]
+        self.release(slot, self.vb_hold[slot], self.release_s, stop_tail(fst[slot, 6], fst[slot, 4] / (2 * math.pi),
+                                                                          self.a))
+
+    # --- what it did ------------------------------------------------------------------------------------------
+
+    def callback_times(self) -> np.ndarray:
+        """The durations (s) of the last process() calls."""
+        return self.times[:min(self.n_times, TIMES)].copy()

@@ -1,0 +1,372 @@
+"""`bowsynth play` driven for real: a JACK server of its own (jackd's dummy driver, 44.1 kHz, 512-frame periods), the
+player as a subprocess, and a test client that sends MIDI to bowsynth:midi_in and records bowsynth:out.
+
+The sender and the recorder are two JACK clients, so the graph is sender -> bowsynth -> recorder with no cycle: all
+three run in the same period, and the recorder's frame times are the sender's (a note-on sent for frame f is heard
+from frame f on). No timing is asserted here (docs/BENCHMARKS.md has the callback times); xruns are, and they are
+counted by the player itself.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+jack = pytest.importorskip("jack", reason="the JACK-Client package is not installed (make setup installs it)")
+if shutil.which("jackd") is None:
+    pytest.skip("jackd is not installed (make setup installs Debian's jackd2)", allow_module_level=True)
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+RATE, PERIOD = 44100, 512
+MODEL = "soft-range"
+_names = itertools.count()
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def _quiet():
+    jack.set_error_function(lambda m: None)
+    jack.set_info_function(lambda m: None)
+
+
+def _wait_server(name: str, proc, timeout: float = 15.0) -> None:
+    _quiet()
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if proc.poll() is not None:
+            raise RuntimeError(f"jackd exited with {proc.returncode}")
+        try:
+            c = jack.Client("probe", no_start_server=True, servername=name)
+            c.close()
+            return
+        except jack.JackOpenError:
+            time.sleep(0.1)
+    raise RuntimeError("jackd did not come up")
+
+
+def _stop(proc) -> None:
+    """End a process we started, by its id."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture
+def jackd():
+    """A dummy-driver JACK server with a name of its own, ended by its process id."""
+    name = f"bowsynth-test-{os.getpid()}-{next(_names)}"
+    proc = subprocess.Popen(["jackd", "-n", name, "-d", "dummy", "-r", str(RATE), "-p", str(PERIOD)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _wait_server(name, proc)
+        yield name, proc
+    finally:
+        _stop(proc)
+
+
+class Player:
+    """`bowsynth play` as a subprocess on the test server."""
+
+    def __init__(self, server: str, *args: str, name: str = "bowsynth"):
+        self.name = name
+        self.proc = subprocess.Popen([sys.executable, "-m", "bowsynth", "play", "--server", server, "--name", name,
+                                      *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     env=_env(), cwd=ROOT)
+        self.server = server
+
+    def wait_ready(self, timeout: float = 180.0) -> None:
+        _quiet()
+        c = jack.Client("watcher", no_start_server=True, servername=self.server)
+        try:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < timeout:
+                if self.proc.poll() is not None:
+                    raise AssertionError(f"play exited early ({self.proc.returncode}): {self.proc.stdout.read()}")
+                # the ports exist only once the engine is prepared (the client activates after that)
+                if c.get_ports(f"{self.name}:out"):  # registered once the engine is prepared, just before activation
+                    return
+                time.sleep(0.2)
+            raise AssertionError("play did not become ready")
+        finally:
+            c.close()
+
+    def stop(self, sig=signal.SIGINT, timeout: float = 20.0) -> tuple[int, str]:
+        self.proc.send_signal(sig)
+        try:
+            out, _ = self.proc.communicate(timeout=timeout)
+        finally:
+            _stop(self.proc)
+        return self.proc.returncode, out
+
+
+@pytest.fixture
+def player(jackd):
+    players = []
+
+    def start(*args, name="bowsynth"):
+        p = Player(jackd[0], *args, name=name)
+        players.append(p)
+        p.wait_ready()
+        time.sleep(0.5)  # activation follows the port registration
+        return p
+    yield start
+    for p in players:
+        _stop(p.proc)
+
+
+def perform(server: str, events, seconds: float, target: str = "bowsynth", lead: float = 0.3):
+    """Send events [(seconds, bytes)] to target:midi_in and record target:out for `seconds`. Returns the recording
+    and the frames (from its start) at which each event was delivered."""
+    _quiet()
+    n = int(seconds * RATE)
+    rec = np.zeros(int(round(lead * RATE)) + n + 4 * PERIOD, np.float32)
+    sender = jack.Client("sender", no_start_server=True, servername=server)
+    recorder = jack.Client("recorder", no_start_server=True, servername=server)
+    mout = sender.midi_outports.register("out")
+    ain = recorder.inports.register("in")
+    state = {"start": None, "rec": 0, "late": 0}
+    sched = [(int(round((lead + t) * RATE)), bytes(d)) for t, d in events]
+    sched.sort(key=lambda e: e[0])
+    idx = [0]
+
+    @sender.set_process_callback
+    def send(frames):
+        mout.clear_buffer()
+        now = sender.last_frame_time
+        if state["start"] is None:
+            state["start"] = now
+        rel = now - state["start"]
+        while idx[0] < len(sched) and sched[idx[0]][0] < rel + frames:
+            f, d = sched[idx[0]]
+            off = f - rel
+            if off < 0:
+                state["late"] += 1
+                off = 0
+            mout.write_midi_event(off, d)
+            idx[0] += 1
+
+    @recorder.set_process_callback
+    def record(frames):
+        if state["start"] is None:
+            return
+        at = recorder.last_frame_time - state["start"]
+        if 0 <= at and at + frames <= len(rec):
+            rec[at:at + frames] = ain.get_array()
+
+    with sender, recorder:
+        sender.connect(mout, f"{target}:midi_in")
+        recorder.connect(f"{target}:out", ain)
+        time.sleep(lead + seconds + 0.3)
+        sender.deactivate()
+        recorder.deactivate()
+    assert state["late"] == 0, f"{state['late']} event(s) sent late"
+    lead_n = int(round(lead * RATE))
+    return rec[lead_n:lead_n + n], [f - lead_n for f, _ in sched]
+
+
+def on(note, vel=64, ch=0):
+    return bytes((0x90 | ch, note, vel))
+
+
+def off(note, ch=0):
+    return bytes((0x80 | ch, note, 0))
+
+
+MELODY = [(69, 0.1, 0.7), (72, 0.9, 0.7), (76, 1.7, 0.7), (74, 2.5, 0.7)]  # A4 C5 E5 D5
+
+
+def melody_events():
+    ev = []
+    for n, t, d in MELODY:
+        ev += [(t, on(n)), (t + d, off(n))]
+    return ev
+
+
+def _cents(x, f_ref):
+    from bowsynth.analysis.metrics import f0_estimate
+
+    return 1200 * np.log2(f0_estimate(x, RATE, tail=1.0) / f_ref)
+
+
+def _write_midi(path: Path, frames_events):
+    """A MIDI file whose tick is one frame (441 ticks per beat at 10 ms a beat): its events land on the frames given."""
+    import mido
+
+    mid = mido.MidiFile(ticks_per_beat=441)
+    tr = mido.MidiTrack()
+    mid.tracks.append(tr)
+    tr.append(mido.MetaMessage("set_tempo", tempo=10000, time=0))
+    last = 0
+    for f, d in sorted(frames_events, key=lambda e: e[0]):
+        tr.append(mido.Message.from_bytes(list(d)).copy(time=f - last))
+        last = f
+    mid.save(path)
+
+
+def _offline(tmp_path, frames_events, n, method="operator"):
+    """`bowsynth score --mix` of the same events (a fixed gain, DC kept: the sum of the notes' q), then the live
+    output's scaling and causal DC blocker."""
+    from bowsynth.engines.operator import voices as V
+    from bowsynth.live.stream import AMP, DC_HZ
+    import soundfile as sf
+
+    mid = tmp_path / "same.mid"
+    _write_midi(mid, frames_events)
+    wav = tmp_path / "same.wav"
+    r = subprocess.run([sys.executable, "-m", "bowsynth", "score", "--score", str(mid), "--mix", str(wav),
+                        "--method", method, "--model", MODEL, "--dc", "keep", "--gain", "-24", "-q", "--force"],
+                       capture_output=True, text=True, env=_env(), cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    x = sf.read(str(wav), dtype="float64")[0] * 10 ** (24 / 20)  # -24 dB: a chord's sum would clip at 0 dB
+    ref = np.zeros(n)
+    ref[:min(n, len(x))] = AMP * x[:n]
+    y = np.zeros(n, np.float32)
+    V.dc_block(ref, n, 1.0 - 2.0 * np.pi * DC_HZ / RATE, np.zeros(2), y)
+    return y
+
+
+def _highpass(x, hz=20.0):
+    from scipy.signal import butter, sosfiltfilt
+
+    return sosfiltfilt(butter(4, hz, "highpass", fs=RATE, output="sos"), x)
+
+
+def _summary(out: str) -> str:
+    lines = [l for l in out.splitlines() if l.startswith("bowsynth: played")]
+    assert lines, out
+    return lines[-1]
+
+
+def test_melody_plays_in_tune_on_time_and_as_score_renders_it(jackd, player, tmp_path):
+    p = player("--model", MODEL, "--voices", "8")
+    rec, frames = perform(jackd[0], melody_events(), 3.4)
+    code, out = p.stop(signal.SIGINT)
+    assert code == 130, out
+    assert " xruns 0;" in _summary(out), out
+    from bowsynth.music.notes import midi_to_hz
+
+    # onset: silence until the first note's frame, sound from that very frame (the voice starts at its event)
+    f = frames[0]
+    assert np.all(rec[:f] == 0) and rec[f + 1] != 0
+    for (note, t, d), f in zip(MELODY, frames[0::2]):
+        # pitch: the last 0.35 s of the sustain, within a cent of equal temperament
+        body = rec[f + int((d - 0.35) * RATE):f + int(d * RATE)]
+        assert abs(_cents(body, midi_to_hz(note))) < 1.0, note
+    # the same events rendered offline by `bowsynth score`: the same samples (float32 rounding apart)
+    ref = _offline(tmp_path, list(zip(frames, [d for _, d in melody_events()])), len(rec))
+    lag = int(np.argmax([np.dot(rec[2000:-2000], ref[2000 - l:len(ref) - 2000 - l]) for l in range(0, 2 * PERIOD)]))
+    assert lag == 0
+    assert np.max(np.abs(rec - ref)) < 1e-4 * np.max(np.abs(ref))
+    a, b = _highpass(rec), _highpass(ref)
+    assert np.corrcoef(a, b)[0, 1] > 0.99
+
+
+def test_the_fdm_engine_plays_the_offline_fdm_notes(jackd, player, tmp_path):
+    p = player("--method", "fdm", "--voices", "4")
+    ev = [(0.0, on(62, 90)), (0.1, on(69, 40)), (0.6, off(62)), (0.9, off(69))]
+    rec, frames = perform(jackd[0], ev, 1.4)
+    code, out = p.stop(signal.SIGTERM)
+    assert code == 143, out
+    # the notes as the Python API renders them offline, tuned with the truth's ratio as the live FDM tunes them
+    # (`score --method fdm` tunes each pitch for the FDM's dispersion: docs/live.md)
+    import test_stream as S
+    from bowsynth.live.stream import AMP, DC_HZ
+
+    ref = S.offline(tmp_path, list(zip(frames, [d for _, d in ev])), len(rec), "fdm", AMP,
+                    1.0 - 2.0 * np.pi * DC_HZ / RATE)
+    assert np.max(np.abs(rec - ref)) < 1e-5 * np.max(np.abs(ref))
+
+
+def test_a_chord_sounds_every_note_and_more_notes_than_voices_steal(jackd, player):
+    p = player("--model", MODEL, "--voices", "3")
+    chord = [57, 61, 64]  # A3 C#4 E4
+    ev = [(0.0, on(n)) for n in chord] + [(1.0, off(n)) for n in chord] + [(1.2, on(n)) for n in (60, 64, 67, 72)]
+    ev += [(1.8, off(n)) for n in (60, 64, 67, 72)]
+    rec, frames = perform(jackd[0], ev, 2.2)
+    code, out = p.stop()
+    assert code == 130
+    s = _summary(out)
+    assert " xruns 0;" in s and "stolen 1" in s, s
+    from bowsynth.music.notes import midi_to_hz
+
+    body = rec[frames[0] + int(0.5 * RATE):frames[0] + int(0.95 * RATE)]
+    spec = np.abs(np.fft.rfft(body * np.hanning(len(body))))
+    fq = np.fft.rfftfreq(len(body), 1 / RATE)
+    for n in chord:
+        hz = midi_to_hz(n)
+        near = spec[(fq > hz * 0.98) & (fq < hz * 1.02)].max()
+        assert near > 0.1 * spec.max(), n
+
+
+def test_garbage_bytes_and_a_flood_of_notes_are_dropped_and_counted_and_time_is_kept(jackd, player):
+    p = player("--model", MODEL, "--voices", "8")
+    ev = [(0.0, b"\x45\x12\x00"), (0.0, b"\x90\x99\x40"), (0.01, b"\xf0\x01\x02\xf7"), (0.02, b"\x90\x40")]
+    # 10,000 notes a second for 0.3 s, then a note that must still play in tune
+    ev += [(0.05 + i / 10000, on(40 + i % 40, 30 + i % 90)) for i in range(3000)]
+    ev += [(0.05 + i / 10000 + 0.0001, off(40 + i % 40)) for i in range(3000)]
+    ev += [(0.6, bytes((0xB0, 123, 0))), (0.9, on(69)), (1.7, off(69))]
+    rec, frames = perform(jackd[0], ev, 2.1)
+    code, out = p.stop()
+    assert code == 130
+    s = _summary(out)
+    assert "dropped bytes 3" in s, s
+    from bowsynth.music.notes import midi_to_hz
+
+    f = frames[-2]
+    assert abs(_cents(rec[f + int(0.45 * RATE):f + int(0.8 * RATE)], midi_to_hz(69))) < 1.0
+    assert np.all(np.isfinite(rec))
+
+
+def test_sigterm_mid_note_ends_with_143_and_a_summary(jackd, player):
+    p = player("--model", MODEL)
+    perform(jackd[0], [(0.0, on(60))], 0.3)  # the note is still held
+    code, out = p.stop(signal.SIGTERM)
+    assert code == 143
+    assert "1 note(s)" in _summary(out)
+
+
+def test_no_server_is_one_line_saying_how_to_start_one(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "bowsynth", "play", "--server", f"none-{os.getpid()}"],
+                       capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=60)
+    assert r.returncode == 1
+    lines = (r.stdout + r.stderr).strip().splitlines()
+    assert len(lines) == 1 and f"jackd -n none-{os.getpid()} -d dummy" in lines[0], lines
+
+
+def test_bad_connect_port_and_zero_voices_are_refused(jackd):
+    for args, what in ((["--connect", "nowhere:nothing"], "nowhere:nothing"), (["--voices", "0"], "--voices")):
+        r = subprocess.run([sys.executable, "-m", "bowsynth", "play", "--server", jackd[0], "--model", MODEL, *args],
+                           capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=300)
+        assert r.returncode == 2, r.stdout + r.stderr
+        err = [l for l in r.stderr.strip().splitlines() if l.startswith("error")]
+        assert len(err) == 1 and what in err[0], r.stderr
+
+
+def test_the_server_going_away_is_one_line_and_exit_1(jackd, player):
+    p = player("--model", MODEL)
+    _stop(jackd[1])
+    try:
+        out, _ = p.proc.communicate(timeout=30)
+    finally:
+        _stop(p.proc)
+    assert p.proc.returncode == 1, out
+    err = [l for l in out.splitlines() if l.startswith("error")]
+    assert len(err) == 1 and "went away" in err[0], out
