@@ -23,7 +23,6 @@ from .choose import (
     train_hint,
     unreadable_notes,
 )
-from .curve import render_curve
 from .modelfile import OperatorModel
 from .rollout import applied_controls, rollout_states, scene_bows
 from .windows import FAIL_BOW, FAILURES
@@ -152,6 +151,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     out: list = [None] * len(scenes)
     for i, sc in enumerate(scenes):
         if sc.pitch_varies:  # a pitch curve: per window its own sample spacing (the live engine's voice loop)
+            from .curve import render_curve  # numba's JIT loads only for a pitch curve (a plain render needs none)
             out[i] = render_curve(sc, _resolve(sc, model, models, fallback))
             continue
         m = _resolve(sc, model, models, fallback)
