@@ -1,6 +1,7 @@
 """The bench's out-of-sample evaluation: states it calls held out are in the domain and off the trained trajectory,
 its numbers are the NMSE the metrics module computes, and its tables show them."""
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -63,3 +64,37 @@ def test_window_errors_score_one_window_against_the_fdm(fb100):
     ref = render_fdm(sc.replace(duration=n / sc.sample_rate), oversample=TRUTH_OVERSAMPLE)
     assert e[0] == pytest.approx(nmse(r.p, ref.p), rel=1e-6)
     assert e[0] < 4e-5  # measured 9.1e-6: the first window from rest is the worst of the trained window starts
+
+
+def test_bench_equal_quick_reports_the_operator_against_the_fdm(tmp_path, capsys, monkeypatch):
+    import json
+
+    from conftest import run_main
+
+    from bowsynth.analysis.metrics import as_accurate
+
+    code, so, err = run_main(["bench", "equal", "--quick", "--json", "--out", str(tmp_path / "eq")], capsys,
+                             monkeypatch)
+    assert code == 0, err
+    js = json.loads(so)
+    (row,) = js["equal_accuracy"]
+    assert row["model"] == "paper-fb100" and row["f0"] == 100
+    assert [e["oversample"] for e in row["fdm"]] == [1, 2]
+    op = row["operator"]
+    assert op["gmac_per_s"] > 0 and op["sec_per_audio_s"] > 0
+    match = [e for e in row["fdm"] if as_accurate(e, op)]
+    # the cheapest FDM as accurate, or none and the ratio a bound
+    assert row["equal_oversample"] == (match[0]["oversample"] if match else None)
+    assert row["ratio_is_bound"] == (not match)
+    assert (tmp_path / "eq.png").stat().st_size > 1000 and (tmp_path / "eq.md").read_text().startswith("Errors")
+
+
+def test_macs_per_second_counts_the_branch_per_window_and_the_basis_per_sample(fb100):
+    from bowsynth.analysis.bench import macs_per_second
+    from bowsynth.scene import Scene
+
+    lo, hi = Scene(f0=100, fb=100), Scene(f0=200, fb=200)
+    per_sample = 2 * (fb100.cfg.k + 3) * lo.sample_rate
+    # twice the pitch, twice the windows a second: the branch's share doubles, the samples' stays
+    assert math.isclose(macs_per_second(fb100, hi) - per_sample, 2 * (macs_per_second(fb100, lo) - per_sample),
+                        rel_tol=1e-6)

@@ -36,3 +36,43 @@ def test_a_gesture_is_compared_with_the_fdm_of_the_same_curves(tmp_path, capsys,
     run_main(["render", str(flat), "--method", "fdm", "--fb", "50", "-d", "0.4"], capsys, monkeypatch)
     code, so, err = run_main(["compare", str(out), str(flat), "--json"], capsys, monkeypatch)
     assert list(json.loads(so)["metrics"].values())[0]["nmse"] > 1e-3
+
+
+def test_speed_at_equal_accuracy_names_the_cheapest_fdm_that_is_as_accurate(tmp_path, capsys, monkeypatch):
+    from bowsynth.analysis.compare import EQUAL_OVERSAMPLES
+    from bowsynth.analysis.metrics import as_accurate
+
+    # an FDM file is as accurate as itself: the audio-rate FDM matches it at once, and the ratio is its own time's
+    out = tmp_path / "fdm.wav"
+    code, _, err = run_main(["render", str(out), "--method", "fdm", "--fb", "100", "-d", "1"], capsys, monkeypatch)
+    assert code == 0, err
+    code, so, err = run_main(["compare", str(out), "--json"], capsys, monkeypatch)
+    assert code == 0, err
+    e = json.loads(so)["speed_at_equal_accuracy"]
+    assert e["oversample"] == 1 and as_accurate(e["fdm"], e["file"])
+    # the point model at its own bow is more accurate than the audio-rate FDM: a finer FDM is needed, and every
+    # coarser one tried is less accurate on some error
+    out = tmp_path / "op.wav"
+    code, _, err = run_main(["render", str(out), "--preset", "paper-fb100", "-d", "1"], capsys, monkeypatch)
+    assert code == 0, err
+    code, so, err = run_main(["compare", str(out), "--json"], capsys, monkeypatch)
+    js = json.loads(so)
+    e = js["speed_at_equal_accuracy"]
+    assert e["oversample"] is None or e["oversample"] > 1
+    assert e["oversample"] is None or as_accurate(e["fdm"], e["file"])
+    assert e["ratio"] == e["seconds"] / js["render_seconds"]["file"]
+    assert e["oversample"] in (None, *EQUAL_OVERSAMPLES)
+    code, so, err = run_main(["compare", str(out)], capsys, monkeypatch)
+    assert "speed at equal accuracy" in so and "FDM x" in so
+
+
+def test_as_accurate_asks_every_error_and_skips_what_the_target_cannot_state():
+    from bowsynth.analysis.metrics import as_accurate
+
+    want = {"harm_db": 0.5, "cents": 0.2, "nmse": 1e-3}
+    assert as_accurate({"harm_db": 0.5, "cents": 0.2, "nmse": 1e-3}, want)
+    for k in want:  # worse on any one error: not as accurate
+        assert not as_accurate({**want, k: want[k] * 1.05}, want)
+        assert as_accurate({**want, k: want[k] * 1.005}, want)  # within 1 %: the same, up to storage
+    assert as_accurate({"harm_db": 9.0, "cents": 0.1, "nmse": 1e-4}, {**want, "harm_db": float("nan")})
+    assert not as_accurate({**want, "cents": float("nan")}, want)  # an error the render cannot state fails

@@ -136,6 +136,84 @@ def bench_paper_anchors(anchor_dir) -> list[dict]:
     return rows
 
 
+# --- speed at equal accuracy ---------------------------------------------------------------------------------------
+
+EQUAL_F0 = (100.0, 440.0, 880.0)
+EQUAL_OVERSAMPLES = (1, 2, 4, 8, 16, 32)
+
+
+def macs_per_second(model, scene: Scene) -> float:
+    """The operator's multiply-adds per second of audio at the scene's pitch: the branch network once a window (its
+    weight matrices, Fourier features included), and each sample's basis product (2 (k + 3): q and p)."""
+    from ..engines.operator.basis import _operator
+    from ..engines.operator.npnet import weight_shapes
+
+    cfg = model.cfg
+    per_window = sum(int(np.prod(shape)) for name, shape in weight_shapes(cfg).items()
+                     if name.startswith("branch.") and name.endswith(("weight", "ff.B")))
+    windows = scene.sample_rate / _operator(model).samples_per_window(scene.dtau)
+    return per_window * windows + 2 * (cfg.k + 3) * scene.sample_rate
+
+
+def blas_gmacs(n: int = 512, repeats: int = 10) -> float:
+    """One core's float32 matrix-product speed now (numpy's BLAS held to one thread): the peak the operator's
+    multiply-adds are measured against, since its loops run on one core. In a child process, because BLAS reads its
+    thread count once, when numpy loads."""
+    import os
+    import subprocess
+    import sys
+
+    code = (f"import time, numpy as np\na = np.random.default_rng(0).standard_normal(({n}, {n})).astype(np.float32)\n"
+            f"a @ a\nbest = 1e9\nfor _ in range({repeats}):\n    t = time.perf_counter(); a @ a; "
+            f"best = min(best, time.perf_counter() - t)\nprint({n}**3 / best / 1e9)")
+    one = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    r = subprocess.run([sys.executable, "-c", code], env={**os.environ, **one}, capture_output=True, text=True,
+                       timeout=120)
+    return float(r.stdout) if r.returncode == 0 else float("nan")
+
+
+def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
+                   oversamples=EQUAL_OVERSAMPLES) -> list[dict]:
+    """The operator against the FDM at equal accuracy, at the model's own bow (a point model's; a range model's box
+    centre) at each pitch: the operator's errors against a x100 FDM (metrics.accuracy: harmonics, pitch, NMSE) and
+    its cost (wall seconds per audio second, warm, median), the FDM's at each oversampling, and the cheapest FDM as
+    accurate on all three (metrics.as_accurate). A pitch the model cannot play is left out."""
+    from ..engines.fdm import check_oversample
+    from ..engines.operator.engine import render_operator
+    from ..errors import DomainError
+    from .metrics import accuracy, as_accurate
+
+    d, rows = model.domain, []
+    for f0 in f0s:
+        sc = Scene(f0=f0, fb=d.beta * 2 * np.pi * f0, vb=d.vb, a=d.a, duration=duration)
+        if not model.covers(sc):
+            continue
+        ref = render_fdm(sc, oversample=TRUTH_OVERSAMPLE).p
+        try:
+            op = accuracy(render_operator(sc, model=model).p, ref, sc.sample_rate)
+        except DomainError as e:  # the rollout left the model's states: no accuracy to match
+            rows.append({"model": model.path.stem if model.path else model.meta.name, "scene": sc, "f0": f0,
+                         "beta": d.beta, "vb": d.vb, "failed": str(e)})
+            continue
+        op["sec_per_audio_s"] = _median_time(lambda: render_operator(sc, model=model), repeats) / duration
+        op["gmac_per_s"] = macs_per_second(model, sc) / op["sec_per_audio_s"] / 1e9
+        fdm = []
+        # an oversampling below the scene's stability bound is raised by the FDM: each is measured once, as itself
+        for os_ in sorted({check_oversample(sc, o, warn=False) for o in oversamples}):
+            e = accuracy(render_fdm(sc, oversample=os_).p, ref, sc.sample_rate)
+            e["oversample"] = os_
+            e["sec_per_audio_s"] = _median_time(lambda: render_fdm(sc, oversample=os_), repeats) / duration
+            fdm.append(e)
+        match = next((e for e in fdm if as_accurate(e, op)), None)
+        rows.append({"model": model.path.stem if model.path else model.meta.name, "scene": sc, "f0": f0,
+                     "beta": d.beta, "vb": d.vb, "operator": op, "fdm": fdm,
+                     "equal_oversample": match["oversample"] if match else None,
+                     # no oversampling tried reaches the operator: the ratio is at least the costliest one's
+                     "ratio": (match or fdm[-1])["sec_per_audio_s"] / op["sec_per_audio_s"],
+                     "ratio_is_bound": match is None})
+    return rows
+
+
 # --- out of sample -----------------------------------------------------------------------------------------------
 #
 # Training sees the band of states a render from the scene's initial state visits (with noise), and takes the exact

@@ -26,15 +26,21 @@ class Comparison:
     seconds: dict = field(default_factory=dict)  # label -> render wall time
     series: dict = field(default_factory=dict, repr=False)  # label -> signal, for plots
     notes: list = field(default_factory=list)  # what a reader of the scores must know (lossy file, DC handling)
+    # the cheapest FDM as accurate as the file against the truth (metrics.as_accurate): oversample (None: none of
+    # those tried), seconds (its render time, or the costliest tried), accuracy of the file and of that FDM
+    equal: dict | None = None
 
     def to_json(self) -> dict:
-        speed = None
+        speed = equal = None
         a, f = self.seconds.get("file"), self.seconds.get("fdm")
         if a and f:
             speed = f / a
+        if a and self.equal:
+            equal = {**self.equal, "ratio": self.equal["seconds"] / a}
         return {"scene": self.scene.to_dict() if self.scene else None, "signal": self.signal,
                 "metrics": jsonable(self.columns),
-                "render_seconds": self.seconds, "speed_ratio_fdm_over_file": speed, "notes": self.notes}
+                "render_seconds": self.seconds, "speed_ratio_fdm_over_file": speed,
+                "speed_at_equal_accuracy": jsonable(equal), "notes": self.notes}
 
 
 def _fdm_signal(scene: Scene, signal: str, oversample: int, dc_removed: bool):
@@ -50,15 +56,20 @@ def _lossy_notes(*infos) -> list[str]:
             for i in infos if i.lossy]
 
 
+EQUAL_OVERSAMPLES = (1, 2, 4, 8, 16, 32)  # the FDMs `compare` tries for speed at equal accuracy (all cost < the truth)
+
+
 def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "high",
-                pitch_seconds: float | None = None, force: bool = False) -> Comparison:
+                pitch_seconds: float | None = None, force: bool = False, equal: bool = True) -> Comparison:
     """Compare the audio file at `path` with the FDM render of its scene (from its metadata, curves included, else
     `scene`), or with the file `other`.
 
     reference='high' (default): first against a x100 FDM, the truth, then against the audio-rate FDM (what a user
     would otherwise run) and that FDM against the truth; 'audio': the audio-rate FDM only (fast, but at high pitch
     and force it is the less accurate of the two). pitch_seconds: measure the pitch on the steady half of the first
-    seconds only (a note's sustain, before its bow stop). Every FDM reference gets the file's DC treatment. FDM
+    seconds only (a note's sustain, before its bow stop). equal (reference 'high'): find the cheapest FDM (x1, x2,
+    ... x32) as accurate as the file against the truth, for the speed row. Every FDM reference gets the file's DC
+    treatment. FDM
     references estimated past a couple of minutes are refused unless force=True."""
     from ..engines.limits import check_fdm
 
@@ -121,9 +132,29 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
         c.columns[f"FDM vs FDM x{TRUTH_OVERSAMPLE}"] = cmp(fdm, hi)
         c.seconds[f"fdm_x{TRUTH_OVERSAMPLE}"] = hi_s
         c.series[f"FDM x{TRUTH_OVERSAMPLE}"] = hi
+        if equal:
+            c.equal = _equal_fdm(sc, sig, a.dc_removed, x, hi, (fdm, fdm_s))
+            c.notes.append("speed at equal accuracy: the render time of the cheapest FDM (x1, x2, ... x"
+                           f"{EQUAL_OVERSAMPLES[-1]}) whose harmonics (median dB), pitch (cents) and NMSE against the "
+                           "truth are each at most the file's, over the file's own render time")
     else:
         c.columns["file vs FDM"] = cmp(x, fdm)
     return c
+
+
+def _equal_fdm(sc: Scene, sig: str, dc_removed: bool, x, truth, first) -> dict:
+    """The cheapest FDM of EQUAL_OVERSAMPLES as accurate as x against the truth: the audio-rate render is `first`
+    (signal, seconds), the others are rendered here until one is as accurate."""
+    from .metrics import accuracy, as_accurate
+
+    want = accuracy(x, truth, sc.sample_rate)
+    n = len(truth)
+    for os_ in EQUAL_OVERSAMPLES:
+        y, secs = first if os_ == 1 else _fdm_signal(sc, sig, os_, dc_removed)
+        got = accuracy(y[:n], truth, sc.sample_rate)
+        if as_accurate(got, want):
+            return {"oversample": os_, "seconds": secs, "file": want, "fdm": got}
+    return {"oversample": None, "seconds": secs, "file": want, "fdm": got}
 
 
 def mix_meta(path) -> dict | None:
@@ -184,8 +215,8 @@ def compare_mix(path, reference: str = "high", force: bool = False) -> list[tupl
     """Each note of a mix (through the stems written beside it) against the FDM of its own scene, the pitch
     measured over the note's sustain. Each stem's references get that stem's DC treatment (compare_wav)."""
     d, notes = mix_stems(path)
-    return [(n, compare_wav(d / n["file"], reference=reference, pitch_seconds=n.get("duration"), force=force))
-            for n in notes]
+    return [(n, compare_wav(d / n["file"], reference=reference, pitch_seconds=n.get("duration"), force=force,
+                            equal=False)) for n in notes]
 
 
 MIX_ROWS = [("nmse", "NMSE", "{:.3g}"), ("cents", "cents", "{:+.3f}")]
@@ -241,8 +272,14 @@ def format_table(c: Comparison):
         if s is not None:
             t.add_row(f"render time, {label} (s)", f"{s:.4f}", *[""] * (len(c.columns) - 1))
     j = c.to_json()
+    pad = [""] * (len(c.columns) - 1)
     if j["speed_ratio_fdm_over_file"]:
-        t.add_row("speed: FDM time / file time", f"{j['speed_ratio_fdm_over_file']:.2f}x", *[""] * (len(c.columns) - 1))
+        t.add_row("speed: audio-rate FDM / file", f"{j['speed_ratio_fdm_over_file']:.2f}x", *pad)
+    e = j["speed_at_equal_accuracy"]
+    if e:
+        what = f"FDM x{e['oversample']}" if e["oversample"] else f"FDM x{EQUAL_OVERSAMPLES[-1]}, not yet as accurate"
+        t.add_row(f"speed at equal accuracy: {what} / file", f"{'>= ' if not e['oversample'] else ''}{e['ratio']:.2f}x",
+                  *pad)
     return t
 
 

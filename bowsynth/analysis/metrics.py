@@ -197,3 +197,24 @@ def listener_errors(x, ref, sample_rate: float, steady_seconds: float = 1.0) -> 
         "onset_ref_ms": 1e3 * orf,
         "onset_err_ms": 1e3 * (ox - orf),
     }
+
+
+# --- Speed at equal accuracy: one rule for `bench equal` and `compare` ---------------------------------------------
+
+
+def accuracy(x, ref, sample_rate: float) -> dict:
+    """The three errors an equal-accuracy claim is held to, of x against the truth ref: the median harmonic error
+    (dB, listener_errors), the pitch error (|cents|) and NMSE."""
+    le = listener_errors(x, ref, sample_rate)
+    return {"harm_db": le["harm_db_median"], "cents": abs(le["cents"]), "nmse": nmse(x, ref)}
+
+
+# Two renders of equal accuracy differ by their storage (a float32 file against the float64 render it holds): 1 % of
+# each error, or these floors, is no difference
+EQUAL_FLOOR = {"harm_db": 1e-3, "cents": 1e-3, "nmse": 1e-9}
+
+
+def as_accurate(a: dict, b: dict) -> bool:
+    """Is a render with errors a (accuracy) at least as accurate as one with errors b on every one of them (up to 1 %
+    or EQUAL_FLOOR)? An error b cannot state (NaN: no pitch, no harmonic above the floor) asks nothing."""
+    return all(not math.isfinite(b[k]) or a[k] <= b[k] + max(0.01 * b[k], EQUAL_FLOOR[k]) for k in EQUAL_FLOOR)

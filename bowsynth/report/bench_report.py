@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..analysis.bench import bench_batch, bench_fdm, bench_paper_anchors, bench_scene
+from ..analysis.bench import bench_batch, bench_fdm, bench_paper_anchors, bench_scene, blas_gmacs, equal_accuracy
 from ..analysis.out_of_sample import bench_out_of_sample, bench_parameter_points, bench_windows, parameter_summary
 from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..scene import Scene
@@ -69,6 +69,80 @@ def plot_pareto(rows, path) -> None:
         ax.legend(fontsize=8)
     fig.tight_layout()
     atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
+    plt.close(fig)
+
+
+def run_equal(quick: bool = False, out_prefix=None) -> dict:
+    """Speed at equal accuracy for every shipped model family at 100, 440 and 880 Hz (quick: one model at 100 Hz,
+    FDM x1 and x2), with the machine's matrix-product speed measured in the same run."""
+    from ..engines.operator.choose import SHIPPED_DIR, as_model
+
+    paths = sorted(SHIPPED_DIR.glob("*.safetensors"))
+    if quick:
+        paths = [p for p in paths if p.stem == "paper-fb100"][:1]
+    kw = dict(f0s=(100.0,), duration=1.0, repeats=1, oversamples=(1, 2)) if quick else {}
+    rows = [r for p in paths for r in equal_accuracy(as_model(p), **kw)]
+    res = {"equal_accuracy": rows, "blas_gmac_per_s": blas_gmacs()}
+    if out_prefix and any("failed" not in r for r in rows):
+        plot_equal(rows, f"{out_prefix}.png")
+    return res
+
+
+def equal_table(res: dict) -> str:
+    """One row per model and pitch: what the operator costs and how accurate it is, and the cheapest FDM as accurate
+    on harmonics, pitch and NMSE at once."""
+    peak = res["blas_gmac_per_s"]
+    lines = [f"Errors against an FDM x{TRUTH_OVERSAMPLE}, {res['equal_accuracy'][0]['scene'].duration:g} s from rest "
+             "at the model's own bow (a range model's box centre); costs are wall seconds per audio second (warm, "
+             f"median). One core's float32 matrix product (numpy's BLAS, one thread) in this run: {peak:.1f} GMAC/s.", "",
+             "| model | f0 (Hz) | operator: harmonics dB / cents / NMSE(p) | operator s per s | GMAC/s (of the "
+             "matrix product) | FDM as accurate | its s per s | speed-up at equal accuracy |",
+             "|---|---|---|---|---|---|---|---|"] if res["equal_accuracy"] else ["(no model plays these pitches)"]
+    for r in res["equal_accuracy"]:
+        if "failed" in r:
+            lines.append(f"| {r['model']} | {r['f0']:g} | not played: {r['failed']} | | | | | |")
+            continue
+        op = r["operator"]
+        fdm = f"x{r['equal_oversample']}" if r["equal_oversample"] else f"none up to x{r['fdm'][-1]['oversample']}"
+        cost = next((e["sec_per_audio_s"] for e in r["fdm"] if e["oversample"] == r["equal_oversample"]),
+                    r["fdm"][-1]["sec_per_audio_s"])
+        lines.append(f"| {r['model']} | {r['f0']:g} | {_g(op['harm_db'], '{:.3f}')} / {_g(op['cents'], '{:.3f}')} / "
+                     f"{_g(op['nmse'])} | {op['sec_per_audio_s']:.2e} | {op['gmac_per_s']:.2f} "
+                     f"({_g(op['gmac_per_s'] / peak, '{:.0%}')}) | {fdm} | {cost:.2e} | "
+                     f"{'>= ' if r['ratio_is_bound'] else ''}{r['ratio']:.1f}x |")
+    return "\n".join(lines)
+
+
+def plot_equal(rows, path) -> None:
+    """Error against cost, one panel per model: the FDM's oversamplings as a line per pitch, the operator as a dot
+    of the same colour; harmonics (dB) on top, NMSE(p) below."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..io.audio import atomic_write
+
+    rows = [r for r in rows if "failed" not in r]
+    models = list(dict.fromkeys(r["model"] for r in rows))
+    fig, axes = plt.subplots(2, len(models), figsize=(4.2 * len(models), 7), squeeze=False)
+    for j, name in enumerate(models):
+        for i, (key, label) in enumerate((("harm_db", "harmonics, median error (dB)"), ("nmse", "NMSE(p)"))):
+            ax = axes[i, j]
+            for r, colour in zip([r for r in rows if r["model"] == name], ("tab:blue", "tab:orange", "tab:green")):
+                xs = [e["sec_per_audio_s"] for e in r["fdm"]]
+                ax.loglog(xs, [max(e[key], 1e-12) for e in r["fdm"]], "s-", color=colour, ms=4,
+                          label=f"FDM x1..x{r['fdm'][-1]['oversample']}, {r['f0']:g} Hz")
+                ax.loglog(r["operator"]["sec_per_audio_s"], max(r["operator"][key], 1e-12), "o", color=colour, ms=9,
+                          mec="k", label=f"operator, {r['f0']:g} Hz")
+            ax.set_title(name if i == 0 else "")
+            ax.set_xlabel("wall seconds per second of audio")
+            ax.set_ylabel(label)
+            ax.grid(True, which="both", alpha=0.3)
+            if j == 0:
+                ax.legend(fontsize=7)
+    fig.tight_layout()
+    atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=80, format="png"))
     plt.close(fig)
 
 
