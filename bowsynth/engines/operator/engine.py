@@ -87,7 +87,10 @@ def _physics_notes(m: OperatorModel) -> list[str]:
     what = (f"its first {CHECK_WINDOWS} windows differ from the physics it claims (F_B / w = {d.beta:.4g}, "
             f"v_B = {d.vb:g}, a = {d.a:g}) by {err:.3g} (relative mean square; the limit is {PHYSICS_MAX_ERROR:g})")
     if m.failure is None and math.isfinite(err):
-        honest, b_alt, v_alt = claim_fits_best(m, err)
+        # the neighbours' four checks cost ~5 ms, the verdict is the model's own: once per model object, as check_physics
+        if "_claim" not in m.__dict__:
+            m.__dict__["_claim"] = claim_fits_best(m, err)
+        honest, b_alt, v_alt = m.__dict__["_claim"]
         if honest:  # an inaccuracy, not a lie: the claimed bow is still the one the weights play
             return [f"note: model {m.path or m.meta.name}: {what}, but they fit the claimed bow {MISLABEL_MARGIN:g}x "
                     f"better than bows 10 % away: an inaccurate onset, not a mislabelled file"]
