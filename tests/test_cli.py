@@ -23,7 +23,7 @@ def test_train_render_compare(tmp_path, monkeypatch, capsys):
     assert code == 0, err
     assert "model written to" in out and model.exists()
     # a tiny model may leave its domain in validation; train says so instead of printing a score
-    assert "NMSE(p)" in out or "validation rollout failed" in err
+    assert "NMSE(p)" in out or "validation failed: the rollout left" in err
     # never overwrite without --force
     code, _, err = run_main(["train", "--fb", "100", "--steps", "5", "--out", str(model), "--quiet"], capsys, monkeypatch)
     assert code == 2 and "--force" in err and err.count("\n") == 1
