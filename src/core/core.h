@@ -90,7 +90,8 @@ constexpr int64_t P_F0 = 0, P_BETA = 1, P_B0 = 2, P_B1 = 3, P_BT = 4, P_D0 = 5, 
                   P_RAMP = 9, P_COLS = 10;  // a slot's pitch parameters (voices.P_*)
 constexpr int64_t WHY_OK = 0, WHY_FALLBACK = 1;
 struct Voices {
-    int64_t nv, k, n_max, npar, G, bl, cp;  // slots, correction rows, a window's buffer, bow inputs, trunk grid, block, curve points
+    // slots, correction rows, a window's buffer, bow inputs, trunk grid points, block, pitch-curve points
+    int64_t nv, k, n_max, npar, G, bl, cp;
     int64_t *mode, *pos, *end, *why;
     double *x, *spw;  // the operator: state (nv, 2), samples per window
     int64_t* n_lo;

@@ -217,7 +217,8 @@ struct VoicesPy {
         need(n_max >= 3, "Voices: a slot's window buffer must hold at least 3 samples");
         shape(fn, "x", x, {nv, 2});
         for (auto* a : {&spw, &gain}) shape(fn, "spw / gain", *a, {nv});
-        for (auto* a : {&n_lo, &win, &wstart, &wlen, &op_end}) shape(fn, "n_lo / win / wstart / wlen / op_end", *a, {nv});
+        for (auto* a : {&n_lo, &win, &wstart, &wlen, &op_end})
+            shape(fn, "n_lo / win / wstart / wlen / op_end", *a, {nv});
         shape(fn, "Bq", Bq, {nv, k + 3, n_max});
         shape(fn, "Bp", Bp, {nv, k + 3, n_max});
         shape(fn, "endb", endb, {nv, 2, 2, k});
@@ -334,14 +335,16 @@ struct VoicesPy {
         need(V.wlen[v] >= 0 && V.wlen[v] <= V.n_max && V.wstart[v] >= 0 && V.wstart[v] <= V.pos[v] &&
                  V.win[v] >= -1,
              f + "has a window outside its buffer");
-        need(V.op_end[v] < 0 || (V.op_end[v] >= V.wstart[v] && V.op_end[v] < V.wstart[v] + std::max<int64_t>(V.wlen[v], 1)),
+        const int64_t ws = V.wstart[v], oe = V.op_end[v];
+        need(oe < 0 || (oe >= ws && oe < ws + std::max<int64_t>(V.wlen[v], 1)),
              f + "hands over outside its window");
     }
 
     void render(Out<double, 1> out, Out<double, 1> outp, int64_t off, int64_t m, double amp) {
         const int64_t n = out.shape(0);
         need(off >= 0 && m >= 0 && off + m <= n, "render: needs 0 <= off, 0 <= m, off + m <= len(out)");
-        need(outp.shape(0) == 0 || static_cast<int64_t>(outp.shape(0)) == n, "render: outp must be empty or as long as out");
+        need(outp.shape(0) == 0 || static_cast<int64_t>(outp.shape(0)) == n,
+             "render: outp must be empty or as long as out");
         for (int64_t v = 0; v < V.nv; ++v) check_slot("render", v);
         nb::gil_scoped_release unlocked;
         bowsynth::voices_render(V, out.data() + off, outp.shape(0) ? outp.data() + off : nullptr, m, amp);
@@ -371,7 +374,8 @@ struct VoicesPy {
 }  // namespace
 
 NB_MODULE(_core, mod) {
-    mod.doc() = "bowsynth's compiled core: the FDM step and the operator's rollout loops (see bowsynth/core.py)";
+    mod.doc() = "bowsynth's compiled core: the FDM step, the operator's rollout loops and the live voice loop "
+                "(see bowsynth/engines/core)";
     mod.attr("ABI") = bowsynth::ABI;
     mod.attr("DIGEST") = BOWSYNTH_CORE_DIGEST;
     mod.attr("FAIL_NONFINITE") = bowsynth::FAIL_NONFINITE;
@@ -410,7 +414,8 @@ NB_MODULE(_core, mod) {
         .def(nb::init<nb::tuple, nb::tuple, nb::tuple, nb::tuple, nb::tuple, nb::tuple, double, int64_t>(),
              "slots"_a, "ops"_a, "net"_a, "tb"_a, "fdm"_a, "pit"_a, "tol"_a, "maxit"_a)
         .def("render", &VoicesPy::render, "out"_a.noconvert(), "outp"_a.noconvert(), "off"_a, "m"_a, "amp"_a,
-             "Add m samples of every sounding slot, times amp, to out[off:off + m] (and their p to outp, unless empty).")
+             "Add m samples of every sounding slot, times amp, to out[off:off + m] (and their p to outp, unless "
+             "empty).")
         .def("advance_to", &VoicesPy::advance_to, "slot"_a, "target"_a,
              "Compute an operator slot's windows until its buffer holds the note's sample target.")
         .def("to_fdm", &VoicesPy::to_fdm, "slot"_a, "q0"_a, "p0"_a, "at"_a,
