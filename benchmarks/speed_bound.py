@@ -84,7 +84,7 @@ def main() -> None:
         for label, cmd, target in pieces:
             variants = {"op": [PY, "-m", "bowsynth", *cmd], "stub": [PY, "-c", STUB, *cmd],
                         "fdm": [PY, "-m", "bowsynth", *cmd, "--method", "fdm"]}
-            for v in variants.values():  # warm the file cache and numba's
+            for v in variants.values():  # warm the file cache
                 timed(v, cwd)
             times = {k: [] for k in variants}
             for _ in range(args.runs):

@@ -100,7 +100,7 @@ def test_a_note_struck_with_moved_controllers_plays_the_bow_score_gives_it(tmp_p
 
 def test_the_callback_creates_no_array_and_imports_nothing(monkeypatch):
     """Blocks of 4096 frames: any array of a block's size would be 16 kB or more; what Python allocates per call
-    (numba's dispatcher boxing the argument tuples, ~2.3 kB, ints, floats) is a few kB and does not grow with it."""
+    (the bindings' argument boxing, ints, floats) is a few kB and does not grow with it."""
     B = 4096
     s = Stream(block=B, voices=8, model=MODEL)
     ev = [[(10, b"\x90\x45\x40"), (300, b"\x90\x39\x64")], [], [(0, b"\xb0\x02\x30"), (7, b"\x90\x4c\x50")], [],

@@ -12,11 +12,11 @@ offline (window w at the sample nearest w T from the note's start), and at the n
 sample for sample (up to float32 rounding: offline may run the numpy loop), and the output is their sum times `amp`
 through a causal DC blocker (offline removes the DC with a zero-phase filter over the whole file).
 
-Real time: `__init__` loads the model, evaluates the trunk on a fine grid, compiles (or loads from numba's cache) the
-loops, measures or reads every velocity's sounding ratio and allocates every buffer; `process` then creates no numpy
-array, imports nothing, loads nothing and compiles nothing: per event it writes a few numbers into a voice's slot and
-builds the voice's window basis by interpolation in place (`engines.operator.voices.trunk_basis`), and renders
-with `engines.operator.voices.render` (the slots: `engines.operator.bank.VoiceBank`).
+Real time: `__init__` loads the model, evaluates the trunk on a fine grid, measures or reads every velocity's sounding
+ratio and allocates every buffer; `process` then creates no numpy array, imports nothing and loads nothing: per event
+it writes a few numbers into a voice's slot and builds the voice's window basis by interpolation in place, and
+renders with the compiled core's voice loop (`_core.Voices`, src/core/voices.cpp; the slots:
+`engines.operator.bank.VoiceBank`), which releases the GIL.
 
 What differs from offline, by design:
 - a controller changed while a note sounds acts on the notes struck after it (the file reader follows it within the
@@ -124,8 +124,8 @@ class Stream(VoiceBank):
                            fallbacks=0, silent=0, out_of_range=0, ignored=0, zero_length=0)
 
     def _warm(self) -> None:
-        """Compile (or load from numba's cache) and run every path once, then reset: the first note after
-        activation costs what every later note costs."""
+        """Run every path once, then reset: the first note after activation costs what every later note costs (the
+        pages of the model's arrays and the core's code are touched before the first callback)."""
         self._busy_until = math.inf
         on = [(0, bytes((0x90, 69, v))) for v in (64, 100)] + [(1, bytes((0x90, 45, 64))), (2, b"\xb0\x02\x50"),
                                                                  (3, bytes((0x90, 50, 64))), (4, b"\xe0\x00\x50"),
@@ -307,8 +307,8 @@ class Stream(VoiceBank):
             if self.mode[slot] == V.FREE or self.chan[slot] != ch:
                 continue
             s = float(self.pos[slot])
-            b = V._ramp(pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT], pp[slot, V.P_RAMP], s)
-            d = V._ramp(pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT], pp[slot, V.P_RAMP], s)
+            b = V.ramp(pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT], pp[slot, V.P_RAMP], s)
+            d = V.ramp(pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT], pp[slot, V.P_RAMP], s)
             pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT] = b, self.bend[ch], s
             pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT] = d, self.depth[ch], s
             pm[slot] = V.LIVE

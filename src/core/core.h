@@ -6,7 +6,7 @@
 namespace bowsynth {
 
 // Raised whenever an argument list or a kernel's meaning changes: bowsynth/core.py refuses a module of another ABI.
-constexpr int ABI = 1;
+constexpr int ABI = 2;
 // Why a voice stopped (bowsynth.rollout writes the same codes; a test checks they agree).
 constexpr int64_t FAIL_NONFINITE = 1, FAIL_DOMAIN = 2;
 
@@ -20,8 +20,23 @@ struct Curve {
     const double* v;
     int64_t n;
 };
+// A control read at growing times: the segment of the previous call is kept, so the search is amortised O(1).
+struct Cursor {
+    Curve c;
+    int64_t i = 0;
+    double at(double t) {
+        const int64_t n = c.n;
+        while (i + 1 < n && c.t[i + 1] <= t) ++i;
+        if (t <= c.t[0]) return c.v[0];
+        if (i + 1 >= n) return c.v[n - 1];
+        return c.v[i] + (c.v[i + 1] - c.v[i]) * (t - c.t[i]) / (c.t[i + 1] - c.t[i]);
+    }
+};
 FdmState fdm_run(FdmState s, int64_t n0, int64_t n_out, int64_t stride, double k, Curve w2, Curve fb, Curve vb,
                  double a, double tol, int64_t maxit, double* u_out, double* eta_out);
+
+// The ghost value u^{-1} that starts the scheme from the state (u0, p0): fdm.taylor_start.
+double fdm_start(double u0, double p0, double k, double w, double fb, double vb, double a);
 
 // ---- operator rollout (rollout.cpp); the arrays' layout is documented in bowsynth/rollout.py and core.py ----
 struct Rollout {
@@ -54,7 +69,70 @@ struct Rollout {
     int64_t* fail;          // (B, 2)
 };
 void roll_voices(const Rollout& r);
+// The branch network and the model's states (a live voice's window: voices.cpp)
+struct Net {
+    int64_t m, npar, width, layers, k, grid;
+    const double* ff;
+    const float *Gw, *Gb, *Hw, *Hb, *Ow, *Ob;
+    const double* box;
+    const bool* mask;
+};
+int64_t live_window(const Net& N, double& q, double& p, const double* center, const double* halfrange,
+                    const double* pin, double g, const float* Bq, const float* Bp, int64_t ld, int64_t n,
+                    const double* eb, const double* el, float* scratch, double* zd, float* qrow, float* prow);
+int64_t live_scratch(const Net& N);  // floats live_window's scratch holds (and m doubles for zd)
 void roll_batch(const Rollout& r);
+// ---- voices that play block by block (voices.cpp): the live engine's and a pitch curve's; the arrays' layout is
+// bowsynth/engines/operator/bank.py's ----
+constexpr int64_t FREE = 0, OPERATOR = 1, FDM = 2;  // a slot's mode
+constexpr int64_t HELD = 0, CURVE = 1, LIVE = 2;    // a slot's pitch
+constexpr int64_t P_F0 = 0, P_BETA = 1, P_B0 = 2, P_B1 = 3, P_BT = 4, P_D0 = 5, P_D1 = 6, P_DT = 7, P_RATE = 8,
+                  P_RAMP = 9, P_COLS = 10;  // a slot's pitch parameters (voices.P_*)
+constexpr int64_t WHY_OK = 0, WHY_FALLBACK = 1;
+struct Voices {
+    // slots, correction rows, a window's buffer, bow inputs, trunk grid points, block, pitch-curve points
+    int64_t nv, k, n_max, npar, G, bl, cp;
+    int64_t *mode, *pos, *end, *why;
+    double *x, *spw;  // the operator: state (nv, 2), samples per window
+    int64_t* n_lo;
+    float *Bq, *Bp;      // (nv, k + 3, n_max)
+    double *endb, *endlin;  // (nv, 2, 2, k), (nv, 2, 6)
+    const double *center, *halfrange, *pin, *gain;  // (nv, 2), (nv, 2), (nv, npar), (nv,)
+    int64_t *win, *wstart, *wlen;
+    float *qbuf, *pbuf;  // (nv, n_max)
+    int64_t* op_end;
+    Net net;
+    const double* grid;  // (2, k, G): the trunk at s = (i - 1) h_grid
+    double h_grid;
+    const double *corr_scale, *bias;  // (2,)
+    double window;
+    int64_t lin_kind;  // 0 the rotation, 1 the flow linearised at rest, 2 none
+    double lin_d, lin_qs, sr;
+    double* fst;   // (nv, 7): u_prev, u_cur, eta, k, w, a, fb
+    int64_t* fint; // (nv, 2): steps done, stride
+    double *vb_t, *vb_v;  // (nv, 3)
+    int64_t* nvb;
+    double *fb_t, *fb_v;  // (nv, 2)
+    double *su, *se;      // (nv, bl)
+    int64_t* pm;
+    const double *pp, *pt, *pv;  // (nv, P_COLS), (nv, cp), (nv, cp)
+    const int64_t* npt;
+    double *wfrac, *bdtau, *wt, *wv;  // (nv,), (nv,), (nv, 2), (nv, 2)
+    double tol;
+    int64_t maxit;
+    float* s;  // scratch: live_scratch(net) floats, m doubles, n_max + 1 ints, 4 (n_max + 1) doubles
+    double* zd;
+    int64_t* idx;
+    double* wts;
+};
+void voices_render(Voices& V, double* out, double* outp, int64_t m, double amp);
+void voices_advance_to(Voices& V, int64_t v, int64_t target);
+void voices_to_fdm(Voices& V, int64_t v, double q0, double p0, int64_t s);
+void voices_trunk_basis(Voices& V, int64_t v, double dtau, int64_t n_lo, int64_t n_hi);
+double voices_ramp(double a, double b, double t0, double length, double s);
+int64_t pick_slot(const int64_t* mode, const int64_t* end, const int64_t* pos, const int64_t* start, int64_t nv);
+void dc_block(const double* x, int64_t n, double r, double* state, float* y);
+
 // the rollout's own tanh, cos / sin and window rule, one value at a time (for the tests)
 float tanh32_of(float x);
 void cos_sin_of(double z, double& c, double& s);

@@ -35,20 +35,11 @@ inline double solve_eta(double guess, double b, double c, double fb, double a, d
     return x;
 }
 
-// A control read at growing times: the segment of the previous call is kept, so the search is amortised O(1).
-struct Cursor {
-    Curve c;
-    int64_t i = 0;
-    double at(double t) {
-        const int64_t n = c.n;
-        while (i + 1 < n && c.t[i + 1] <= t) ++i;
-        if (t <= c.t[0]) return c.v[0];
-        if (i + 1 >= n) return c.v[n - 1];
-        return c.v[i] + (c.v[i + 1] - c.v[i]) * (t - c.t[i]) / (c.t[i + 1] - c.t[i]);
-    }
-};
-
 }  // namespace
+
+double fdm_start(double u0, double p0, double k, double w, double fb, double vb, double a) {
+    return u0 - k * p0 - 0.5 * k * k * (w * w * u0 + fb * phi(p0 - vb, a));
+}
 
 // Steps n0, n0 + 1, ... at t = n k; w^2, the bow force and speed follow their breakpoints step by step (a pitch
 // curve is w^2's). Writes u and eta at every stride-th step; returns the state to continue from.

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <string>
 #include <tuple>
+#include <vector>
 
 #include "core.h"
 
@@ -145,10 +146,236 @@ void roll(const char* fn, In<double, 2> x0, int64_t n_samples, In<double, 1> spw
         "Ow"_a.noconvert(), "Ob"_a.noconvert(), "box"_a.noconvert(), "mask"_a.noconvert(), "check"_a,             \
         "q_out"_a.noconvert(), "p_out"_a.noconvert(), "fail"_a.noconvert()
 
+
+// ---- the block-by-block voices (voices.cpp) ----
+
+template <typename T>
+const char* dtype_name() {
+    return std::is_same_v<T, float> ? "float32" : std::is_same_v<T, double> ? "float64"
+                                                : std::is_same_v<T, bool>   ? "bool"
+                                                                            : "int64";
+}
+
+// item i of a tuple, as an array of exactly this dtype and rank, C-contiguous (never converted: the kernel writes
+// into the bank's own arrays)
+template <typename T, size_t N>
+nb::ndarray<T, nb::ndim<N>, nb::c_contig, nb::device::cpu> item(nb::handle tup, size_t i, const char* name) {
+    nb::ndarray<T, nb::ndim<N>, nb::c_contig, nb::device::cpu> a;
+    if (!nb::try_cast(tup[i], a, false))
+        throw nb::type_error((std::string("Voices: ") + name + " must be a C-contiguous" +
+                              (std::is_const_v<T> ? " " : ", writable ") + dtype_name<std::remove_const_t<T>>() +
+                              " array of rank " + std::to_string(N))
+                                 .c_str());
+    return a;
+}
+
+size_t count(nb::handle tup, size_t n, const char* name) {
+    if (!nb::isinstance<nb::tuple>(tup) || nb::len(tup) != n)
+        throw nb::type_error((std::string("Voices: ") + name + " must be a tuple of " + std::to_string(n)).c_str());
+    return n;
+}
+
+// The slots' arrays (bank.VoiceBank), checked once here and referenced from then on: Python writes a slot's note
+// into them between calls, the kernels read and write them with the GIL released.
+struct VoicesPy {
+    bowsynth::Voices V{};
+    nb::object keep;  // the tuples, so that the arrays outlive this object
+    std::vector<float> s;
+    std::vector<double> zd, wts;
+    std::vector<int64_t> idx;
+
+    VoicesPy(nb::tuple slots, nb::tuple ops, nb::tuple net, nb::tuple tb, nb::tuple fdm, nb::tuple pit, double tol,
+             int64_t maxit) {
+        const char* fn = "Voices";
+        count(slots, 4, "slots");
+        count(ops, 17, "ops");
+        count(net, 9, "net");
+        count(tb, 9, "tb");
+        count(fdm, 9, "fdm");
+        count(pit, 9, "pit");
+        keep = nb::make_tuple(slots, ops, net, tb, fdm, pit);
+        auto mode = item<int64_t, 1>(slots, 0, "mode"), pos = item<int64_t, 1>(slots, 1, "pos"),
+             end = item<int64_t, 1>(slots, 2, "end"), why = item<int64_t, 1>(slots, 3, "why");
+        const int64_t nv = mode.shape(0);
+        shape(fn, "pos", pos, {nv});
+        shape(fn, "end", end, {nv});
+        shape(fn, "why", why, {nv});
+        auto x = item<double, 2>(ops, 0, "x");
+        auto spw = item<double, 1>(ops, 1, "spw");
+        auto n_lo = item<int64_t, 1>(ops, 2, "n_lo");
+        auto Bq = item<float, 3>(ops, 3, "Bq"), Bp = item<float, 3>(ops, 4, "Bp");
+        auto endb = item<double, 4>(ops, 5, "endb");
+        auto endlin = item<double, 3>(ops, 6, "endlin");
+        auto center = item<double, 2>(ops, 7, "center"), half = item<double, 2>(ops, 8, "halfrange");
+        auto pin = item<double, 2>(ops, 9, "pin");
+        auto gain = item<double, 1>(ops, 10, "gain");
+        auto win = item<int64_t, 1>(ops, 11, "win"), wstart = item<int64_t, 1>(ops, 12, "wstart"),
+             wlen = item<int64_t, 1>(ops, 13, "wlen");
+        auto qbuf = item<float, 2>(ops, 14, "qbuf"), pbuf = item<float, 2>(ops, 15, "pbuf");
+        auto op_end = item<int64_t, 1>(ops, 16, "op_end");
+        const int64_t k = endb.shape(3), n_max = Bq.shape(2), npar = pin.shape(1);
+        need(n_max >= 3, "Voices: a slot's window buffer must hold at least 3 samples");
+        shape(fn, "x", x, {nv, 2});
+        for (auto* a : {&spw, &gain}) shape(fn, "spw / gain", *a, {nv});
+        for (auto* a : {&n_lo, &win, &wstart, &wlen, &op_end})
+            shape(fn, "n_lo / win / wstart / wlen / op_end", *a, {nv});
+        shape(fn, "Bq", Bq, {nv, k + 3, n_max});
+        shape(fn, "Bp", Bp, {nv, k + 3, n_max});
+        shape(fn, "endb", endb, {nv, 2, 2, k});
+        shape(fn, "endlin", endlin, {nv, 2, 6});
+        shape(fn, "center", center, {nv, 2});
+        shape(fn, "halfrange", half, {nv, 2});
+        shape(fn, "qbuf", qbuf, {nv, n_max});
+        shape(fn, "pbuf", pbuf, {nv, n_max});
+        auto ff = item<const double, 2>(net, 0, "ff");
+        auto Gw = item<const float, 2>(net, 1, "Gw");
+        auto Gb = item<const float, 1>(net, 2, "Gb");
+        auto Hw = item<const float, 3>(net, 3, "Hw");
+        auto Hb = item<const float, 2>(net, 4, "Hb");
+        auto Ow = item<const float, 2>(net, 5, "Ow");
+        auto Ob = item<const float, 1>(net, 6, "Ob");
+        auto box = item<const double, 1>(net, 7, "box");
+        auto mask = item<const bool, 2>(net, 8, "mask");
+        const int64_t m = ff.shape(1), width = Ow.shape(0), layers = Hw.shape(0), g = mask.shape(0);
+        shape(fn, "ff", ff, {2 + npar, m});
+        shape(fn, "Gw", Gw, {2 * m, 3 * width});
+        shape(fn, "Gb", Gb, {3 * width});
+        shape(fn, "Hw", Hw, {layers, width, width});
+        shape(fn, "Hb", Hb, {layers, width});
+        shape(fn, "Ow", Ow, {width, 2 * k});
+        shape(fn, "Ob", Ob, {2 * k});
+        shape(fn, "box", box, {4});
+        need(g >= 1 && static_cast<int64_t>(mask.shape(1)) == g, "Voices: mask must be a non-empty square grid");
+        auto grid = item<const double, 3>(tb, 0, "grid");
+        const int64_t G = grid.shape(2);
+        shape(fn, "grid", grid, {2, k, G});
+        need(G >= 4, "Voices: the trunk grid needs at least 4 points");
+        auto corr = item<const double, 1>(tb, 2, "corr_scale"), bias = item<const double, 1>(tb, 3, "bias");
+        shape(fn, "corr_scale", corr, {2});
+        shape(fn, "bias", bias, {2});
+        const double h_grid = nb::cast<double>(tb[1]), window = nb::cast<double>(tb[4]);
+        const int64_t lin_kind = nb::cast<int64_t>(tb[5]);
+        const double lin_d = nb::cast<double>(tb[6]), lin_qs = nb::cast<double>(tb[7]), sr = nb::cast<double>(tb[8]);
+        need(std::isfinite(h_grid) && h_grid > 0 && std::isfinite(window) && window > 0 && std::isfinite(sr) && sr > 0,
+             "Voices: the grid spacing, the window and the sample rate must be positive numbers");
+        need(lin_kind >= 0 && lin_kind <= 2, "Voices: lin_kind must be 0, 1 or 2");
+        auto fst = item<double, 2>(fdm, 0, "fst");
+        auto fint = item<int64_t, 2>(fdm, 1, "fint");
+        auto vb_t = item<double, 2>(fdm, 2, "vb_t"), vb_v = item<double, 2>(fdm, 3, "vb_v");
+        auto nvb = item<int64_t, 1>(fdm, 4, "nvb");
+        auto fb_t = item<double, 2>(fdm, 5, "fb_t"), fb_v = item<double, 2>(fdm, 6, "fb_v");
+        auto su = item<double, 2>(fdm, 7, "su"), se = item<double, 2>(fdm, 8, "se");
+        const int64_t bl = su.shape(1);
+        shape(fn, "fst", fst, {nv, 7});
+        shape(fn, "fint", fint, {nv, 2});
+        shape(fn, "vb_t", vb_t, {nv, 3});
+        shape(fn, "vb_v", vb_v, {nv, 3});
+        shape(fn, "nvb", nvb, {nv});
+        shape(fn, "fb_t", fb_t, {nv, 2});
+        shape(fn, "fb_v", fb_v, {nv, 2});
+        shape(fn, "su", su, {nv, bl});
+        shape(fn, "se", se, {nv, bl});
+        need(bl >= 1, "Voices: the FDM's scratch rows must hold a block");
+        auto pm = item<int64_t, 1>(pit, 0, "pm");
+        auto pp = item<const double, 2>(pit, 1, "pp");
+        auto pt = item<const double, 2>(pit, 2, "pt"), pv = item<const double, 2>(pit, 3, "pv");
+        auto npt = item<const int64_t, 1>(pit, 4, "npt");
+        auto wfrac = item<double, 1>(pit, 5, "wfrac"), bdtau = item<double, 1>(pit, 6, "bdtau");
+        auto wt = item<double, 2>(pit, 7, "wt"), wv = item<double, 2>(pit, 8, "wv");
+        const int64_t cp = pt.shape(1);
+        shape(fn, "pm", pm, {nv});
+        shape(fn, "pp", pp, {nv, bowsynth::P_COLS});
+        shape(fn, "pt", pt, {nv, cp});
+        shape(fn, "pv", pv, {nv, cp});
+        shape(fn, "npt", npt, {nv});
+        shape(fn, "wfrac", wfrac, {nv});
+        shape(fn, "bdtau", bdtau, {nv});
+        shape(fn, "wt", wt, {nv, 2});
+        shape(fn, "wv", wv, {nv, 2});
+        need(cp >= 1, "Voices: a pitch curve needs room for a breakpoint");
+        need(maxit >= 1 && tol >= 0, "Voices: needs tol >= 0 and maxit >= 1");
+        const bowsynth::Net N{m, npar, width, layers, k, g, ff.data(), Gw.data(), Gb.data(), Hw.data(), Hb.data(),
+                              Ow.data(), Ob.data(), box.data(), mask.data()};
+        s.resize(bowsynth::live_scratch(N));
+        zd.resize(std::max<int64_t>(m, 1));
+        idx.resize(n_max + 1);
+        wts.resize(4 * (n_max + 1));
+        V = bowsynth::Voices{nv, k, n_max, npar, G, bl, cp, mode.data(), pos.data(), end.data(), why.data(),
+                             x.data(), spw.data(), n_lo.data(), Bq.data(), Bp.data(), endb.data(), endlin.data(),
+                             center.data(), half.data(), pin.data(), gain.data(), win.data(), wstart.data(),
+                             wlen.data(), qbuf.data(), pbuf.data(), op_end.data(), N, grid.data(), h_grid,
+                             corr.data(), bias.data(), window, lin_kind, lin_d, lin_qs, sr, fst.data(), fint.data(),
+                             vb_t.data(), vb_v.data(), nvb.data(), fb_t.data(), fb_v.data(), su.data(), se.data(),
+                             pm.data(), pp.data(), pt.data(), pv.data(), npt.data(), wfrac.data(), bdtau.data(),
+                             wt.data(), wv.data(), tol, maxit, s.data(), zd.data(), idx.data(), wts.data()};
+    }
+
+    void slot(const char* fn, int64_t v) const {
+        need(v >= 0 && v < V.nv, std::string(fn) + ": slot " + std::to_string(v) + " out of range");
+    }
+
+    // What Python wrote into a slot between calls, checked before the kernel trusts it (what the kernel writes
+    // itself stays within these bounds)
+    void check_slot(const char* fn, int64_t v) const {
+        const std::string f = std::string(fn) + ": slot " + std::to_string(v) + " ";
+        const int64_t md = V.mode[v];
+        need(md == bowsynth::FREE || md == bowsynth::OPERATOR || md == bowsynth::FDM, f + "has no valid mode");
+        if (md == bowsynth::FREE) return;
+        const int64_t pm = V.pm[v];
+        need(pm == bowsynth::HELD || pm == bowsynth::CURVE || pm == bowsynth::LIVE, f + "has no valid pitch mode");
+        need(pm != bowsynth::CURVE || (V.npt[v] >= 1 && V.npt[v] <= V.cp), f + "has a pitch curve of no points");
+        need(V.pos[v] >= 0, f + "has a negative position");
+        need(V.nvb[v] >= 1 && V.nvb[v] <= 3, f + "needs 1 to 3 bow breakpoints");
+        need(V.fint[2 * v] >= 0 && V.fint[2 * v + 1] >= 1, f + "needs an FDM step count >= 0 and stride >= 1");
+        need(std::isfinite(V.fst[7 * v + 3]) && V.fst[7 * v + 3] > 0, f + "needs a positive FDM step");
+        if (md != bowsynth::OPERATOR) return;
+        const double sw = V.spw[v];
+        need(std::isfinite(sw) && sw >= 1.0 && std::ceil(sw) + 1 <= V.n_max && V.n_lo[v] == std::floor(sw),
+             f + "needs 1 <= spw, ceil(spw) + 1 <= the buffer, n_lo = floor(spw)");
+        need(V.wlen[v] >= 0 && V.wlen[v] <= V.n_max && V.wstart[v] >= 0 && V.wstart[v] <= V.pos[v] &&
+                 V.win[v] >= -1,
+             f + "has a window outside its buffer");
+        const int64_t ws = V.wstart[v], oe = V.op_end[v];
+        need(oe < 0 || (oe >= ws && oe < ws + std::max<int64_t>(V.wlen[v], 1)),
+             f + "hands over outside its window");
+    }
+
+    void render(Out<double, 1> out, Out<double, 1> outp, int64_t off, int64_t m, double amp) {
+        const int64_t n = out.shape(0);
+        need(off >= 0 && m >= 0 && off + m <= n, "render: needs 0 <= off, 0 <= m, off + m <= len(out)");
+        need(outp.shape(0) == 0 || static_cast<int64_t>(outp.shape(0)) == n,
+             "render: outp must be empty or as long as out");
+        for (int64_t v = 0; v < V.nv; ++v) check_slot("render", v);
+        nb::gil_scoped_release unlocked;
+        bowsynth::voices_render(V, out.data() + off, outp.shape(0) ? outp.data() + off : nullptr, m, amp);
+    }
+    void advance_to(int64_t v, int64_t target) {
+        slot("advance_to", v);
+        check_slot("advance_to", v);
+        need(V.mode[v] == bowsynth::OPERATOR, "advance_to: the slot is not an operator's");
+        nb::gil_scoped_release unlocked;
+        bowsynth::voices_advance_to(V, v, target);
+    }
+    void to_fdm(int64_t v, double q0, double p0, int64_t at) {
+        slot("to_fdm", v);
+        need(V.nvb[v] >= 1 && V.nvb[v] <= 3, "to_fdm: the slot needs 1 to 3 bow breakpoints");
+        need(V.pm[v] != bowsynth::CURVE || (V.npt[v] >= 1 && V.npt[v] <= V.cp), "to_fdm: a pitch curve of no points");
+        bowsynth::voices_to_fdm(V, v, q0, p0, at);
+    }
+    void trunk_basis(int64_t v, double dtau, int64_t n_lo, int64_t n_hi) {
+        slot("trunk_basis", v);
+        need(std::isfinite(dtau) && dtau > 0 && n_lo >= 1 && n_lo <= n_hi && n_hi + 1 <= V.n_max,
+             "trunk_basis: needs dtau > 0 and 1 <= n_lo <= n_hi, n_hi + 1 <= the slot's buffer");
+        nb::gil_scoped_release unlocked;
+        bowsynth::voices_trunk_basis(V, v, dtau, n_lo, n_hi);
+    }
+};
+
 }  // namespace
 
 NB_MODULE(_core, mod) {
-    mod.doc() = "bowsynth's compiled core: the FDM step and the operator's rollout loops (see bowsynth/core.py)";
+    mod.doc() = "bowsynth's compiled core: the FDM step, the operator's rollout loops and the live voice loop "
+                "(see bowsynth/engines/core)";
     mod.attr("ABI") = bowsynth::ABI;
     mod.attr("DIGEST") = BOWSYNTH_CORE_DIGEST;
     mod.attr("FAIL_NONFINITE") = bowsynth::FAIL_NONFINITE;
@@ -181,6 +408,41 @@ NB_MODULE(_core, mod) {
                                        gain, Gw, Gb, Hw, Hb, Ow, Ob, box, mask, check, q, p, fail);
         },
         ROLL_ARGS, "The rollout, every voice one window at a time (matrix-matrix products over the voices).");
+    nb::class_<VoicesPy>(mod, "Voices",
+                         "Slots that play block by block, over the arrays of engines.operator.bank.VoiceBank "
+                         "(referenced, not copied).")
+        .def(nb::init<nb::tuple, nb::tuple, nb::tuple, nb::tuple, nb::tuple, nb::tuple, double, int64_t>(),
+             "slots"_a, "ops"_a, "net"_a, "tb"_a, "fdm"_a, "pit"_a, "tol"_a, "maxit"_a)
+        .def("render", &VoicesPy::render, "out"_a.noconvert(), "outp"_a.noconvert(), "off"_a, "m"_a, "amp"_a,
+             "Add m samples of every sounding slot, times amp, to out[off:off + m] (and their p to outp, unless "
+             "empty).")
+        .def("advance_to", &VoicesPy::advance_to, "slot"_a, "target"_a,
+             "Compute an operator slot's windows until its buffer holds the note's sample target.")
+        .def("to_fdm", &VoicesPy::to_fdm, "slot"_a, "q0"_a, "p0"_a, "at"_a,
+             "The slot goes on with the FDM from the state (q0, p0) at the note's sample at.")
+        .def("trunk_basis", &VoicesPy::trunk_basis, "slot"_a, "dtau"_a, "n_lo"_a, "n_hi"_a,
+             "The slot's window basis at sample spacing dtau, for windows of n_lo and n_hi samples.");
+    mod.def("pick_slot", [](In<int64_t, 1> mode, In<int64_t, 1> end, In<int64_t, 1> pos, In<int64_t, 1> start) {
+        const int64_t nv = mode.shape(0);
+        need(nv >= 1, "pick_slot: needs at least one slot");
+        for (auto* a : {&end, &pos, &start}) shape("pick_slot", "end / pos / start", *a, {nv});
+        return bowsynth::pick_slot(mode.data(), end.data(), pos.data(), start.data(), nv);
+    }, "mode"_a.noconvert(), "end"_a.noconvert(), "pos"_a.noconvert(), "start"_a.noconvert(),
+       "A free slot; else the one to steal: the releasing voice nearest its end, else the oldest.");
+    mod.def("dc_block", [](In<double, 1> x, int64_t n, double r, Out<double, 1> state, Out<float, 1> y) {
+        need(n >= 0 && n <= static_cast<int64_t>(x.shape(0)) && n <= static_cast<int64_t>(y.shape(0)),
+             "dc_block: x and y must hold n values");
+        shape("dc_block", "state", state, {2});
+        bowsynth::dc_block(x.data(), n, r, state.data(), y.data());
+    }, "x"_a.noconvert(), "n"_a, "r"_a, "state"_a.noconvert(), "y"_a.noconvert(),
+       "y[:n] = the causal DC blocker y[i] = x[i] - x[i - 1] + r y[i - 1] of x[:n], its memory in state.");
+    mod.def("ramp", &bowsynth::voices_ramp, "a"_a, "b"_a, "t0"_a, "length"_a, "s"_a,
+            "a until t0, then linear to b over length, then b (a live pitch control's ramp).");
+    for (auto [name, value] : {std::pair{"FREE", bowsynth::FREE}, {"OPERATOR", bowsynth::OPERATOR},
+                               {"FDM", bowsynth::FDM}, {"HELD", bowsynth::HELD}, {"CURVE", bowsynth::CURVE},
+                               {"LIVE", bowsynth::LIVE}, {"WHY_OK", bowsynth::WHY_OK},
+                               {"WHY_FALLBACK", bowsynth::WHY_FALLBACK}, {"P_COLS", bowsynth::P_COLS}})
+        mod.attr(name) = value;
     // the rollout's own approximations and window rule, exposed for the tests
     mod.def("_tanh32", &bowsynth::tanh32_of, "x"_a);
     mod.def("_cos_sin", [](double z) {

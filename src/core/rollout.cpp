@@ -284,13 +284,11 @@ inline void end_state(double q0, double p0, const float* oq, const float* op, do
     }
 }
 
-inline bool in_domain(const Rollout& R, double q, double p) {
-    const double* box = R.box;
+inline bool in_domain(const double* box, const bool* mask, int64_t g, double q, double p) {
     if (!(box[0] <= q && q <= box[1] && box[2] <= p && p <= box[3])) return false;
-    const int64_t g = R.grid;
     const int64_t i = std::min(std::max(static_cast<int64_t>((q - box[0]) / (box[1] - box[0]) * g), int64_t(0)), g - 1);
     const int64_t j = std::min(std::max(static_cast<int64_t>((p - box[2]) / (box[3] - box[2]) * g), int64_t(0)), g - 1);
-    return R.mask[i * g + j];
+    return mask[i * g + j];
 }
 
 inline bool check_window(const Rollout& R, int64_t b, int64_t start, int64_t n, double nq, double np) {
@@ -299,7 +297,7 @@ inline bool check_window(const Rollout& R, int64_t b, int64_t start, int64_t n, 
         R.fail[2 * b + 1] = FAIL_NONFINITE;
         return false;
     }
-    if (R.check && start + n < R.n_samples && !in_domain(R, nq, np)) {
+    if (R.check && start + n < R.n_samples && !in_domain(R.box, R.mask, R.grid, nq, np)) {
         R.fail[2 * b] = start + n;
         R.fail[2 * b + 1] = FAIL_DOMAIN;
         return false;
@@ -308,22 +306,47 @@ inline bool check_window(const Rollout& R, int64_t b, int64_t start, int64_t n, 
 }
 
 // A window's m samples: [o_q, q0, p0, g] @ Bq and [o_p, p0, -q0, g] @ Bp (the correction's k rows, then the
-// linear flow's two and the bias row). x: scratch (k + 3).
-inline void samples(const Rollout& R, double q0, double p0, const float* o, double g, int64_t P, int64_t m, float* x,
-                    float* qrow, float* prow) {
-    const int64_t k = R.k, k3 = k + 3;
-    const float* Bq = R.Bq + P * k3 * R.n_max;
-    const float* Bp = R.Bp + P * k3 * R.n_max;
+// linear flow's two and the bias row; rows ld apart). x: scratch (k + 3).
+inline void samples(int64_t k, const float* Bq, const float* Bp, int64_t ld, double q0, double p0, const float* o,
+                    double g, int64_t m, float* x, float* qrow, float* prow) {
+    const int64_t k3 = k + 3;
     const float qf = static_cast<float>(q0), pf = static_cast<float>(p0), gf = static_cast<float>(g);
     std::memcpy(x, o, k * sizeof(float));
     x[k] = qf;
     x[k + 1] = pf;
     x[k + 2] = gf;
-    dense<1>(x, k3, k3, Bq, R.n_max, m, nullptr, qrow, m);
+    dense<1>(x, k3, k3, Bq, ld, m, nullptr, qrow, m);
     std::memcpy(x, o + k, k * sizeof(float));
     x[k] = pf;
     x[k + 1] = -qf;
-    dense<1>(x, k3, k3, Bp, R.n_max, m, nullptr, prow, m);
+    dense<1>(x, k3, k3, Bp, ld, m, nullptr, prow, m);
+}
+
+inline void samples(const Rollout& R, double q0, double p0, const float* o, double g, int64_t P, int64_t m, float* x,
+                    float* qrow, float* prow) {
+    const int64_t k3 = R.k + 3;
+    samples(R.k, R.Bq + P * k3 * R.n_max, R.Bp + P * k3 * R.n_max, R.n_max, q0, p0, o, g, m, x, qrow, prow);
+}
+
+// The branch at the state (q0, p0): its correction o (2k), times the gain g. s: scratch (2m + 7 width floats),
+// zd: scratch (m doubles).
+inline void branch(const Net& N, double q0, double p0, const double* center, const double* halfrange,
+                   const double* pin, double g, float* s, double* zd, float* o) {
+    const int64_t m = N.m, w = N.width, k = N.k;
+    float *h = s, *gg = h + 2 * m, *u = gg + 3 * w, *v = u + w, *z = v + w, *hh = z + w;
+    features(q0, p0, center, halfrange, N.ff, m, pin, N.npar, zd, h);
+    dense<1>(h, 2 * m, 2 * m, N.Gw, 3 * w, 3 * w, N.Gb, gg, 3 * w);
+    gates(gg, w, u, v, hh);  // modified MLP: h = v + tanh(z) (u - v); u is kept as u - v
+    for (int64_t l = 0; l < N.layers; ++l) {
+        dense<1>(hh, w, w, N.Hw + l * w * w, w, w, N.Hb + l * w, z, w);
+        layer(z, u, v, w, hh);
+    }
+    dense<1>(hh, w, w, N.Ow, 2 * k, 2 * k, N.Ob, o, 2 * k);
+    for (int64_t j = 0; j < 2 * k; ++j) o[j] = static_cast<float>(o[j] * g);
+}
+
+inline Net net_of(const Rollout& R) {
+    return {R.m, R.npar, R.width, R.layers, R.k, R.grid, R.ff, R.Gw, R.Gb, R.Hw, R.Hb, R.Ow, R.Ob, R.box, R.mask};
 }
 
 // grows, never shrinks: after a process's first call of a size, no call allocates (a live engine's blocks)
@@ -345,8 +368,9 @@ inline int64_t length_index(const Rollout& R, int64_t P, int64_t n) {
 
 HOT void roll_voices(const Rollout& R) {
     const int64_t k = R.k, w = R.width, m = R.m;
-    float* h = scratch(ws_f, 2 * m + 7 * w + 2 * k + k + 3);
-    float *g = h + 2 * m, *u = g + 3 * w, *v = u + w, *z = v + w, *hh = z + w, *o = hh + w, *x = o + 2 * k;
+    const Net N = net_of(R);
+    float* s = scratch(ws_f, 2 * m + 7 * w + 2 * k + k + 3);
+    float *o = s + 2 * m + 7 * w, *x = o + 2 * k;
     double* zd = scratch(ws_d, m);
     for (int64_t b = 0; b < R.B; ++b) {
         const int64_t P = R.vidx[b];
@@ -356,16 +380,8 @@ HOT void roll_voices(const Rollout& R) {
         while (start < R.n_samples) {
             const int64_t n = window_end(win, spw) - start;
             const int64_t wi = std::min(win, R.W - 1), bw = b * R.W + wi;
-            features(q0, p0, R.center + 2 * bw, R.halfrange + 2 * bw, R.ff, m, R.pin + R.npar * bw, R.npar, zd, h);
-            dense<1>(h, 2 * m, 2 * m, R.Gw, 3 * w, 3 * w, R.Gb, g, 3 * w);
-            gates(g, w, u, v, hh);  // modified MLP: h = v + tanh(z) (u - v); u is kept as u - v
-            for (int64_t l = 0; l < R.layers; ++l) {
-                dense<1>(hh, w, w, R.Hw + l * w * w, w, w, R.Hb + l * w, z, w);
-                layer(z, u, v, w, hh);
-            }
-            dense<1>(hh, w, w, R.Ow, 2 * k, 2 * k, R.Ob, o, 2 * k);
             const double gw = R.gain[bw];
-            for (int64_t j = 0; j < 2 * k; ++j) o[j] = static_cast<float>(o[j] * gw);
+            branch(N, q0, p0, R.center + 2 * bw, R.halfrange + 2 * bw, R.pin + R.npar * bw, gw, s, zd, o);
             const int64_t cnt = std::min({n, R.n_samples - start, R.n_max});
             samples(R, q0, p0, o, gw, P, cnt, x, R.q_out + b * R.ld_out + start, R.p_out + b * R.ld_out + start);
             const int64_t li = length_index(R, P, n);
@@ -378,6 +394,25 @@ HOT void roll_voices(const Rollout& R) {
             ++win;
         }
     }
+}
+
+// One window of a live voice (voices.cpp): roll_voices' body for one window, its n samples into qrow, prow and its
+// end state into (q, p); eb, el: the end-state rows of the window's length. Returns 0, or FAIL_NONFINITE /
+// FAIL_DOMAIN for an end state that is not finite / outside the model's states ((q, p) then unchanged).
+HOT int64_t live_window(const Net& N, double& q, double& p, const double* center, const double* halfrange,
+                        const double* pin, double g, const float* Bq, const float* Bp, int64_t ld, int64_t n,
+                        const double* eb, const double* el, float* s, double* zd, float* qrow, float* prow) {
+    const int64_t k = N.k;
+    float *o = s + 2 * N.m + 7 * N.width, *x = o + 2 * k;
+    branch(N, q, p, center, halfrange, pin, g, s, zd, o);
+    samples(k, Bq, Bp, ld, q, p, o, g, n, x, qrow, prow);
+    double nq, np;
+    end_state(q, p, o, o + k, g, eb, el, k, nq, np);
+    if (!(std::isfinite(nq) && std::isfinite(np))) return FAIL_NONFINITE;
+    if (!in_domain(N.box, N.mask, N.grid, nq, np)) return FAIL_DOMAIN;
+    q = nq;
+    p = np;
+    return 0;
 }
 
 constexpr int64_t BLOCK = 64;  // windows per pass of roll_batch
@@ -466,5 +501,6 @@ HOT void roll_batch(const Rollout& R) {
 float tanh32_of(float x) { return tanh32(x); }
 void cos_sin_of(double z, double& c, double& s) { cos_sin(z, c, s); }
 int64_t window_end_of(int64_t w, double spw) { return window_end(w, spw); }
+int64_t live_scratch(const Net& N) { return 2 * N.m + 7 * N.width + 3 * N.k + 3; }
 
 }  // namespace bowsynth

@@ -1,6 +1,7 @@
-"""The compiled core's thin wrapper (`bowsynth._core`, C++ in src/core, built at install by scikit-build-core with nanobind): the
-FDM step and the operator's rollout loops, with the GIL released and no allocation after a process's first call of
-a size. Nothing is compiled at run time.
+"""The compiled core's thin wrapper (`bowsynth._core`, C++ in src/core, built at install by scikit-build-core with
+nanobind): the FDM step, the operator's rollout loops and the live engine's voice loop (`Voices`, over the arrays of
+engines.operator.bank), with the GIL released and no allocation after a process's first call of a size. Nothing is
+compiled at run time.
 
 `load()` imports it once and refuses, in one line (CoreError), a module that does not belong to this package: not
 built, built for another Python (its file name carries the interpreter's tag, so Python does not find it), of another
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from ...errors import BowsynthError
 
-ABI = 1  # src/core/core.h: bowsynth::ABI
+ABI = 2  # src/core/core.h: bowsynth::ABI
 _REBUILD = "rebuild it with `pip install -e .` (or `make core` in a source tree run with PYTHONPATH)"
 
 

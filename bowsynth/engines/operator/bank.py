@@ -1,5 +1,6 @@
-"""A bank of voice slots that play block by block (`voices`): every array they need, allocated once, and the few
-Python steps that set a slot up (a note from rest, its release, its bow's inputs). `bowsynth.live.Stream` drives one
+"""A bank of voice slots that play block by block (`voices`; the loop is the compiled core's `_core.Voices`, which
+references these arrays): every array they need, allocated once, and the few Python steps that set a slot up (a
+note from rest, its release, its bow's inputs). `bowsynth.live.Stream` drives one
 from MIDI; `curve.render_curve` plays one scene with a pitch curve through it."""
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import math
 import numpy as np
 
 from ... import physics
+from .. import core
 from ..fdm import check_oversample  # noqa: F401  (re-exported for curve.render_curve)
 from . import voices as V
 from .basis import _operator
@@ -44,8 +46,7 @@ class VoiceBank:
         box = np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi])
         self.net = (op.ff, *op.weights, box, np.ascontiguousarray(d.mask))
         self.tb = (self.grid, h_grid, op.corr_scale, op.bias, float(op.window), int(lin_kind), float(lin_d),
-                   float(lin_qs), float(self.sample_rate), int(self.n_max), np.zeros(self.n_max + 1, np.int64),
-                   np.zeros((4, self.n_max + 1)))
+                   float(lin_qs), float(self.sample_rate))
 
     def _allocate_slots(self) -> None:
         nv, bl = self.n_voices, self.block
@@ -54,28 +55,20 @@ class VoiceBank:
         self.end = np.full(nv, -1, np.int64)
         self.why = np.zeros(nv, np.int64)
         if self.engine == "operator":
-            k, n, width = self.op.cfg.k, self.n_max, self.op.cfg.width
-            self.ops = (np.zeros((nv, 2)), np.zeros(nv), np.zeros(nv, np.int64),
-                        np.zeros((nv, k + 3, n), np.float32), np.zeros((nv, k + 3, n), np.float32),
-                        np.zeros((nv, 2, 2, k)), np.zeros((nv, 2, 6)), np.zeros((nv, 2)), np.ones((nv, 2)),
-                        np.zeros((nv, self.op.cfg.params)), np.ones(nv), np.zeros(nv, np.int64),
-                        np.zeros(nv, np.int64), np.zeros(nv, np.int64), np.zeros((nv, n), np.float32),
-                        np.zeros((nv, n), np.float32), np.full(nv, -1, np.int64))
-            self.scr = (np.zeros(self.op.ff.shape[1] * 2, np.float32), np.zeros(3 * width, np.float32),
-                        np.zeros(width, np.float32), np.zeros(width, np.float32), np.zeros(width, np.float32),
-                        np.zeros(width, np.float32), np.zeros(2 * k, np.float32))
-        else:  # placeholders of the right types: the compiled loop never reads them without an operator slot
-            self.ops = (np.zeros((1, 2)), np.zeros(1), np.zeros(1, np.int64), np.zeros((1, 3, 1), np.float32),
-                        np.zeros((1, 3, 1), np.float32), np.zeros((1, 2, 2, 0)), np.zeros((1, 2, 6)), np.zeros((1, 2)),
-                        np.ones((1, 2)), np.zeros((1, 0)), np.ones(1), np.zeros(1, np.int64), np.zeros(1, np.int64),
-                        np.zeros(1, np.int64), np.zeros((1, 1), np.float32), np.zeros((1, 1), np.float32),
-                        np.full(1, -1, np.int64))
-            self.scr = tuple(np.zeros(1, np.float32) for _ in range(7))
+            k, n, npar = self.op.cfg.k, self.n_max, self.op.cfg.params
+        else:  # the FDM alone: an operator of no size, which no slot plays (the core checks the shapes all the same)
+            k, n, npar = 0, 3, 0
             self.net = (np.zeros((2, 1)), np.zeros((2, 3), np.float32), np.zeros(3, np.float32),
                         np.zeros((0, 1, 1), np.float32), np.zeros((0, 1), np.float32), np.zeros((1, 0), np.float32),
                         np.zeros(0, np.float32), np.zeros(4), np.ones((1, 1), np.bool_))
-            self.tb = (np.zeros((2, 0, 4)), 1.0, np.zeros(2), np.zeros(2), 1.0, 0, 0.0, 0.0, float(self.sample_rate),
-                       4, np.zeros(5, np.int64), np.zeros((4, 5)))
+            self.tb = (np.zeros((2, 0, 4)), 1.0, np.zeros(2), np.zeros(2), 1.0, 0, 0.0, 0.0, float(self.sample_rate))
+        # the operator: state, samples per window, floor of it, the basis and end-state rows, the state scaling, the
+        # bow inputs and gain, the window's index, first sample and length, its samples, where the FDM takes over
+        self.ops = (np.zeros((nv, 2)), np.zeros(nv), np.zeros(nv, np.int64), np.zeros((nv, k + 3, n), np.float32),
+                    np.zeros((nv, k + 3, n), np.float32), np.zeros((nv, 2, 2, k)), np.zeros((nv, 2, 6)),
+                    np.zeros((nv, 2)), np.ones((nv, 2)), np.zeros((nv, npar)), np.ones(nv), np.zeros(nv, np.int64),
+                    np.zeros(nv, np.int64), np.zeros(nv, np.int64), np.zeros((nv, n), np.float32),
+                    np.zeros((nv, n), np.float32), np.full(nv, -1, np.int64))
         # the FDM: state (u_prev, u_cur, eta, k, w, a, fb), (steps done, stride), v_B breakpoints (and how many), F_B
         # breakpoints, scratch rows
         self.fdm = (np.zeros((nv, 7)), np.zeros((nv, 2), np.int64), np.zeros((nv, 3)), np.zeros((nv, 3)),
@@ -87,11 +80,12 @@ class VoiceBank:
                     np.zeros((nv, CURVE_POINTS)), np.ones(nv, np.int64), np.zeros(nv), np.zeros(nv), np.zeros((nv, 2)),
                     np.zeros((nv, 2)))
         self._nop = np.zeros(0)
+        self.voices = core.load().Voices((self.mode, self.pos, self.end, self.why), self.ops, self.net, self.tb,
+                                         self.fdm, self.pit, physics.NEWTON_TOL, physics.NEWTON_MAXIT)
 
     def render(self, out, off: int, m: int, amp: float, outp=None) -> None:
         """Add m samples of every sounding slot, times amp, to out[off:off + m] (and their p to outp)."""
-        V.render(self.mode, self.pos, self.end, self.net, self.ops, self.scr, self.fdm, self.pit, self.tb, out,
-                 self._nop if outp is None else outp, off, m, amp, self.why)
+        self.voices.render(out, self._nop if outp is None else outp, off, m, amp)
 
     def start_slot(self, slot: int, f0: float, beta: float, vb: float, a: float) -> None:
         """A note from rest in the slot: its FDM parameters (used whole, or for the release), pitch held at f0."""
@@ -112,7 +106,7 @@ class VoiceBank:
 
     def start_fdm(self, slot: int) -> None:
         """The slot's note played whole by the FDM, from rest (fdm.render_fdm's start)."""
-        V.to_fdm(slot, 0.0, 0.0, self.fdm, self.pit, float(self.sample_rate), 0)
+        self.voices.to_fdm(slot, 0.0, 0.0, 0)
         self.mode[slot] = V.FDM
 
     def start_operator(self, slot: int, f0: float) -> bool:
@@ -123,11 +117,9 @@ class VoiceBank:
         n_lo, n_hi = math.floor(spw), math.ceil(spw)
         if n_lo < 1 or n_hi + 1 > self.n_max:
             return False
-        x, spw_a, nlo_a, Bq, Bp, endb, endlin = self.ops[:7]
+        x, spw_a, nlo_a = self.ops[:3]
         win, wstart, wlen = self.ops[11:14]
-        tb = self.tb
-        V.trunk_basis(tb[0], tb[1], tb[2], tb[3], tb[4], tb[5], tb[6], tb[7], dtau, n_lo, n_hi, Bq[slot], Bp[slot],
-                      endb[slot], endlin[slot], tb[10], tb[11])
+        self.voices.trunk_basis(slot, dtau, n_lo, n_hi)
         self.pit[6][slot] = dtau
         x[slot, 0], x[slot, 1] = 0.0, 0.0
         spw_a[slot], nlo_a[slot], win[slot], wstart[slot], wlen[slot] = spw, n_lo, -1, 0, 0
@@ -162,12 +154,12 @@ class VoiceBank:
         h = int(self.pos[slot])
         total = int(round((h / sr + release + tail) * sr))
         if self.mode[slot] == V.OPERATOR and self.ops[16][slot] < 0:
-            V.advance_to(slot, h, self.net, self.ops, self.scr, self.fdm, self.why, self.pit, self.tb)
+            self.voices.advance_to(slot, h)
         if self.mode[slot] == V.OPERATOR and (self.ops[16][slot] < 0 or h < self.ops[16][slot]):
             a = h - self.ops[12][slot]
             q0, p0 = float(self.ops[14][slot, a]), float(self.ops[15][slot, a])
             vb_t[slot, 0], vb_t[slot, 1], vb_v[slot, 0], vb_v[slot, 1], nvb[slot] = 0.0, release, vb, 0.0, 2
-            V.to_fdm(slot, q0, p0, self.fdm, self.pit, float(sr), h)
+            self.voices.to_fdm(slot, q0, p0, h)
             self.mode[slot] = V.FDM
         else:  # the FDM plays on (whole, or after a hand-over): its bow falls from its own time now
             t = fint[slot, 0] * fst[slot, 3]

@@ -176,7 +176,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     out: list = [None] * len(scenes)
     for i, sc in enumerate(scenes):
         if sc.pitch_varies:  # a pitch curve: per window its own sample spacing (the live engine's voice loop)
-            from .curve import render_curve  # numba's JIT loads only for a pitch curve (a plain render needs none)
+            from .curve import render_curve  # the bank and its arrays: only for a pitch curve
             out[i] = render_curve(sc, _resolve(sc, model, models, fallback))
             continue
         m = _resolve(sc, model, models, fallback)
