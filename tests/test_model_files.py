@@ -297,7 +297,7 @@ def test_a_damaged_model_in_models_is_skipped_and_breaks_no_other(tmp_path, monk
     assert code != 0 and "damaged" in err and len(err.strip().splitlines()) == 1
 
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st  # noqa: E402
 
 _ODD = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**30, 10**30), st.none(),
@@ -306,6 +306,8 @@ _ODD = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(field=st.sampled_from(["beta", "vb", "a", "window", "q_lo", "q_hi", "p_lo", "p_hi", "box"]), value=_ODD)
+@example(field="q_hi", value=2**64)  # found by a suite run: an int past int64 reached the compiled loop as objects
+@example(field="p_lo", value=-10**400)  # past float64: float() overflows
 def test_forged_domain_fields_load_cleanly_or_are_refused(tmp_path, field, value):
     """Any value in any domain field, digest recomputed: the model loads, or ModelFileError says why; a model that
     loads renders or refuses with a bowsynth error, fast (bounded work: no forged number makes the check loop)."""

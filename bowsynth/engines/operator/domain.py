@@ -60,8 +60,13 @@ class Domain:
         nums = {"beta": self.beta, "vb": self.vb, "a": self.a, "window": self.window, "q_lo": self.q_lo,
                 "q_hi": self.q_hi, "p_lo": self.p_lo, "p_hi": self.p_hi}
         for k, v in nums.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            try:  # an int past float64 (a forged 2**64) would reach the compiled loops as an object array
+                ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(float(v))
+            except OverflowError:
+                ok = False
+            if not ok:
                 raise ValueError(f"domain.{k} is {v!r}, not a finite number")
+            setattr(self, k, float(v))
         if not (0 <= self.beta <= MAX_BETA and 0 < self.a <= MAX_A and 0 < self.window <= MAX_WINDOW):
             raise ValueError(f"domain beta {self.beta:g}, a {self.a:g}, window {self.window:g} are outside what a "
                              f"model can be trained for (0..{MAX_BETA:g}, 0..{MAX_A:g}, 0..{MAX_WINDOW:.4g})")
@@ -72,10 +77,15 @@ class Domain:
             raise ValueError(f"domain.mask has shape {m.shape} and {int(m.sum())} cells: an empty or odd grid")
         if self.box is not None:
             b = self.box
-            if not (isinstance(b, list) and len(b) == 4 and all(isinstance(x, (int, float)) and math.isfinite(x)
-                                                                 for x in b)
-                    and 0 <= b[0] <= b[1] <= MAX_BETA and b[2] <= b[3]):
+            try:
+                ok = (isinstance(b, list) and len(b) == 4
+                      and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(float(x))
+                              for x in b) and 0 <= b[0] <= b[1] <= MAX_BETA and b[2] <= b[3])
+            except OverflowError:
+                ok = False
+            if not ok:
                 raise ValueError(f"domain.box {b!r} is not [beta_lo, beta_hi, vb_lo, vb_hi]")
+            self.box = [float(x) for x in b]
 
     def beta_in(self, beta) -> np.ndarray:
         """Elementwise: is F_B / w inside this model's box (a point model: equal to its own)?"""

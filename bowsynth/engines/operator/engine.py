@@ -79,7 +79,8 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
 # notes from rest at 65-880 Hz): every render that sounds right stays inside the box (by 2-39 % of the span); the
 # stick-slip point models at 440/880 Hz, whose rollouts break out of the stick-slip cycle while their window starts
 # stay in the domain, go 31-61 % of the span beyond it (p peaks at 1.6 against the truth's 0.26): a loud wrong note.
-BOX_SLACK = 0.02
+# 10 % lies between the two with room on both sides (the tests' tiny models wander a few per cent past their boxes).
+BOX_SLACK = 0.1
 
 
 def _box_exit(m: OperatorModel, sc: Scene, q, p) -> int | None:
