@@ -158,3 +158,17 @@ def test_a_stream_loads_no_numba():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"
+
+
+def test_the_banks_arrays_are_made_resident_without_changing_them():
+    """VoiceBank touches every page of its slot arrays before any callback (a slot's first note paid for its page
+    faults in the callback); the touch must leave every value as it was."""
+    from bowsynth.engines.operator.bank import _resident
+
+    rng = np.random.default_rng(0)
+    arrays = [rng.standard_normal((3, 5000)), np.full(7, -1, np.int64), rng.standard_normal((2, 3, 4)).astype(np.float32),
+              np.zeros(0), np.ones((4, 1), np.bool_)]
+    before = [a.copy() for a in arrays]
+    _resident(arrays)
+    for a, b in zip(arrays, before):
+        np.testing.assert_array_equal(a, b)
