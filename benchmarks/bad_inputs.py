@@ -59,6 +59,11 @@ CASES = [
     ("score file that is not TOML", "score --score bad.toml outdir"),
     ("unknown fallback for a score", "score --presets paper-fb100 --fallback maybe outdir"),
     ("anchors directory missing", "bench --anchors no_such_dir"),
+    ("a bench target that does not exist", "bench gpu"),
+    # round 3: playing live (no server named so runs here; the rest needs a server: LIVE_ROWS)
+    ("no JACK server running", "play --server nosuch"),
+    ("no polyphony", "play --voices 0"),
+    ("a pitch bend range beyond two octaves", "play --bend-range 99"),
     ("FDM past its uniqueness bound", "render --method fdm --fb 10000 -d 0.05 ok2.wav"),
     ("a scene that would need absurd oversampling", "render --method fdm --fb 1e6 --a 1e6 x.wav"),
     # round 2: special output paths
@@ -206,6 +211,8 @@ def main():
             for name in left:
                 (d / "tmp" / name).unlink(missing_ok=True)
                 (d / name).unlink(missing_ok=True)
+        for row in LIVE_ROWS:
+            print(row)
         print(f"\nFiles after the special-path rows: link.wav is still a symlink: {(d / 'link.wav').is_symlink()}; "
               f"fifo is still a FIFO: {stat.S_ISFIFO(os.stat(d / 'fifo').st_mode)}; ro.wav untouched: "
               f"{(d / 'ro.wav').read_bytes() == b'precious'}; ro2.wav mode after --force: "
@@ -332,6 +339,21 @@ def _round3_files(d: Path, exe) -> None:
     doc = json.loads(idx.read_text())
     doc["notes"][0]["duration"] = "abc"
     idx.write_text(json.dumps(doc))
+
+
+# What needs a running jackd and a test client is run by tests/test_live.py (a real server, dummy driver); these rows
+# say what those tests assert
+LIVE_ROWS = [
+    "| a --connect port that does not exist | `bowsynth play --server S --connect nowhere:nothing` | 2 | error: "
+    "--connect nowhere:nothing: no such audio input port on the JACK server (audio inputs: ...) (tests/test_live.py) |",
+    "| the JACK server goes away while playing | kill jackd under `bowsynth play` | 1 | the summary line, then error: "
+    "the JACK server went away while playing (...); start it again and rerun bowsynth play (tests/test_live.py) |",
+    "| garbage MIDI bytes, a flood of 10,000 notes a second | (test client: data bytes as status, a status byte in "
+    "data, a 2-byte note-on; 3,000 notes in 0.3 s) | - | keeps playing in time; the summary counts the dropped bytes, "
+    "the deferred and dropped notes (tests/test_live.py) |",
+    "| SIGINT / SIGTERM while playing | `bowsynth play`, a signal mid-note | 130 / 143 | the summary line, the client "
+    "closed, the server left running (tests/test_live.py) |",
+]
 
 
 def _score_files(d: Path) -> None:
