@@ -85,6 +85,24 @@ std::tuple<double, double, double> fdm_run(double u_prev, double u_cur, double e
 
 using Roll = void (*)(const bowsynth::Rollout&);
 
+// The branch network's weights and the domain's box and mask, as the offline loops and the live Voices take them:
+// checked once here for both (m, width and layers are read from ff, Ow and Hw; the rest must agree with them)
+void check_net(const char* fn, int64_t npar, int64_t k, const In<double, 2>& ff, const In<float, 2>& Gw,
+               const In<float, 1>& Gb, const In<float, 3>& Hw, const In<float, 2>& Hb, const In<float, 2>& Ow,
+               const In<float, 1>& Ob, const In<double, 1>& box, const In<bool, 2>& mask) {
+    const int64_t m = ff.shape(1), width = Ow.shape(0), layers = Hw.shape(0), g = mask.shape(0);
+    shape(fn, "ff", ff, {2 + npar, m});
+    shape(fn, "Gw", Gw, {2 * m, 3 * width});
+    shape(fn, "Gb", Gb, {3 * width});
+    shape(fn, "Hw", Hw, {layers, width, width});
+    shape(fn, "Hb", Hb, {layers, width});
+    shape(fn, "Ow", Ow, {width, 2 * k});
+    shape(fn, "Ob", Ob, {2 * k});
+    shape(fn, "box", box, {4});
+    need(g >= 1 && static_cast<int64_t>(mask.shape(1)) == g,
+         std::string(fn) + ": mask must be a non-empty square grid");
+}
+
 template <Roll kernel>
 void roll(const char* fn, In<double, 2> x0, int64_t n_samples, In<double, 1> spw, In<int64_t, 1> n_lo,
           In<int64_t, 1> vidx, In<float, 3> Bq, In<float, 3> Bp, In<double, 4> endb, In<double, 3> endlin,
@@ -107,17 +125,9 @@ void roll(const char* fn, In<double, 2> x0, int64_t n_samples, In<double, 1> spw
     shape(fn, "endlin", endlin, {P, 2, 6});
     shape(fn, "center", center, {B, W, 2});
     shape(fn, "halfrange", halfrange, {B, W, 2});
-    shape(fn, "ff", ff, {2 + npar, m});
     shape(fn, "pin", pin, {B, W, npar});
     shape(fn, "gain", gain, {B, W});
-    shape(fn, "Gw", Gw, {2 * m, 3 * width});
-    shape(fn, "Gb", Gb, {3 * width});
-    shape(fn, "Hw", Hw, {layers, width, width});
-    shape(fn, "Hb", Hb, {layers, width});
-    shape(fn, "Ow", Ow, {width, 2 * k});
-    shape(fn, "Ob", Ob, {2 * k});
-    shape(fn, "box", box, {4});
-    need(g >= 1 && static_cast<int64_t>(mask.shape(1)) == g, f + ": mask must be a non-empty square grid");
+    check_net(fn, npar, k, ff, Gw, Gb, Hw, Hb, Ow, Ob, box, mask);
     need(static_cast<int64_t>(q_out.shape(0)) == B && static_cast<int64_t>(q_out.shape(1)) >= n_samples,
          f + ": q_out must have shape (B, >= n_samples)");
     shape(fn, "p_out", p_out, {B, static_cast<int64_t>(q_out.shape(1))});
@@ -236,16 +246,8 @@ struct VoicesPy {
         auto Ob = item<const float, 1>(net, 6, "Ob");
         auto box = item<const double, 1>(net, 7, "box");
         auto mask = item<const bool, 2>(net, 8, "mask");
+        check_net(fn, npar, k, ff, Gw, Gb, Hw, Hb, Ow, Ob, box, mask);
         const int64_t m = ff.shape(1), width = Ow.shape(0), layers = Hw.shape(0), g = mask.shape(0);
-        shape(fn, "ff", ff, {2 + npar, m});
-        shape(fn, "Gw", Gw, {2 * m, 3 * width});
-        shape(fn, "Gb", Gb, {3 * width});
-        shape(fn, "Hw", Hw, {layers, width, width});
-        shape(fn, "Hb", Hb, {layers, width});
-        shape(fn, "Ow", Ow, {width, 2 * k});
-        shape(fn, "Ob", Ob, {2 * k});
-        shape(fn, "box", box, {4});
-        need(g >= 1 && static_cast<int64_t>(mask.shape(1)) == g, "Voices: mask must be a non-empty square grid");
         auto grid = item<const double, 3>(tb, 0, "grid");
         const int64_t G = grid.shape(2);
         shape(fn, "grid", grid, {2, k, G});
