@@ -39,7 +39,7 @@ def test_a_gesture_is_compared_with_the_fdm_of_the_same_curves(tmp_path, capsys,
 
 
 def test_speed_at_equal_accuracy_names_the_cheapest_fdm_that_is_as_accurate(tmp_path, capsys, monkeypatch):
-    from bowsynth.analysis.compare import EQUAL_OVERSAMPLES
+    from bowsynth.analysis.metrics import EQUAL_OVERSAMPLES
     from bowsynth.analysis.metrics import as_accurate
 
     # an FDM file is as accurate as itself: the audio-rate FDM matches it at once, and the ratio is its own time's

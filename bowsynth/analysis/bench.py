@@ -10,6 +10,7 @@ import numpy as np
 
 from ..engines.fdm import TRUTH_OVERSAMPLE, fdm_batch, render_fdm
 from ..scene import Scene
+from .metrics import EQUAL_OVERSAMPLES
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -139,7 +140,6 @@ def bench_paper_anchors(anchor_dir) -> list[dict]:
 # --- speed at equal accuracy ---------------------------------------------------------------------------------------
 
 EQUAL_F0 = (100.0, 440.0, 880.0)
-EQUAL_OVERSAMPLES = (1, 2, 4, 8, 16, 32)
 
 
 def macs_per_second(model, scene: Scene) -> float:
@@ -184,6 +184,7 @@ def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
     from .metrics import accuracy, as_accurate
 
     d, rows = model.domain, []
+    name = model.path.stem if model.path else model.meta.name
     for f0 in f0s:
         sc = Scene(f0=f0, fb=d.beta * 2 * np.pi * f0, vb=d.vb, a=d.a, duration=duration)
         if not model.covers(sc):
@@ -192,8 +193,7 @@ def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
         try:
             op = accuracy(render_operator(sc, model=model).p, ref, sc.sample_rate)
         except DomainError as e:  # the rollout left the model's states: no accuracy to match
-            rows.append({"model": model.path.stem if model.path else model.meta.name, "scene": sc, "f0": f0,
-                         "beta": d.beta, "vb": d.vb, "failed": str(e)})
+            rows.append({"model": name, "scene": sc, "f0": f0, "beta": d.beta, "vb": d.vb, "failed": str(e)})
             continue
         op["sec_per_audio_s"] = _median_time(lambda: render_operator(sc, model=model), repeats) / duration
         op["gmac_per_s"] = macs_per_second(model, sc) / op["sec_per_audio_s"] / 1e9
@@ -205,8 +205,7 @@ def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
             e["sec_per_audio_s"] = _median_time(lambda: render_fdm(sc, oversample=os_), repeats) / duration
             fdm.append(e)
         match = next((e for e in fdm if as_accurate(e, op)), None)
-        rows.append({"model": model.path.stem if model.path else model.meta.name, "scene": sc, "f0": f0,
-                     "beta": d.beta, "vb": d.vb, "operator": op, "fdm": fdm,
+        rows.append({"model": name, "scene": sc, "f0": f0, "beta": d.beta, "vb": d.vb, "operator": op, "fdm": fdm,
                      "equal_oversample": match["oversample"] if match else None,
                      # no oversampling tried reaches the operator: the ratio is at least the costliest one's
                      "ratio": (match or fdm[-1])["sec_per_audio_s"] / op["sec_per_audio_s"],

@@ -13,7 +13,7 @@ from ..errors import UsageError
 from ..io.audio import read_wav, remove_dc
 from ..scene import Scene
 from ..text import jsonable, num
-from .metrics import compare_signals
+from .metrics import EQUAL_OVERSAMPLES, compare_signals
 
 
 @dataclass
@@ -56,9 +56,6 @@ def _lossy_notes(*infos) -> list[str]:
             for i in infos if i.lossy]
 
 
-EQUAL_OVERSAMPLES = (1, 2, 4, 8, 16, 32)  # the FDMs `compare` tries for speed at equal accuracy (all cost < the truth)
-
-
 def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "high",
                 pitch_seconds: float | None = None, force: bool = False, equal: bool = True) -> Comparison:
     """Compare the audio file at `path` with the FDM render of its scene (from its metadata, curves included, else
@@ -69,8 +66,7 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
     and force it is the less accurate of the two). pitch_seconds: measure the pitch on the steady half of the first
     seconds only (a note's sustain, before its bow stop). equal (reference 'high'): find the cheapest FDM (x1, x2,
     ... x32) as accurate as the file against the truth, for the speed row. Every FDM reference gets the file's DC
-    treatment. FDM
-    references estimated past a couple of minutes are refused unless force=True."""
+    treatment. FDM references estimated past a couple of minutes are refused unless force=True."""
     from ..engines.limits import check_fdm
 
     if reference not in ("audio", "high"):

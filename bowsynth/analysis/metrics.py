@@ -209,6 +209,9 @@ def accuracy(x, ref, sample_rate: float) -> dict:
     return {"harm_db": le["harm_db_median"], "cents": abs(le["cents"]), "nmse": nmse(x, ref)}
 
 
+# The FDMs an equal-accuracy search tries, cheapest first (each costs less than the x100 truth beside it)
+EQUAL_OVERSAMPLES = (1, 2, 4, 8, 16, 32)
+
 # Two renders of equal accuracy differ by their storage (a float32 file against the float64 render it holds): 1 % of
 # each error, or these floors, is no difference
 EQUAL_FLOOR = {"harm_db": 1e-3, "cents": 1e-3, "nmse": 1e-9}
