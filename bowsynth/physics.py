@@ -29,6 +29,17 @@ def _exp(x):
     return x.exp() if hasattr(x, "exp") else np.exp(x)
 
 
+# The friction's slope at rest in dimensionless time, beta sqrt(2a) e^{1/2}, above which a bow plays stick-slip: 10
+# (beta 0.43 at a = 100) was round 1's soft/stick-slip boundary (shared/GUIDE.md 8). Training drops the friction
+# residual above it (training.losses); the operator computes such voices on whole windows (engines.operator.grid).
+STIFF = 10.0
+
+
+def stiffness(beta: float, a: float) -> float:
+    """The friction's slope at rest in dimensionless time, beta sqrt(2a) e^{1/2}."""
+    return beta * math.sqrt(2 * a) * E_HALF
+
+
 def omega(f0: float) -> float:
     """Angular frequency w = 2 pi f0 (rad/s)."""
     return 2.0 * math.pi * f0

@@ -11,15 +11,13 @@
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from .. import physics
 from ..engines.operator.network import DeepONet
 from ..scene import Scene
 
-STIFF = 10.0  # beta sqrt(2a) e^1/2 above this: the friction residual is dropped from the hybrid loss by default
+STIFF = physics.STIFF  # the friction residual is dropped from the hybrid loss by default above it
 FRIC_WEIGHT = 0.03  # hybrid, non-stiff: fb 100, 3 min SOAP: 0.3 -> 2.3e-3, 0.1 -> 3.8e-4, 0.03 -> 3.5e-5 NMSE(p) 1 s
 # range models: soft box, 10 min, 16 held-out bows, harmonics 1-10 median / worst: without it 11.4 / 16.2 dB, at weight
 # 1: 0.79 / 1.76, at 0.1: 0.70 / 1.30 (docs/BENCHMARKS.md, "The whole instrument")
@@ -28,7 +26,7 @@ DERIV_WEIGHT = 0.1
 
 def stiffness(scene: Scene, beta: float | None = None) -> float:
     """Friction slope at rest in dimensionless time: beta sqrt(2a) e^{1/2} (beta: the scene's, or a range's top)."""
-    return (scene.beta if beta is None else beta) * math.sqrt(2 * scene.a) * physics.E_HALF
+    return physics.stiffness(scene.beta if beta is None else beta, scene.a)
 
 
 def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None) -> dict:
