@@ -40,6 +40,7 @@ import numpy as np
 
 from ..engines.operator import voices as V
 from ..engines.operator.bank import VoiceBank
+from ..engines.operator.grid import needs_whole_windows
 from ..errors import UsageError
 from ..music import midi as M
 from ..music.note import RELEASE, stop_tail
@@ -315,9 +316,10 @@ class Stream(VoiceBank):
 
     def _plays(self, beta: float, vb: float) -> bool:
         """Does the model play this bow (Domain.box_contains for one bow, in scalars)? A point model plays only
-        the velocities the table found it covers."""
+        the velocities the table found it covers. A stick-slip model (grid.needs_whole_windows) leaves its notes to
+        the FDM: the live voice loop has no whole-window grid yet."""
         d = self.model.domain
-        if d.box is None:
+        if d.box is None or needs_whole_windows(d):
             return False
         b0, b1, v0, v1 = d.box
         return (b0 <= beta <= b1 or (d.plays_below and 0.0 <= beta <= b0)) and v0 <= vb <= v1

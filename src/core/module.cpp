@@ -438,6 +438,31 @@ NB_MODULE(_core, mod) {
         bowsynth::dc_block(x.data(), n, r, state.data(), y.data());
     }, "x"_a.noconvert(), "n"_a, "r"_a, "state"_a.noconvert(), "y"_a.noconvert(),
        "y[:n] = the causal DC blocker y[i] = x[i] - x[i - 1] + r y[i - 1] of x[:n], its memory in state.");
+    mod.def("polyphase", [](In<double, 2> x, In<double, 2> w, int64_t up, int64_t down, Out<float, 2> y) {
+        // y[r, j] = sum_k w[(j down) mod up, k] x[r, (j down) div up + k]: a rational resampler whose filter is
+        // given per phase (engines.operator.grid)
+        const int64_t rows = x.shape(0), n_in = x.shape(1), n_out = y.shape(1), K = w.shape(1);
+        need(up >= 1 && down >= 1, "polyphase: up and down must be >= 1");
+        shape("polyphase", "w", w, {up, K});
+        shape("polyphase", "y", y, {rows, n_out});
+        need(n_out == 0 || ((n_out - 1) * down) / up + K <= n_in,
+             "polyphase: x is too short for n_out samples (it needs (n_out - 1) down / up + K)");
+        const double* xs = x.data();
+        const double* ws = w.data();
+        float* ys = y.data();
+        nb::gil_scoped_release nogil;
+        for (int64_t r = 0; r < rows; ++r)
+            for (int64_t j = 0; j < n_out; ++j) {
+                const int64_t pos = j * down, base = pos / up;
+                const double* wk = ws + (pos - base * up) * K;
+                const double* xk = xs + r * n_in + base;
+                double acc = 0.0;
+                for (int64_t k = 0; k < K; ++k) acc += wk[k] * xk[k];
+                ys[r * n_out + j] = static_cast<float>(acc);
+            }
+    }, "x"_a.noconvert(), "w"_a.noconvert(), "up"_a, "down"_a, "y"_a.noconvert(),
+       "y[r, j] = sum_k w[(j down) mod up, k] x[r, (j down) div up + k]: resampling by up / down, the filter per "
+       "phase.");
     mod.def("ramp", &bowsynth::voices_ramp, "a"_a, "b"_a, "t0"_a, "length"_a, "s"_a,
             "a until t0, then linear to b over length, then b (a live pitch control's ramp).");
     for (auto [name, value] : {std::pair{"FREE", bowsynth::FREE}, {"OPERATOR", bowsynth::OPERATOR},

@@ -69,3 +69,9 @@ def roll(batch: bool, *args) -> None:
     after another); arguments as engines.operator.rollout._roll_numpy."""
     core = load()
     (core.roll_batch if batch else core.roll_voices)(*args)
+
+
+def polyphase(x, w, up: int, down: int, y) -> None:
+    """`_core.polyphase`: rows of x resampled by up / down into y, the filter w given per phase; see
+    engines.operator.grid.to_output."""
+    load().polyphase(x, w, up, down, y)

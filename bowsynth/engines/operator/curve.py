@@ -23,6 +23,7 @@ def render_curve(scene, model):
     from ...render import Played, Render, RenderInfo
     from ..fdm import check_oversample
     from .choose import as_model
+    from .grid import needs_whole_windows
 
     t_b = np.union1d(breakpoints(scene.fb)[0], scene.f0.times)
     betas = scene.fb_at(t_b) / (2.0 * math.pi * scene.f0_at(t_b))
@@ -33,6 +34,10 @@ def render_curve(scene, model):
         raise SceneError(f"a pitch curve for the operator holds at most {CURVE_POINTS} breakpoints, this one "
                          f"{len(scene.f0.points)}")
     m = as_model(model)
+    if needs_whole_windows(m.domain):
+        raise DomainError(f"model {m.path or m.meta.name} plays stick-slip, which the operator computes on whole "
+                          f"windows (a fixed pitch per note); under a pitch curve it does not yet: render with "
+                          f"--method fdm")
     beta, vb = float(betas[0]), float(scene.vb)
     if not (m.domain.box_contains(beta, vb) and math.isclose(m.domain.a, scene.a, rel_tol=1e-9)):
         raise DomainError(f"model {m.path or m.meta.name} does not play F_B / w {beta:.4g}, v_B {vb:g}, a "

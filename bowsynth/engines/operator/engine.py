@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from fractions import Fraction
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from .choose import (
 )
 from .modelfile import OperatorModel
 from .rollout import applied_controls, rollout_states, scene_bows
+from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
 from .windows import FAIL_BOW, FAIL_DOMAIN, FAILURES, window_bounds
 
 
@@ -184,7 +186,11 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         groups.setdefault(id(m), (m, []))[1].append(i)
     for m, idx in groups.values():
         checked = _physics_notes(m) + (unreadable_notes() if model is None else [])
-        group = [scenes[i] for i in idx]
+        op = _operator(m)
+        # each voice on the grid its model needs (grid.py: whole windows for stick-slip models), and back
+        grids = [whole_window_scene(scenes[i], op.samples_per_window(scenes[i].dtau)) if needs_whole_windows(m.domain)
+                 else (scenes[i], Fraction(1)) for i in idx]
+        group = [g for g, _ in grids]
         n = max(sc.n_samples for sc in group)
         x0 = np.array([[sc.q0, sc.p0] for sc in group])
         dtau = np.array([sc.dtau for sc in group])
@@ -195,30 +201,37 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
         t0 = time.perf_counter()
         q, p, fail = rollout_states(m, x0, n, dtau, loop=loop, params=par)
-        fails = [list(f) for f in fail]
-        for row, i in enumerate(idx):
-            ns = scenes[i].n_samples
-            bx = _box_exit(m, scenes[i], q[row, :ns], p[row, :ns])
-            if bx is not None and (fails[row][0] < 0 or bx < fails[row][0]):
-                fails[row] = [bx, FAIL_DOMAIN]
-                q[row, bx:] = np.nan
-                p[row, bx:] = np.nan
-        for row, lv in enumerate(leave):
-            if lv is not None and (fails[row][0] < 0 or lv[0] < fails[row][0]):
-                fails[row] = [lv[0], FAIL_BOW, lv[1]]
-                q[row, lv[0]:] = np.nan
-                p[row, lv[0]:] = np.nan
-        notes = {i: _finish(scenes[i], q[row, :scenes[i].n_samples], p[row, :scenes[i].n_samples], fails[row],
-                            fallback, voice="" if _single else f"voice {i + 1}: ") + checked
-                 for row, i in enumerate(idx)}
+        voices = []  # per voice: q, p on the output grid, its stop [sample, code(, what)] there
+        for row, (g, ratio) in enumerate(grids):
+            stop = list(fail[row])
+            bx = _box_exit(m, g, q[row, :g.n_samples], p[row, :g.n_samples])
+            if bx is not None and (stop[0] < 0 or bx < stop[0]):
+                stop = [bx, FAIL_DOMAIN]
+            lv = leave[row]
+            if lv is not None and (stop[0] < 0 or lv[0] < stop[0]):
+                stop = [lv[0], FAIL_BOW, lv[1]]
+            ns = scenes[idx[row]].n_samples
+            if ratio == 1:
+                qv, pv = q[row, :ns], p[row, :ns]
+            else:
+                if stop[0] >= 0:  # the grid's samples from the stop on are not the model's: the filter must not see them
+                    q[row, stop[0]:] = p[row, stop[0]:] = np.nan
+                qv, pv = to_output(np.stack([q[row, :g.n_samples], p[row, :g.n_samples]]), ratio, ns)
+                stop[0] = from_grid(stop[0], ratio)
+            if stop[0] >= 0:
+                qv[stop[0]:] = np.nan
+                pv[stop[0]:] = np.nan
+            voices.append((qv, pv, stop))
+        notes = {i: _finish(scenes[i], qv, pv, stop, fallback, voice="" if _single else f"voice {i + 1}: ") + checked
+                 for i, (qv, pv, stop) in zip(idx, voices)}
         secs = (time.perf_counter() - t0) / len(idx)
-        op = _operator(m)
         t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
         for row, i in enumerate(idx):
             sc = scenes[i]
             ns = sc.n_samples
+            qv, pv, _ = voices[row]
             if sc.sample_rate not in t_all:
-                t_all[sc.sample_rate] = np.arange(n) / sc.sample_rate
+                t_all[sc.sample_rate] = np.arange(max(s.n_samples for s in scenes)) / sc.sample_rate
             info = RenderInfo(model_id=m.id, model_path=str(m.path) if m.path else None, notes=notes[i], loop=loop,
                               setup_seconds=t0 - t_setup, batched=None if _single else len(idx))
             if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
@@ -226,12 +239,16 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid")}
             ctrl = None
             if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
-                ctrl = applied_controls(sc, op.samples_per_window(sc.dtau), bows[row])
+                g, ratio = grids[row]
+                ctrl = applied_controls(g, op.samples_per_window(g.dtau), bows[row])
+                if ratio != 1:
+                    j = to_grid(ns, ratio, g.n_samples)
+                    ctrl = {k: v[j] for k, v in ctrl.items()}
                 if leave[row] is not None:  # the FDM played the rest: its controls are the curves themselves
-                    at = leave[row][0]
+                    at = from_grid(leave[row][0], ratio)
                     tt = np.arange(at, ns) / sc.sample_rate
                     ctrl["fb"][at:], ctrl["vb"][at:] = sc.fb_at(tt), sc.vb_at(tt)
-            out[i] = Render(sc, t_all[sc.sample_rate][:ns], q[row, :ns], p[row, :ns],
+            out[i] = Render(sc, t_all[sc.sample_rate][:ns], qv, pv,
                             method=Played("operator", fdm_fallback=len(notes[i]) > len(checked)), seconds=secs,
                             info=info, **({"controls": ctrl} if ctrl is not None else {}))
     return out

@@ -1,0 +1,110 @@
+"""The sample grid a stick-slip voice is computed on: every window a whole number of samples, then resampled.
+
+The operator hands each window's end state to the next at tau = T, the point it was trained to hand over at. On the
+output grid a window whose length T / dtau is not a whole number ends at the sample nearest T instead (windows.py), up
+to half a sample before or after it. Soft-bow models do not mind (soft-range at 65-880 Hz: within 0.015 dB of the
+whole-window render, either way), but a stick-slip model's map has kinks at the stick capture and the slip, and the
+handover that wanders around T throws it out of its cycle: `paper-fb1000` at 220-880 Hz left its trained states (p
+peaks at 1.6 against the truth's 0.26; the box check refused it) and `scratch-g2` at 440 and 880 Hz did the same.
+Computed at the rate where a window holds N = ceil(T / dtau) samples (at most 1 / N faster than asked) and resampled
+to the asked rate, both play every pitch tried, 65-880 Hz, within 0.01 dB (harmonics) and 0.05 cents of a x100 FDM
+(docs/BENCHMARKS.md, "Stick-slip at any pitch").
+
+The resampler is a polyphase filter, a Kaiser-windowed sinc of beta 12 (measured with scipy's resample_poly of the
+same design: within 3e-6 of a sine up to 10 kHz at the ratios these grids need, where its default beta 5 is 1.5e-3
+off); the ratio of the rates is rounded
+to a fraction of denominator at most MAX_DENOMINATOR, which moves the pitch by at most ~1e-6 (0.002 cents).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from fractions import Fraction
+from functools import lru_cache
+
+import numpy as np
+
+from ... import physics
+from ...scene import Scene
+from .. import core
+
+MAX_DENOMINATOR = 2000
+KAISER_BETA = 12.0
+HALF_TAPS = 10  # the filter's half length in input samples (scipy's choice): output samples it reaches past an edge
+PAD = HALF_TAPS + 2  # output samples rendered past the end, and given up before a failure, for that reach
+
+
+def needs_whole_windows(domain) -> bool:
+    """Does a model play stick-slip (the friction's stiffness at its largest F_B / w at or above physics.STIFF, the
+    soft/stick-slip boundary its training uses too)? Those voices are computed on whole windows."""
+    beta_max = domain.box[1] if domain.is_range else domain.beta
+    return physics.stiffness(beta_max, domain.a) >= physics.STIFF
+
+
+def whole_window_scene(scene: Scene, spw: float) -> tuple[Scene, Fraction]:
+    """The scene on the grid where a window of spw samples (at the scene's rate) holds a whole number N of them, with
+    PAD output samples more at its end, and the ratio (output rate / grid rate) that brings it back. A window that is
+    already a whole number of samples (up to 1e-7) gives the scene itself and ratio 1.
+
+    The grid's rate is not a whole number of Hz, which a Scene built by a user may not have: this copy is for the
+    engine's loops (which read sample_rate, n_samples, dtau and the curves) and is never rebuilt or validated."""
+    n = math.ceil(spw * (1 - 1e-7))
+    if abs(n - spw) <= 1e-7 * spw:
+        return scene, Fraction(1)
+    rate = scene.sample_rate * n / spw
+    inner = copy.copy(scene)
+    n_inner = math.ceil((scene.n_samples + PAD) * n / spw)
+    object.__setattr__(inner, "sample_rate", rate)
+    object.__setattr__(inner, "duration", n_inner / rate)
+    return inner, Fraction(spw / n).limit_denominator(MAX_DENOMINATOR)
+
+
+@lru_cache(maxsize=64)
+def _phases(up: int, down: int) -> tuple[np.ndarray, int]:
+    """The polyphase filter: per phase r = (j down) mod up of an output sample j, the weights (up, K) of the input
+    samples floor(j down / up) - K0 + k, k < K, each phase normalised to unit gain at DC; and K0. The filter is a
+    Kaiser-windowed sinc at the upsampled rate, cut at the lower Nyquist frequency, HALF_TAPS input samples each side
+    (scipy.signal.firwin's design: scipy.signal itself costs ~0.9 s to import, more than a whole render)."""
+    m = max(up, down)
+    half = HALF_TAPS * m  # in samples of the upsampled rate
+    k0 = half // up + 1
+    t = np.arange(up)[:, None] - (np.arange(2 * k0 + 1) - k0)[None, :] * up  # (up, K) offsets at the upsampled rate
+    inside = np.abs(t) <= half
+    w = np.sinc(t / m) * np.i0(KAISER_BETA * np.sqrt(np.clip(1 - (t / half) ** 2, 0, None))) * inside
+    return w / w.sum(axis=1, keepdims=True), k0
+
+
+def to_output(x: np.ndarray, ratio: Fraction, n: int) -> np.ndarray:
+    """Rows (R, n_grid) of samples on a grid resampled by `ratio` (output rate / grid rate) to their first n output
+    samples, float32 (the network's precision). NaN (a stopped voice) is held at the last finite sample first, so it
+    does not spread back through the filter; the caller marks that stretch again (from_grid)."""
+    if ratio == 1:
+        return np.ascontiguousarray(np.array(x, ndmin=2)[:, :n], dtype=np.float32)
+    x = np.array(x, dtype=np.float64, ndmin=2)
+    for r in x:
+        lost = np.flatnonzero(~np.isfinite(r))
+        if lost.size:
+            r[lost[0]:] = r[lost[0] - 1] if lost[0] else 0.0
+    up, down = ratio.numerator, ratio.denominator
+    w, k0 = _phases(up, down)
+    # an odd continuation at both ends: a note that starts from a moving state is not cut to zero before it
+    head = 2 * x[:, :1] - x[:, k0:0:-1]
+    tail = 2 * x[:, -1:] - x[:, -2:-k0 - 2:-1]
+    xp = np.concatenate([head, x, tail], axis=1)
+    y = np.empty((len(x), n), np.float32)
+    core.polyphase(np.ascontiguousarray(xp), w, up, down, y)
+    return y
+
+
+def from_grid(i: int, ratio: Fraction) -> int:
+    """The output sample from which a voice that stopped at grid sample i is no longer its own render (the filter
+    reaches PAD samples back from the first lost one); i < 0 (no stop) stays."""
+    if i < 0 or ratio == 1:
+        return i
+    return max(int(math.floor(i * ratio)) - PAD, 0)
+
+
+def to_grid(n: int, ratio: Fraction, n_grid: int) -> np.ndarray:
+    """For each of n output samples, the grid sample at or before it (for per-sample controls)."""
+    return np.minimum(np.floor(np.arange(n) / float(ratio)).astype(np.int64), n_grid - 1)
