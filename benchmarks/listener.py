@@ -1,7 +1,7 @@
 """What a listener hears, out of sample, over the playing space (issue 21): timbre, pitch and onset first, NMSE beside.
 
     PYTHONPATH=. .venv/bin/python benchmarks/listener.py [--model PATH] [--region soft|stick|all] [--n N] [--seed S]
-                                                          [--seconds 2] [--json out.json]
+                                                          [--seconds 2] [--json out.json] [--box B0:B1,V0:V1]
 
 Random bows (F_B / w log-uniform, v_B uniform) at random pitches (f0 log-uniform 65-880 Hz), drawn with a seed no
 training uses, each rendered 2 s from rest by the operator (the model the renderer picks, or --model) and by the
@@ -145,6 +145,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default=None, help="a model file or name (default: the renderer's choice)")
     ap.add_argument("--region", default="all", choices=["soft", "stick", "all"])
+    ap.add_argument("--box", default=None, metavar="BLO:BHI,VLO:VHI",
+                    help="held bows drawn from this box of F_B / w and v_B instead (a tile's own, say)")
     ap.add_argument("--n", type=int, default=12, help="bows per region")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--seconds", type=float, default=2.0)
@@ -176,6 +178,10 @@ def main(argv=None):
                 json.dump(out, f, indent=1, default=str)
         return
     regions = list(REGIONS) if a.region == "all" else [a.region]
+    if a.box:
+        (blo, bhi), (vlo, vhi) = ([float(x) for x in part.split(":")] for part in a.box.split(","))
+        REGIONS[a.box] = ((blo, bhi), (vlo, vhi))
+        regions = [a.box]
     print("| region | engine | played | harmonics median / worst (dB) | pitch median / worst (cents) | onsets ok | "
           "NMSE(p) median |")
     print("|---|---|---|---|---|---|---|")

@@ -3,6 +3,7 @@ windows (what renders did before), each against a x100 FDM at the same f0 and bo
 
     PYTHONPATH=. .venv/bin/python benchmarks/stick_pitch.py [--models paper-fb1000,scratch-g2]
                                                             [--f0 65,100,220,330,440,523.25,660,880] [--seconds 2]
+                                                            [--all-whole]
 
 Each model at its own F_B / w and v_B (F_B scaled with the pitch), from rest. Per note: harmonics 2-10 of p above -50
 dB (median / worst dB error over the last second), pitch (cents), onset (ms), NMSE(p), and the operator's render
@@ -32,6 +33,8 @@ def main():
     ap.add_argument("--models", default="paper-fb1000,scratch-g2")
     ap.add_argument("--f0", default="65,100,220,330,440,523.25,660,880")
     ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--all-whole", action="store_true",
+                    help="whole windows for any model (soft ones too), to compare where the engine does not use them")
     a = ap.parse_args()
     whole = engine.needs_whole_windows
     print("| model | f0 (Hz) | grid | harmonics median / worst (dB) | pitch (cents) | onset (ms) | NMSE(p) | ms |")
@@ -42,7 +45,8 @@ def main():
         for f0 in (float(x) for x in a.f0.split(",")):
             sc = Scene(f0=f0, fb=d.beta * 2 * math.pi * f0, vb=d.vb, a=d.a, duration=a.seconds)
             truth = render_fdm(sc, oversample=100)
-            for label, rule in (("output windows (before)", lambda dom: False), ("whole windows", whole)):
+            on = (lambda dom: True) if a.all_whole else whole
+            for label, rule in (("output windows (before)", lambda dom: False), ("whole windows", on)):
                 engine.needs_whole_windows = rule
                 try:
                     render_operator(sc, model=m)  # warm: the bases of this pitch
