@@ -68,7 +68,11 @@ def score(
         # each pitch tuned for the engine that plays it (the FDM's dispersion, the operator model's own ratio)
         if bend_range is not None and not (0 <= bend_range <= 24):
             raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
-        notes = load_score(score_file, a4=a4, ratio_for=lambda sc: ratio_for_engine(sc, method, model)[0],
+        from ..engines.operator.choose import available_models
+
+        # the model directories looked at once for every note (a lookup per note was a fifth of a chorale's time)
+        pool = available_models() if model is None and str(getattr(method, "value", method)) != "fdm" else None
+        notes = load_score(score_file, a4=a4, ratio_for=lambda sc: ratio_for_engine(sc, method, model, models=pool)[0],
                            bend_range=bend_range)
     else:
         if a4 is not None:

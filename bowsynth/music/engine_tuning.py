@@ -47,11 +47,12 @@ def operator_ratio(model):
     return ratio
 
 
-def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1):
+def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
     scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it, its own
     pitch), so that the asked note sounds there whichever engine plays. (None, why) when no model covers the scene:
-    the note is then tuned with the truth's ratio (what compare scores against)."""
+    the note is then tuned with the truth's ratio (what compare scores against). models: those to choose among
+    (default: available_models(), looked up again on each call)."""
     if str(getattr(engine, "value", engine)) == "fdm":
         from ..engines.fdm import check_oversample
 
@@ -60,7 +61,7 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     from ..engines.operator.choose import as_model, find_model
 
     try:
-        m = find_model(scene) if model is None else as_model(model)
+        m = find_model(scene, models) if model is None else as_model(model)
     except DomainError as e:
         return None, str(e).split(";")[0]
     if not m.covers(scene):

@@ -87,7 +87,10 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
             r.info.notes.append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
             out[i] = r
     # a note whose bow stop and tail a model covers too (a box reaching v_B = 0) is played whole by the operator
-    whole = [i for i in op if notes[i].release > 0 and _plays_whole(notes[i], model)]
+    from ..engines.operator.choose import available_models
+
+    pool = available_models() if model is None else None  # one look at the model directories for all the notes
+    whole = [i for i in op if notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
     if whole:
         for i, r in zip(whole, render([notes[i].scene for i in whole], engine="operator", model=model,
                                       fallback=fallback)):
@@ -102,16 +105,13 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     return out
 
 
-def _plays_whole(note: Note, model=None) -> bool:
-    """Does the model that would play the note (the one given, else the lookup's pick) cover the whole note, its bow
-    stop and tail included?"""
-    from ..engines.operator.choose import as_model, find_model
+def _plays_whole(note: Note, model=None, models=None) -> bool:
+    """Does the model that would play the note (the one given, else the lookup's pick among `models`) cover the whole
+    note, its bow stop and tail included?"""
+    from ..engines.operator.choose import as_model, covering_model
 
-    try:
-        m = find_model(note.scene) if model is None else as_model(model)
-    except DomainError:
-        return False
-    return m.covers(note.scene)
+    m = covering_model(note.scene, models) if model is None else as_model(model)
+    return m is not None and m.covers(note.scene)
 
 
 def _release_scene(note: Note, sus: Render) -> Scene:

@@ -131,6 +131,13 @@ def _bow_exit(model: OperatorModel, scene: Scene, spw: float, bows: np.ndarray) 
     return w, start, f"v_B = {vb:.4g} at t = {t:.3f} s"
 
 
+def covering_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel | None:
+    """find_model's pick, or None where it would raise (without composing the message: a score asks this of every
+    note's release, most of which no model covers)."""
+    good = [m for m in (available_models() if models is None else models) if m.covers(scene) and m.failure is None]
+    return min(good, key=lambda m: m.meta.validation["nmse"]) if good else None  # min keeps the first of equals
+
+
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
     """The best validated model (lowest validation NMSE(p); ./models before the shipped ones on a tie) among those
     (found, or the given list) that cover the scene. A model whose validation failed is never picked here (see
@@ -138,10 +145,10 @@ def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> Opera
     and how to train one that covers the scene."""
     if models is None:
         models = available_models()
+    pick = covering_model(scene, models)
+    if pick is not None:
+        return pick
     covering = [m for m in models if m.covers(scene)]
-    good = [m for m in covering if m.failure is None]
-    if good:
-        return min(good, key=lambda m: m.meta.validation["nmse"])  # min keeps the first of equals
     if covering:
         bad = "; ".join(f"{m.path or m.meta.name} ({m.failure})" for m in covering)
         raise DomainError(f"the models that cover this scene failed their validation: {bad}. Pass one with --model "
