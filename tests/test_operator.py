@@ -295,3 +295,27 @@ def test_reporter_lines_are_never_cut_at_the_console_width():
     with Reporter(Console(file=buf, width=40)) as rep:
         rep.update("training", 0.5, info)
     assert buf.getvalue().splitlines() == [line for line in buf.getvalue().splitlines() if info in line]
+
+
+def test_voices_of_very_different_lengths_roll_in_groups_and_each_is_its_own_render():
+    """A score's notes differ in length: they roll in groups of similar length (engine.length_buckets), and each
+    voice is the same as its render alone."""
+    from bowsynth.engines.operator.engine import LENGTH_SLACK, length_buckets
+
+    lengths = [100, 2000, 110, 114, 1000, 116, 2100, 100]
+    groups = length_buckets(lengths)
+    assert sorted(int(i) for g in groups for i in g) == list(range(len(lengths)))
+    for g in groups:
+        assert max(lengths[i] for i in g) <= LENGTH_SLACK * min(lengths[i] for i in g)
+    assert len(groups) == 4  # 100-114, 116, 1000, 2000-2100
+    from pathlib import Path
+
+    import bowsynth
+
+    model = load_model(Path(bowsynth.__file__).parent / "models" / "paper-fb100.safetensors")
+    scenes = [Scene(f0=f0, fb=f0, duration=d) for f0, d in ((100.0, 0.05), (220.0, 0.4), (150.0, 0.052))]
+    together = render_operator(scenes, model=model)
+    for sc, r in zip(scenes, together):
+        alone = render_operator(sc, model=model)
+        assert len(r.p) == sc.n_samples
+        np.testing.assert_allclose(r.p, alone.p, rtol=0, atol=1e-6 * np.abs(alone.p).max())
