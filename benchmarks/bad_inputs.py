@@ -112,7 +112,9 @@ CASES = [
     # round 3 (issue 26): model files that lie or break
     ("model file whose window tensor was scaled 1e6 (digest recomputed)", "render --fb 100 --model window.safetensors x.wav"),
     ("model file with a 0 x 0 domain mask (digest recomputed)", "render --fb 100 --model mask0.safetensors x.wav"),
-    ("... the same file in ./models: skipped, named, the shipped model plays", "render --fb 100 -d 0.1 x.wav"),
+    # run in its own directory: a damaged model in the table's ./models would be skipped (and named) in every row
+    ("... the same file in ./models: skipped, named, the shipped model plays", "render --fb 100 -d 0.1 x.wav",
+     "damaged"),
     ("model file claiming 1.1x its bow force (digest recomputed)", "render --fb 110 --model liar.safetensors x.wav"),
     ("model path: a symlink to /dev/zero", "render --fb 100 --model zero.safetensors x.wav"),
     ("model path: a directory", "render --fb 100 --model adir.safetensors x.wav"),
@@ -176,9 +178,9 @@ def main():
                "PYTHONPATH": os.environ.get("PYTHONPATH", "")}
         print("| bad input | command | exit code | what bowsynth says |")
         print("|---|---|---|---|")
-        for what, cmd in CASES:
+        for what, cmd, *sub in CASES:  # (what, command[, the subdirectory it runs in])
             reader = _drain(d / "fifo") if "fifo" in cmd.split() else None
-            r = subprocess.run(exe + cmd.split(), cwd=d, capture_output=True, env=env)
+            r = subprocess.run(exe + cmd.split(), cwd=d.joinpath(*sub), capture_output=True, env=env)
             if reader:
                 reader.join(10)
             err = r.stderr.decode(errors="replace")
@@ -300,8 +302,8 @@ def _round3_files(d: Path, exe) -> None:
         m["domain"]["beta"] *= 1.1
         m["scene"]["fb"] *= 1.1
     _forge(d, "liar.safetensors", edit_meta=more_force)
-    (d / "models").mkdir()
-    (d / "models" / "mask0.safetensors").write_bytes((d / "mask0.safetensors").read_bytes())
+    (d / "damaged" / "models").mkdir(parents=True)
+    (d / "damaged" / "models" / "mask0.safetensors").write_bytes((d / "mask0.safetensors").read_bytes())
     (d / "zero.safetensors").symlink_to("/dev/zero")
     (d / "adir.safetensors").mkdir()
     (d / "loop.safetensors").symlink_to("loop.safetensors")
