@@ -345,3 +345,16 @@ def test_below_its_box_a_range_model_plays_first_order_down_to_a_lifted_bow(rang
     w = 2 * math.pi * 100
     attack = Scene(f0=100, fb=[[0.0, 0.0], [0.05, 0.2 * w]], vb=0.2, duration=0.2)
     assert np.isfinite(render_operator(attack, model=m, fallback="fdm").p).all()
+
+
+def test_live_leaves_a_stick_slip_models_notes_to_the_fdm(range_model, scaled_range_model):
+    """The live voice loop has no whole-window grid (engines/operator/grid.py), on which a stick-slip model's voices
+    must run: a bow inside such a model's box is the FDM's live, where a soft model's is the operator's."""
+    from types import SimpleNamespace
+
+    from bowsynth.live.stream import Stream
+
+    soft, stick = load_model(range_model), load_model(scaled_range_model)
+    assert stick.domain.box_contains(0.9, 0.15) and soft.domain.box_contains(0.2, 0.2)
+    assert not Stream._plays(SimpleNamespace(model=stick), 0.9, 0.15)
+    assert Stream._plays(SimpleNamespace(model=soft), 0.2, 0.2)

@@ -88,7 +88,8 @@ class Stream(VoiceBank):
         super().__init__(sample_rate, block, voices, engine, model if engine == "operator" else None, lowest)
         if engine == "operator":
             d = model.domain
-            a_ok = math.isclose(d.a, self.a, rel_tol=1e-9)
+            # a stick-slip model's notes go to the FDM (_plays says why)
+            a_ok = math.isclose(d.a, self.a, rel_tol=1e-9) and not needs_whole_windows(d)
             self.covered = np.array([v > 0 and a_ok and bool(d.box_contains(t.v_beta[v], t.v_vb[v]))
                                      for v in range(128)])
             # per velocity (neutral controllers): the branch's bow inputs, the correction's gain, the state scaling

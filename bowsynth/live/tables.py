@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import physics
 from ..errors import DomainError
+from ..engines.operator.grid import needs_whole_windows
 from ..music import midi as M
 from ..music.notes import midi_to_hz
 from ..music.tuning import SilentNoteError, sounding_ratio, tune
@@ -90,7 +91,8 @@ class Tuning:
         NMSE), so that one model plays the keyboard; the other velocities play the FDM."""
         best, score = None, (-1, 0.0)
         for m in models:
-            if m.failure is not None or not math.isclose(m.domain.a, a, rel_tol=1e-9):
+            # a stick-slip model plays no note live (Stream._plays): it would hand the keyboard to the FDM
+            if m.failure is not None or not math.isclose(m.domain.a, a, rel_tol=1e-9) or needs_whole_windows(m.domain):
                 continue
             betas, vbs = [M.bow_beta(v) for v in range(1, 128)], [M.bow_vb(v) for v in range(1, 128)]
             n = int(np.sum(m.domain.box_contains(np.array(betas), np.array(vbs))))
