@@ -1,7 +1,7 @@
 """A chorale-sized piece as a user plays it: `score --mix` of a four-part MIDI file with the operator and with the FDM,
 whole processes alternated with `bowsynth --help`, and how far the operator's mix sounds from the FDM's.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/chorale.py [--runs 3] [--keep DIR]
+    PYTHONPATH=. .venv/bin/python benchmarks/chorale.py [--runs 3] [--keep DIR] [--model PATH]
 
 The piece is written here (no corpus file ships with the repository) in the layout GUIDE section 9 describes for a
 chorale exported from a public corpus: MIDI type 1, a tempo track and four part tracks, every part on channel 1, one
@@ -91,6 +91,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--keep", type=Path, default=None, help="write the piece and the two mixes here")
+    ap.add_argument("--model", type=Path, default=None,
+                    help="the operator plays with this model (`train --score` of the piece, say) instead of its pick")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(args.keep or tmp)
@@ -101,8 +103,9 @@ def main() -> None:
         for _ in range(args.runs):
             times["help"].append(run(["--help"], d)[0])
             for method in ("operator", "fdm"):
+                pick = ["--model", str(args.model.resolve())] if args.model and method == "operator" else []
                 t, out = run(["score", "--score", "chorale.mid", "--method", method, "--mix", f"{method}.wav",
-                              "--force"], d)
+                              "--force", *pick], d)
                 times[method].append(t)
                 outs[method] = out
         from bowsynth.io.audio import read_wav
