@@ -127,3 +127,29 @@ def test_the_compiled_resampler_refuses_what_it_cannot_index():
         core.polyphase(x, w[:2], 3, 4, y)
     with pytest.raises(TypeError):
         core.polyphase(x.astype(np.float32), w, 3, 4, y)
+
+
+def test_a_voice_stopped_on_the_grid_is_finished_by_the_fdm_from_an_output_sample(monkeypatch):
+    """A stop found on the grid (here the box check, made to fire at grid sample 10000) hands over on the output grid:
+    the samples before the hand-over are the render's own, the FDM goes on from there, and nothing is lost or NaN."""
+    from bowsynth.engines.operator import engine
+
+    m = shipped("paper-fb1000")
+    d = m.domain
+    sc = Scene(f0=440.0, fb=d.beta * 2 * math.pi * 440.0, vb=d.vb, a=d.a, duration=0.5)
+    whole = render_operator(sc, model=m)
+    monkeypatch.setattr(engine, "_box_exit", lambda m, g, q, p: 10000)
+    with pytest.raises(DomainError, match="left the model's trained states"):
+        render_operator(sc, model=m)
+    r = render_operator(sc, model=m, fallback="fdm")
+    assert any("finished with the FDM" in n for n in r.info.notes) and r.method.fdm_fallback
+    assert len(r.p) == sc.n_samples and np.isfinite(r.p).all() and np.isfinite(r.q).all()
+    inner, ratio = grid.whole_window_scene(sc, _operator(m).samples_per_window(sc.dtau))
+    cut = grid.from_grid(10000, ratio) - 1  # the FDM starts from the last sample before the stop
+    assert 9000 < cut < 10000
+    assert float(r.info.notes[0].split("t = ")[1].split(" s")[0]) == pytest.approx((cut + 1) / sc.sample_rate, abs=1e-4)
+    np.testing.assert_array_equal(r.p[:cut + 1], whole.p[:cut + 1])
+    step = np.max(np.abs(np.diff(whole.p)))  # the join is no larger a jump than the render's own steps
+    assert abs(float(r.p[cut + 1]) - float(r.p[cut])) <= 1.5 * step
+    # the FDM's continuation stays on the stick-slip cycle's scale
+    assert np.ptp(r.p[-4410:]) == pytest.approx(np.ptp(whole.p[-4410:]), rel=0.1)
