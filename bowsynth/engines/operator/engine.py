@@ -24,9 +24,9 @@ from .choose import (
     train_hint,
     unreadable_notes,
 )
+from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
 from .modelfile import OperatorModel
 from .rollout import applied_controls, rollout_states, scene_bows
-from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
 from .windows import FAIL_BOW, FAIL_DOMAIN, FAILURES, window_bounds
 
 
