@@ -12,8 +12,8 @@ to the asked rate, both play every pitch tried, 65-880 Hz, within 0.01 dB (harmo
 
 The resampler is a polyphase filter, a Kaiser-windowed sinc of beta 12 (measured with scipy's resample_poly of the
 same design: within 3e-6 of a sine up to 10 kHz at the ratios these grids need, where its default beta 5 is 1.5e-3
-off); the ratio of the rates is rounded
-to a fraction of denominator at most MAX_DENOMINATOR, which moves the pitch by at most ~1e-6 (0.002 cents).
+off); the ratio of the rates is rounded to a fraction of denominator at most MAX_DENOMINATOR, which moves the pitch
+by at most ~1e-6 (0.002 cents).
 """
 
 from __future__ import annotations
