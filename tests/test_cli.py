@@ -187,6 +187,33 @@ def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monke
     assert code == 2 and "no such file" in err
 
 
+def test_train_batch_width_and_device_from_a_recipe_and_the_device_is_recorded(tmp_path, capsys, monkeypatch):
+    rec = tmp_path / "r.toml"
+    rec.write_text('fb = 100\nsteps = 2\nbatch = 64\nwidth = 8\ndevice = "cpu"\nout = "m.safetensors"\n')
+    code, out, err = run_main(["train", "--config", str(rec), "--n-data", "64", "-q"], capsys, monkeypatch)
+    assert code == 0, err
+    from bowsynth.engines.operator.modelfile import load_model
+
+    m = load_model(tmp_path / "m.safetensors")
+    assert m.meta.training["batch_states"] == 64 and m.meta.net["width"] == 8
+    assert m.meta.training["device"] == "cpu" and m.meta.training["device_used"].startswith("cpu: ")
+
+
+@pytest.mark.parametrize("args, needle", [(["--device", "gpu"], "--device must be auto, cpu or cuda"),
+                                          (["--batch", "0"], "--batch must be in"),
+                                          (["--device", "cuda"], "torch sees no CUDA GPU")])
+def test_train_refuses_a_device_it_cannot_use_in_one_line(args, needle, tmp_path, capsys, monkeypatch):
+    import torch
+
+    if args[-1] == "cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU")
+    out = tmp_path / "m.safetensors"
+    code, _, err = run_main(["train", "--fb", "100", "--steps", "1", *args, "--out", str(out), "-q"], capsys,
+                            monkeypatch)
+    assert code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
 def test_train_config_fills_flags_and_flags_override(tmp_path, capsys, monkeypatch):
     rec = tmp_path / "r.toml"
     rec.write_text('preset = "paper-fb100"\nsteps = 3\nseed = 1\nout = "m.safetensors"\n')

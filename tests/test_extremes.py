@@ -110,7 +110,7 @@ def test_tiny_bow_force_renders_silence_not_nan(tmp_path, monkeypatch, capsys):
 
 TRAIN_FLOATS = ["--f0", "--fb", "--vb", "--a", "--q0", "--p0", "--minutes", "--lbfgs", "--window-ms",
                 "--checkpoint-every"]
-TRAIN_INTS = ["--steps", "--seed", "--width", "--depth", "--n-data"]
+TRAIN_INTS = ["--steps", "--seed", "--width", "--depth", "--n-data", "--batch"]
 
 
 @pytest.fixture
@@ -131,7 +131,7 @@ def fake_train(monkeypatch):
         assert config.minutes or config.steps
         assert config.net.width >= 1 and config.net.depth >= 1 and 0 <= config.seed < 2**64
         assert config.window is None or math.isfinite(config.window) and config.window > 0
-        assert math.isfinite(config.checkpoint_seconds)
+        assert math.isfinite(config.checkpoint_seconds) and 1 <= config.batch_states <= 10**6
         seen["called"] = True
         seen["box"] = kw.get("box")
         raise Stop("stopped by the test")

@@ -27,6 +27,8 @@ def train(
     depth: Optional[int] = typer.Option(None, "--depth", help="Hidden layers of branch and trunk (default 4)."),
     rest_linear: bool = typer.Option(False, "--rest-linear", help="Point models whose note starts slowly (v_B near 0.3): carry the bowed mass's flow linearised at its rest state, so the onset's growth rate is exact (docs/BENCHMARKS.md)."),
     from_model: Optional[str] = typer.Option(None, "--from", help="Refine a trained range model (a file, or a name such as soft-range) for these bows or this score: its network is kept and trained further on their data only (the bows must lie in its box)."),
+    batch: Optional[int] = typer.Option(None, "--batch", help="Window starts per optimiser step (default 1024); a GPU takes more per second."),
+    device: Optional[str] = typer.Option(None, "--device", help="auto (a CUDA GPU where torch sees one, default), cpu or cuda; the model records which."),
     n_data: Optional[int] = typer.Option(None, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band (default 4096)."),
     checkpoint_every: Optional[float] = typer.Option(None, "--checkpoint-every", help="Seconds between checkpoints (default 60)."),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Model file (default ./models/<name>.safetensors)."),
@@ -46,12 +48,14 @@ def train(
 
     if config is not None:
         given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
-                     rest_linear=rest_linear or None, out=out_path)
+                     rest_linear=rest_linear or None, out=out_path,
+                     batch=batch, width=width, device=device)
         r = load_recipe(config)
         merged = {k: (v if v is not None else r.get(k)) for k, v in given.items()}
         preset, f0, fb, vb, a = (merged[k] for k in ("preset", "f0", "fb", "vb", "a"))
         minutes, steps, seed, out_path = merged["minutes"], merged["steps"], merged["seed"], merged["out"]
         rest_linear = bool(merged["rest_linear"])
+        batch, width, device = merged["batch"], merged["width"], merged["device"]
     box = None
     if score is not None:
         if fb is not None or vb is not None or preset is not None:
@@ -68,7 +72,8 @@ def train(
                                 lbfgs_fraction=lbfgs, hybrid=hybrid, window_ms=window_ms, width=width, depth=depth,
                                 n_data=n_data if box is None else None,
                                 range_n_data=n_data if box is not None else None,
-                                checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None)
+                                checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
+                                batch_states=batch, device=device)
     res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err,
                     box=box, init=from_model)
     v = res.model.meta.validation

@@ -16,7 +16,7 @@ META_KEY = "bowsynth_checkpoint"
 
 def _flatten(obj, prefix, tensors):
     if isinstance(obj, torch.Tensor):
-        tensors[prefix] = obj.detach().contiguous().clone()
+        tensors[prefix] = obj.detach().cpu().contiguous().clone()  # a GPU's optimiser state too
         return {"__tensor__": prefix}
     if isinstance(obj, dict):
         return {"__dict__": [[_flatten(k, f"{prefix}.k{i}", tensors), _flatten(v, f"{prefix}.{i}", tensors)]

@@ -19,6 +19,9 @@ class TrainConfig:
     minutes: float | None = 5.0
     steps: int | None = None
     seed: int = 0
+    # auto: the GPU where torch sees one (CUDA), else the CPU. The models are the same kind either way; the device
+    # that trained one is recorded in its metadata (training.device_used)
+    device: str = "auto"
     optimizer: str = "soap"  # soap | adam (measured: SOAP 5-10x lower rollout error at equal time, BENCHMARKS.md)
     lr: float = 3e-3
     lr_final: float = 2e-5
@@ -64,6 +67,10 @@ class TrainConfig:
         """Refuse settings that cannot train (one line each); returns self."""
         if self.optimizer not in ("adam", "soap"):
             raise UsageError(f"--optimizer must be adam or soap, got {self.optimizer!r}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise UsageError(f"--device must be auto, cpu or cuda, got {self.device!r}")
+        if not 1 <= self.batch_states <= 1_000_000:
+            raise UsageError(f"--batch must be in [1, 1000000], got {self.batch_states}")
         if self.sampling not in ("scene", "box"):
             raise UsageError(f"sampling must be scene or box, got {self.sampling!r}")
         if self.minutes is not None and not (0 < self.minutes <= MAX_MINUTES):
@@ -91,6 +98,19 @@ class TrainConfig:
         if not (math.isfinite(self.checkpoint_seconds) and self.checkpoint_seconds > 0):
             raise UsageError(f"--checkpoint-every must be > 0 s, got {self.checkpoint_seconds:g}")
         return self
+
+
+def resolve_device(name: str) -> str:
+    """The torch device a training runs on: auto takes CUDA where torch sees a GPU. Asking for cuda where there is
+    none is refused in one line (not torch's traceback)."""
+    import torch
+
+    if name == "cpu" or (name == "auto" and not torch.cuda.is_available()):
+        return "cpu"
+    if not torch.cuda.is_available():
+        raise UsageError("--device cuda: torch sees no CUDA GPU here (this torch is "
+                         f"{torch.__version__}); use --device cpu or auto")
+    return "cuda"
 
 
 def check_net_options(cfg: TrainConfig, scene, box=None) -> None:

@@ -17,7 +17,7 @@ from ..errors import UsageError
 from ..scene import Scene
 from ..text import jsonable
 from . import checkpoint
-from .config import TrainConfig, check_net_options, default_model_name  # noqa: F401
+from .config import TrainConfig, check_net_options, default_model_name, resolve_device  # noqa: F401
 from .data import build, build_range
 from .losses import default_weights, loss_terms, weighted
 from .selection import RangeSelector, Selector, selection_scene
@@ -36,6 +36,7 @@ class Trainer:
 
     def __init__(self, scene: Scene, cfg: TrainConfig, name: str, on_progress=None, box=None, init=None):
         cfg.validate()
+        self.device = torch.device(resolve_device(cfg.device))
         # init: a trained range model (OperatorModel) to refine: its network, scalings and window are kept, and it
         # trains on this box's data (a box of zero width too: a point refined from the range)
         self.init = init
@@ -73,10 +74,9 @@ class Trainer:
                     self._fit_bow_scaling()
             if cfg.net.rest_linear:
                 self.net.set_rest_linear(scene.beta, scene.vb, scene.a)
-        self.data_x0 = torch.tensor(self.data.x0, dtype=torch.float32)
-        self.data_x = torch.tensor(self.data.x, dtype=torch.float32)
-        self.data_tau = torch.tensor(self.data.tau, dtype=torch.float32)
-        self.data_par = None if self.data.par is None else torch.tensor(self.data.par, dtype=torch.float32)
+        self.net.to(self.device)  # after the scalings, which are fitted in numpy
+        self.data_x0, self.data_x, self.data_tau = (self._tensor(v) for v in (self.data.x0, self.data.x, self.data.tau))
+        self.data_par = None if self.data.par is None else self._tensor(self.data.par)
         self.opt = self._make_optimizer()
         self.step = 0
         self.elapsed = 0.0
@@ -114,18 +114,21 @@ class Trainer:
             return SOAP(params, lr=self.lr, betas=(0.95, 0.95), precondition_frequency=10)
         return torch.optim.Adam(params, lr=self.lr, fused=True)
 
+    def _tensor(self, a):
+        return torch.as_tensor(np.asarray(a, dtype=np.float32)).to(self.device)
+
     def batch(self, n_states: int | None = None) -> dict:
+        # drawn by numpy on the CPU whatever the device, so a seed draws the same batches on either
         cfg = self.cfg
         n = n_states or cfg.batch_states
-        idx = torch.from_numpy(self.rng.integers(0, len(self.data_x0), n))
+        idx = torch.from_numpy(self.rng.integers(0, len(self.data_x0), n)).to(self.device)
         out = {"data_x0": self.data_x0[idx], "data_x": self.data_x[idx], "data_tau": self.data_tau,
-               "phys_tau": torch.tensor(self.rng.uniform(0, self.window, cfg.batch_times), dtype=torch.float32)}
+               "phys_tau": self._tensor(self.rng.uniform(0, self.window, cfg.batch_times))}
         if self.box is None:
-            out["phys_x0"] = torch.tensor(self.sampler(n), dtype=torch.float32)
+            out["phys_x0"] = self._tensor(self.sampler(n))
         else:
             x0, par = self.sampler(n)
-            out.update(phys_x0=torch.tensor(x0, dtype=torch.float32), phys_par=torch.tensor(par, dtype=torch.float32),
-                       data_par=self.data_par[idx])
+            out.update(phys_x0=self._tensor(x0), phys_par=self._tensor(par), data_par=self.data_par[idx])
         return out
 
     def progress(self) -> float:
@@ -172,9 +175,9 @@ class Trainer:
                 on_step({"loss": float(loss), "lbfgs": 1.0})
 
     def save_checkpoint(self, path: Path):
-        tensors = {f"net.{k}": v.detach().contiguous().clone() for k, v in self.net.state_dict().items()}
+        tensors = {f"net.{k}": v.detach().cpu().contiguous().clone() for k, v in self.net.state_dict().items()}
         if self.best["state"] is not None:
-            tensors.update({f"best.{k}": v.contiguous() for k, v in self.best["state"].items()})
+            tensors.update({f"best.{k}": v.cpu().contiguous() for k, v in self.best["state"].items()})
         meta = {"step": self.step, "elapsed": self.elapsed, "rng": self.rng.bit_generator.state,
                 "scene": self.scene.to_dict(), "box": self._box_json(), "config": self.cfg.to_dict(),
                 "init": self._init_id(), "history": self.history[-200:],
@@ -244,12 +247,18 @@ class Trainer:
             self._consider()  # the final weights compete too
             if self.best["state"] is not None and self.best["step"] != self.step:
                 self.net.load_state_dict(self.best["state"])
+        self.net.to("cpu")  # the model and its validation run on the CPU, as renders do
+
+    def device_name(self) -> str:
+        if self.device.type == "cuda":
+            return f"cuda: {torch.cuda.get_device_name(self.device)}"
+        return f"cpu: {torch.get_num_threads()} threads"
 
     def model(self) -> OperatorModel:
         meta = ModelMeta(name=self.name, domain=self.domain, net=self.cfg.net.to_dict(),
                          training={**{k: v for k, v in self.cfg.to_dict().items() if k != "net"},
                                    "weights": self.weights, "steps_done": self.step,
-                                   "seconds": round(self.elapsed, 1),
+                                   "seconds": round(self.elapsed, 1), "device_used": self.device_name(),
                                    "final_loss": self.history[-1]["loss"] if self.history else None,
                                    "selected": self.selector.record(), "box": self._box_json(),
                                    "refined_from": self._init_id()},

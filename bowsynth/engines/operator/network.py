@@ -88,7 +88,7 @@ class DeepONet(nn.Module):
         """The linear part (B, M, 2) and its tau-derivative: R(tau) x0, the flow linearised at rest, or x0."""
         q0, p0 = x0[:, 0:1], x0[:, 1:2]
         lin = (float(self.lin[0]), float(self.lin[1])) if self.cfg.rest_linear else None
-        m11, m12, m21, m22, kq, kp = (torch.as_tensor(c, dtype=x0.dtype)[None, :]
+        m11, m12, m21, m22, kq, kp = (torch.as_tensor(c, dtype=x0.dtype, device=x0.device)[None, :]
                                       for c in linear_part(self.cfg, tau.detach().cpu().double().numpy(), lin))
         lq, lp = m11 * q0 + m12 * p0 + kq, m21 * q0 + m22 * p0 + kp
         if not self.cfg.linear_flow:
