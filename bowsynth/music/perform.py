@@ -1,5 +1,6 @@
 """A piece performed: which model covers which notes, the sustains rendered by the chosen engine (batched), and the
-releases played by the operator where its model reaches v_B = 0, else by the FDM from the sustain's end state."""
+releases played by the operator where a model reaches v_B = 0 (the sustain's own model, or another one handed the
+sustain's state at the hold), else by the FDM from that state."""
 
 from __future__ import annotations
 
@@ -86,7 +87,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
             r = render(n.scene, engine="fdm")
             r.info.notes.append(f"no model covers it ({missing[id(n)]}): rendered by the FDM")
             out[i] = r
-    # a note whose bow stop and tail a model covers too (a box reaching v_B = 0) is played whole by the operator
+    # a note whose bow stop and tail its sustain's model covers too (a box reaching v_B = 0) is played whole by it
     from ..engines.operator.choose import available_models
 
     pool = available_models() if model is None else None  # one look at the model directories for all the notes
@@ -100,17 +101,18 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     if part:
         sustains = [notes[i].rollout_scene() for i in part]
         rs = render(sustains, engine="operator", model=model, fallback=fallback)
-        for i, r in zip(part, finish_releases([notes[i] for i in part], rs)):
+        # the other releases: by a model that covers the bow stop (picked among the same models), else the FDM
+        for i, r in zip(part, finish_releases([notes[i] for i in part], rs, models=pool)):
             out[i] = r
     return out
 
 
 def _plays_whole(note: Note, model=None, models=None) -> bool:
-    """Does the model that would play the note (the one given, else the lookup's pick among `models`) cover the whole
-    note, its bow stop and tail included?"""
+    """Does the model that would play the note's sustain (the one given, else the lookup's pick among `models`) cover
+    the whole note, its bow stop and tail included? (Else the release is handed over at the hold: finish_releases.)"""
     from ..engines.operator.choose import as_model, covering_model
 
-    m = covering_model(note.scene, models) if model is None else as_model(model)
+    m = covering_model(note.rollout_scene(), models) if model is None else as_model(model)
     return m is not None and m.covers(note.scene)
 
 
@@ -127,9 +129,10 @@ def _release_scene(note: Note, sus: Render) -> Scene:
                  q0=float(sus.q[h]), p0=float(sus.p[h]))
 
 
-def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto") -> list[Render]:
-    """Each note's release by the FDM from its sustain's state at the hold, written over the sustain's samples from
-    there on (`sustains` rendered from `Note.rollout_scene`, so they already span the whole note).
+def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto", models=None) -> list[Render]:
+    """Each note's release from its sustain's state at the hold, written over the sustain's samples from there on
+    (`sustains` rendered from `Note.rollout_scene`, so they already span the whole note): by the operator where one of
+    `models` (a list, e.g. `available_models()`; None: none) covers the release's bow stop, else by the FDM.
 
     Each release runs `render_fdm`'s compiled loop (src/core/fdm.cpp): same scheme, start and Newton iteration, in
     a few milliseconds (a chorale's 151 releases took 0.96 s in the numpy batch). loop: 'core' ('auto' is the same),
@@ -156,8 +159,12 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
         os_ = check_oversample(rel, 1, warn=False)
         # a moving pitch: the compiled FDM, which follows w(t) (the numpy batch holds one w per note)
         groups.setdefault((rel.sample_rate, os_, rel.a, rel.pitch_varies), []).append(i)
+    if models:
+        _operator_releases(notes, sustains, scenes, groups, models, out)
     for (sr, os_, a, moving), idx in groups.items():
         rel = [scenes[i] for i in idx]
+        if not rel:
+            continue
         if loop == "core" or moving:
             for i, r in zip(idx, rel):
                 f = render_fdm(r, os_)
@@ -179,11 +186,39 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
     return out
 
 
-def _join_release(n: Note, sus: Render, q: np.ndarray, p: np.ndarray, secs: float) -> Render:
-    """The note: its sustain up to the hold, the release's samples written over the rest."""
+def _operator_releases(notes, sustains, scenes, groups, models, out) -> None:
+    """The releases some model covers, rolled out by it (batched per model) from the sustain's state at the hold;
+    taken out of `groups` (left to the FDM). A release that leaves its model's states is finished by the FDM, and its
+    method says so ("operator+fdm")."""
+    from ..engines.operator.choose import covering_model
+    from ..engines.operator.engine import render_operator_batch
+
+    by_model: dict[int, tuple] = {}
+    for key, idx in groups.items():
+        keep = []
+        for i in idx:
+            m = None if scenes[i].pitch_varies else covering_model(scenes[i], models)
+            if m is None:
+                keep.append(i)
+            else:
+                by_model.setdefault(id(m), (m, []))[1].append(i)
+        groups[key] = keep
+    for m, idx in by_model.values():
+        for i, r in zip(idx, render_operator_batch([scenes[i] for i in idx], model=m, fallback="fdm")):
+            out[i] = _join_release(notes[i], sustains[i], r.q, r.p, r.seconds, by="operator", played=r.method)
+
+
+def _join_release(n: Note, sus: Render, q: np.ndarray, p: np.ndarray, secs: float, by: str = "fdm",
+                  played=None) -> Render:
+    """The note: its sustain up to the hold, the release's samples written over the rest. by: who played the release
+    (the FDM, or the operator with `played` its method: a release the FDM finished makes the note operator+fdm)."""
     h = n.hold_samples
     sus.q[h:] = q
     sus.p[h:] = p
-    info = dataclasses.replace(sus.info, notes=list(sus.info.notes), release="fdm")
-    return Render(n.scene, sus.t, sus.q, sus.p, method=sus.method.with_fdm_release(), seconds=sus.seconds + secs,
-                  info=info)
+    info = dataclasses.replace(sus.info, notes=list(sus.info.notes), release=by)
+    if by == "fdm":
+        method = sus.method.with_fdm_release()
+    else:
+        method = type(sus.method)(sus.method.engine, sus.method.oversample,
+                                  sus.method.fdm_fallback or played.fdm_fallback, sus.method.fdm_release)
+    return Render(n.scene, sus.t, sus.q, sus.p, method=method, seconds=sus.seconds + secs, info=info)
