@@ -68,6 +68,7 @@ class RenderInfo:
     range_validation: dict | None = None  # a range model's validation: how good it is over its box
     oversample: int | None = None  # the FDM's
     release: str | None = None  # who played a score note's bow stop: "operator" or "fdm"
+    release_model: str | None = None  # the model that played it, where another than the sustain's took over at the hold
 
 
 @dataclass

@@ -306,6 +306,11 @@ def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys
     code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "c.wav"),
                                "--method", "fdm"], capsys, monkeypatch)
     assert code == 0 and "several tracks" in out and "rendered 8 notes in 4 voices" in out
+    assert "bow stops" not in out  # the FDM plays whole notes: nothing was handed over
+    code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "o.wav")],
+                              capsys, monkeypatch)
+    # who played the bow stops, counted: the shipped models do not reach v_B = 0, so the FDM played each
+    assert code == 0 and "rendered 8 notes" in out and "bow stops: 0 by the operator, 8 by the FDM" in out, out + err
 
 
 def test_timing_matches_mido_through_tempo_changes(tmp_path):

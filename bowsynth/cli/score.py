@@ -117,8 +117,12 @@ def score(
     paths = write_voices(notes, renders, output, mix=mix, stems=stems, dc=dc, gain_db=gain, force=force)
     audio = sum(n.scene.duration for n in notes)
     voices = len({n.name for n in notes})
-    used = sorted({f"{r.info.model_id} ({r.info.model_path})" for r in renders if r.info.model_path})
+    used = sorted({f"{r.info.model_id} ({r.info.model_path})" for r in renders if r.info.model_path}
+                  | {r.info.release_model for r in renders if r.info.release_model})
+    by = [r.info.release for r in renders if r.info.release]
+    releases = (f"; bow stops: {by.count('operator')} by the operator, {by.count('fdm')} by the FDM"
+                if method == "operator" and by else "")
     shown = ", ".join(str(p) for p in paths[:4]) + (f" and {len(paths) - 4} more" if len(paths) > 4 else "")
     tell(quiet, f"rendered {len(notes)} notes in {voices} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
                 f"({audio / max(secs, 1e-9):.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
-                + f"; wrote {shown}", say)
+                + releases + f"; wrote {shown}", say)

@@ -206,6 +206,7 @@ def _operator_releases(notes, sustains, scenes, groups, models, out) -> None:
     for m, idx in by_model.values():
         for i, r in zip(idx, render_operator_batch([scenes[i] for i in idx], model=m, fallback="fdm")):
             out[i] = _join_release(notes[i], sustains[i], r.q, r.p, r.seconds, by="operator", played=r.method)
+            out[i].info.release_model = f"{r.info.model_id} ({r.info.model_path})"
 
 
 def _join_release(n: Note, sus: Render, q: np.ndarray, p: np.ndarray, secs: float, by: str = "fdm",
