@@ -22,9 +22,8 @@ rendered in one batched rollout and mixed with each note at its start.
 A note is its own bowed mass from rest; a voice is a name for a group of notes (one stem), and its notes may
 overlap. The end of a note is a physical bow stop: v_B falls linearly to 0 over `release` seconds, the friction
 (its slope is positive below v_B = 1/sqrt(2a)) damps the mass, and the render stops TAIL s later. A note's sustain
-is rendered by the chosen engine; its release by the FDM from the sustain's state at the hold (no model covers a bow
-slowing to rest; with the operator all releases run as one numpy FDM batch, `finish_releases`), so a note ends the
-same way with either engine.
+is rendered by the chosen engine; its release by a model whose box reaches v_B = 0 where one covers it, else by the
+FDM, from the sustain's state at the hold (`perform.finish_releases`).
 """
 
 from __future__ import annotations
