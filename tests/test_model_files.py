@@ -166,6 +166,36 @@ def test_the_best_validated_covering_model_wins(tmp_path, monkeypatch):
     assert set(failed) == {"broken.safetensors", "poor.safetensors", "nan.safetensors"}
 
 
+def test_the_narrowest_covering_box_wins_over_a_lower_validation_nmse():
+    """Validation NMSE comes from each box's own bows, so it does not compare across boxes: among models that cover a
+    scene the one with the smallest box of bows plays it (a point model before any box), then the lowest NMSE."""
+    import copy
+    import dataclasses
+
+    from bowsynth.engines.operator.choose import covering_model
+
+    soft = load_model(SHIPPED_DIR / "soft-range.safetensors")
+
+    def variant(box, nmse):
+        m = copy.copy(soft)
+        m.meta = copy.deepcopy(soft.meta)
+        m.meta.domain = dataclasses.replace(soft.domain, box=list(box))
+        m.meta.validation["nmse"] = nmse
+        return m
+
+    wide = variant([0.01, 0.45, 0.0, 0.3], 1e-3)
+    narrow = variant([0.1, 0.2, 0.1, 0.2], 0.05)
+    sc = Scene(fb=0.15 * 2 * np.pi * 100, vb=0.15, duration=0.1)
+    assert wide.domain.bow_extent > soft.domain.bow_extent > narrow.domain.bow_extent > 0
+    assert covering_model(sc, [wide, soft]) is soft and covering_model(sc, [soft, wide]) is soft
+    assert covering_model(sc, [wide, soft, narrow]) is narrow
+    # outside the narrow box the next narrowest that covers plays; a bow stop only the wide box covers
+    assert covering_model(sc.replace(vb=0.25), [wide, soft, narrow]) is soft
+    assert covering_model(sc.replace(vb=0.02), [wide, soft, narrow]) is wide
+    fb100 = load_model(FB100)
+    assert fb100.domain.bow_extent == 0 and covering_model(Scene(fb=100), [wide, soft, fb100]) is fb100
+
+
 def test_model_lookup_is_cached_until_a_file_changes(tmp_path, monkeypatch):
     models = tmp_path / "models"
     models.mkdir()

@@ -135,11 +135,14 @@ def covering_model(scene: Scene, models: list[OperatorModel] | None = None) -> O
     """find_model's pick, or None where it would raise (without composing the message: a score asks this of every
     note's release, most of which no model covers)."""
     good = [m for m in (available_models() if models is None else models) if m.covers(scene) and m.failure is None]
-    return min(good, key=lambda m: m.meta.validation["nmse"]) if good else None  # min keeps the first of equals
+    # the most specialised first (a point model, then the smallest box), then the lowest validation NMSE; min keeps
+    # the first of equals (./models before the shipped ones)
+    return min(good, key=lambda m: (m.domain.bow_extent, m.meta.validation["nmse"])) if good else None
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
-    """The best validated model (lowest validation NMSE(p); ./models before the shipped ones on a tie) among those
+    """The most specialised validated model (a point model, else the smallest box of bows: Domain.bow_extent; then
+    the lowest validation NMSE(p); ./models before the shipped ones on a tie) among those
     (found, or the given list) that cover the scene. A model whose validation failed is never picked here (see
     model.validation_failure): pass it explicitly to use it. Otherwise a DomainError says which models come nearest
     and how to train one that covers the scene."""

@@ -102,6 +102,16 @@ class Domain:
             return inside
         return inside | ((np.asarray(beta, float) >= 0) & (np.asarray(beta, float) <= self.box[0]))
 
+    @property
+    def bow_extent(self) -> float:
+        """How much of the playing space the model's bows span: the area of its box in (log F_B / w, v_B), 0 for a
+        point model. The renderer prefers the smallest that covers a scene: a narrower model spends its training on
+        fewer bows, and validation NMSE from different boxes' own bows does not compare across boxes."""
+        if self.box is None:
+            return 0.0
+        b0, b1, v0, v1 = self.box
+        return math.log(max(b1, 1e-12) / max(b0, 1e-12)) * (v1 - v0)
+
     def box_contains(self, beta, vb) -> np.ndarray:
         """Elementwise: does the model play the bow (beta, v_B) (a point model: equal to its point; a range model:
         inside its box, or below it in beta, beta_plays)?"""
