@@ -61,7 +61,7 @@ def main():
     ap.add_argument("--fb", type=float, nargs="*", default=[100, 1000])
     args = ap.parse_args()
     rows = []
-    print(f"| fb | change from the default | steps | NMSE(p) 1 s | pitch error (cents) |")
+    print("| fb | change from the default | steps | NMSE(p) 1 s | pitch error (cents) |")
     print("|---|---|---|---|---|")
     for fb in args.fb:
         for label, changes in ABLATIONS[int(fb)]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -33,7 +32,7 @@ def callback(seconds: float) -> None:
     from bowsynth.live import Stream
 
     period_ms = 1e3 * PERIOD / RATE
-    print(f"| engine | voices | p50 ms | p99 ms | max ms | max / period | note-on blocks max ms |")
+    print("| engine | voices | p50 ms | p99 ms | max ms | max / period | note-on blocks max ms |")
     print("|---|---|---|---|---|---|---|")
     for engine in ("operator", "fdm"):
         for nv in (1, 16, 64, 256):

@@ -10,7 +10,6 @@ pitches (the first two windows of a real render against RK4 at those samples), a
 edited to claim other physics.
 """
 
-import copy
 import math
 import time
 
@@ -72,7 +71,7 @@ def main():
     for path in sorted(R.SHIPPED_DIR.glob("*.safetensors")):
         m = load_model(path)
         d = m.domain
-        for label, claims in ((f"F_B x2", {"beta": 2 * d.beta}), ("F_B x1.5", {"beta": 1.5 * d.beta}),
+        for label, claims in (("F_B x2", {"beta": 2 * d.beta}), ("F_B x1.5", {"beta": 1.5 * d.beta}),
                               ("F_B x0.5", {"beta": 0.5 * d.beta}), ("F_B x1.1", {"beta": 1.1 * d.beta}),
                               ("v_B 0.25", {"vb": 0.25}), ("a 150", {"a": 150.0})):
             print(f"| {path.stem} | {label} | {R.physics_error(lie(m, **claims), 0.0, 0.0):.2g} |")

@@ -11,7 +11,7 @@ The last column is f0 = the asked pitch (no solve): how flat the friction makes 
 import math
 import time
 
-from bowsynth import Scene, render_fdm
+from bowsynth import Scene
 from bowsynth.analysis.metrics import cents, f0_estimate
 from bowsynth.engines import render
 from bowsynth.music.notes import note_name, parse_pitch

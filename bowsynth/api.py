@@ -85,7 +85,6 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     defaults are the only ones. Checkpoints go beside `out`; `resume=True` continues from one. Returns a TrainResult.
     A model whose validation rollout fails is saved but marked failed in its record (it is never picked by default).
     """
-    from .io.progress import Reporter
     from .training.config import check_net_options, check_refine, checkpoint_path, default_model_name
 
     config = config or make_train_config(scene, **settings)

@@ -3,7 +3,6 @@
 import json
 import math
 
-import numpy as np
 import pytest
 from conftest import run_main
 from hypothesis import given, settings

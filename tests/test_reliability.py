@@ -196,7 +196,6 @@ def test_wheel_carries_presets_and_shipped_models(tmp_path):
     import subprocess
     import sys
     import zipfile
-    from pathlib import Path
 
     pytest.importorskip("scikit_build_core")  # the test extra installs it
     root = Path(__file__).resolve().parents[1]

@@ -129,7 +129,7 @@ def bench_windows(model, n_states: int = 64, seed: int = 1) -> list[dict]:
     rows = []
     for label, x0 in (("window starts of the render from rest (trained)", starts),
                       (f"held-out band states within {NEAR:.1%} of the box from the band", held[dist < NEAR]),
-                      (f"held-out band states farther (the mask's margin)", held[dist >= NEAR])):
+                      ("held-out band states farther (the mask's margin)", held[dist >= NEAR])):
         if len(x0) == 0:
             continue
         e = window_errors(model, x0, sc)

@@ -7,7 +7,6 @@ truth's fundamental, the pitch track and the envelope.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 

@@ -9,7 +9,6 @@ import torch
 
 from ..errors import UsageError
 from ..io.outfile import signals_held  # noqa: F401  (written once, beside the other output rules)
-from .config import checkpoint_path  # noqa: F401
 
 META_KEY = "bowsynth_checkpoint"
 

@@ -17,7 +17,7 @@ from ..errors import UsageError
 from ..scene import Scene
 from ..text import jsonable
 from . import checkpoint
-from .config import TrainConfig, check_net_options, default_model_name, resolve_device  # noqa: F401
+from .config import TrainConfig, check_net_options, resolve_device
 from .data import build, build_range
 from .losses import default_weights, loss_terms, weighted
 from .selection import RangeSelector, Selector, selection_scene

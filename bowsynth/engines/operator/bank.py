@@ -11,7 +11,6 @@ import numpy as np
 
 from ... import physics
 from .. import core
-from ..fdm import check_oversample  # noqa: F401  (re-exported for curve.render_curve)
 from . import voices as V
 from .basis import _operator
 from .npnet import PARAM_SPAN, trunk_features
