@@ -275,3 +275,18 @@ def test_bracketed_root_finds_roots_of_steep_and_flat_functions():
                     (lambda x: 1200 * math.log2(1 + math.atan(x - 0.3) / 10), 0.3)]:
         x = _bracketed_root(h, -1.0, 2.0, h(-1.0), h(2.0))
         assert abs(x - root) < 1e-8 or abs(h(x)) < 1e-6, (x, root)  # to 1e-6 cents, as tune asks
+
+
+def test_a_bow_the_audio_rate_fdm_never_settles_on_still_renders(tmp_path, capsys, monkeypatch, fresh_cache):
+    """A5 at F_B 1000, v_B 0.15: the solve passes bows where the scheme at ~43 samples a period settles on no period
+    (its pitch is undefined there, where the truth's is not); the note is tuned with the truth's ratio at those bows
+    and renders, instead of refusing a note the truth plays."""
+    from bowsynth.music.engine_tuning import fdm_measured_ratio, fdm_ratio
+
+    bow = (0.1563374726295082, 0.15, 100.0)  # a bow the solve tries on the way (measured), at f0 1018.02 Hz
+    with pytest.raises(SilentNoteError):
+        fdm_measured_ratio(*bow, 1018.0217219518704, 44100)
+    assert fdm_ratio(44100)(*bow, 1018.0217219518704) == sounding_ratio(*bow).r
+    code, out, err = run_main(["render", "--pitch", "A5", "--fb", "1000", "--vb", "0.15", "--method", "fdm", "-d",
+                               "0.3", str(tmp_path / "a5.wav")], capsys, monkeypatch)
+    assert code == 0 and "A5" in out and (tmp_path / "a5.wav").exists(), out + err

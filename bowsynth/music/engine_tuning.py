@@ -7,16 +7,27 @@ from __future__ import annotations
 from .. import physics
 from ..errors import DomainError
 from ..scene import Scene
-from .tuning import _measure_ratio, engine_ratio, sounding_ratio
+from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
+
+
+def fdm_measured_ratio(beta: float, vb: float, a: float, f0: float, rate: float) -> float:
+    """The FDM's own sounding ratio at this bow with its step at `rate` (sample rate x oversampling): measured once,
+    cached in the process and on disk like sounding_ratio. SilentNoteError where the scheme settles on no period."""
+    k = physics.dtau(f0, rate)
+    return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: _measure_ratio(beta, vb, a, k=k).r)
 
 
 def fdm_ratio(sample_rate: float, oversample: int = 1):
     """The sounding ratio of the FDM at this rate, as `tune(ratio=...)` takes it: the scheme's own, at its step in tau
     k w = 2 pi f0 / (sample_rate oversample), dispersion included (about (w k)^2 / 24: +2.2 cents at A5 at 44.1 kHz
-    if tuned with the truth's ratio). Cached in the process and on disk like sounding_ratio."""
+    if tuned with the truth's ratio)."""
     def ratio(beta: float, vb: float, a: float, f0: float) -> float:
-        k = physics.dtau(f0, sample_rate * oversample)
-        return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: _measure_ratio(beta, vb, a, k=k).r)
+        try:
+            return fdm_measured_ratio(beta, vb, a, f0, sample_rate * oversample)
+        except SilentNoteError:
+            # at so coarse a step the scheme can settle on no period where the truth does (A5 at F_B 1000, v_B 0.15:
+            # ~43 samples a period): its pitch is undefined there, so the truth's ratio tunes the note
+            return sounding_ratio(beta, vb, a).r
     return ratio
 
 
@@ -57,6 +68,11 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
         from ..engines.fdm import check_oversample
 
         os_ = check_oversample(scene, oversample, warn=False)
+        if not scene.varying:
+            try:  # measured here (then cached) so that a scheme that settles on no period is said, not hidden
+                fdm_measured_ratio(scene.beta, scene.vb, scene.a, scene.f0, scene.sample_rate * os_)
+            except SilentNoteError:
+                return None, f"the FDM at x{os_} settles on no period at this bow"
         return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
     from ..engines.operator.choose import as_model, find_model
 
