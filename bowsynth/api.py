@@ -222,6 +222,43 @@ def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: floa
                  sample_rate=sample_rate)
 
 
+def model_status(scene: Scene, config, out, box=None) -> str | None:
+    """Why the model file `out` is not what training `scene` (and `box`) with `config` makes, in a few words: missing,
+    unreadable (with the loader's reason), or stale (it plays another scene or box, or was trained with another
+    budget, seed, batch or network); None when it is what the recipe asks for. What `train --update` (and so `make
+    models`) asks before training. Settings a recipe does not name are not compared: a model trained by an older
+    version of the trainer stays current until its recipe changes."""
+    import dataclasses
+
+    from .engines.operator.modelfile import load_model
+    from .errors import ModelFileError
+    from .training.config import default_model_name
+
+    out = Path(out)
+    if not out.exists():
+        return "missing"
+    try:
+        m = load_model(out)
+    except (ModelFileError, OSError) as e:
+        return f"unreadable ({str(e).splitlines()[0]})"
+    if box is not None and box.is_point:
+        box = None
+    name = default_model_name(scene) if box is None else range_model_name(scene, box)
+    if m.meta.name != name:
+        return f"stale: it plays {m.meta.name}, the recipe asks for {name}"
+    defaults = {f.name: f.default for f in dataclasses.fields(config) if f.default is not dataclasses.MISSING}
+    trained = m.meta.training or {}
+    for key in ("minutes", "steps", "seed", "batch_states", "rest_linear"):
+        was, want = trained.get(key, defaults.get(key)), getattr(config, key)
+        if was != want:
+            return f"stale: trained with {key} {was}, the recipe asks for {want}"
+    for key in ("width", "depth"):
+        was, want = (m.meta.net or {}).get(key), getattr(config.net, key)
+        if was != want:
+            return f"stale: its network has {key} {was}, the recipe asks for {want}"
+    return None
+
+
 def range_model_name(scene: Scene, box) -> str:
     w = scene.omega
     return (f"range_fb{box.beta_lo * w:.4g}-{box.beta_hi * w:.4g}_f0{scene.f0:g}_vb{box.vb_lo:g}-{box.vb_hi:g}"

@@ -176,6 +176,48 @@ def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
         assert rec["out"] == r.with_suffix(".safetensors") and 0 < rec["minutes"] <= 45
 
 
+def test_train_update_builds_what_is_missing_stale_or_unreadable_and_leaves_the_rest(tmp_path, capsys, monkeypatch):
+    """`make models` runs `train --config R --update` for each recipe: a model that is what its recipe asks for is
+    left as it is; a missing, stale or truncated one is trained (replaced); an interrupted run's checkpoint is
+    continued, not started over."""
+    from bowsynth import api, make_scene
+    from bowsynth.engines.operator.modelfile import load_model
+    from bowsynth.training import Trainer
+    from bowsynth.training.config import checkpoint_path
+
+    rec, model = tmp_path / "r.toml", tmp_path / "m.safetensors"
+    rec.write_text('preset = "paper-fb100"\nsteps = 2\nwidth = 4\nout = "m.safetensors"\n')
+    tiny = ["--n-data", "16", "--depth", "1"]
+
+    def update():
+        code, out, err = run_main(["train", "--config", str(rec), "--update", *tiny], capsys, monkeypatch)
+        assert code == 0 and "Traceback" not in err, err
+        return out + err
+
+    assert "m.safetensors: missing; training it" in update() and model.exists()
+    first = model.read_bytes()
+    assert "is up to date with" in update() and model.read_bytes() == first
+    rec.write_text(rec.read_text().replace("steps = 2", "steps = 2\nseed = 3"))
+    said = update()
+    assert "stale: trained with seed 0, the recipe asks for 3" in said and load_model(model).meta.training["seed"] == 3
+    model.write_bytes(model.read_bytes()[:300])  # truncated, as by a full disk
+    assert "unreadable" in update() and load_model(model).meta.training["seed"] == 3
+    # an interrupted run: its checkpoint after one step is continued to the recipe's two
+    rec.write_text(rec.read_text().replace("seed = 3", "seed = 4"))
+    scene = make_scene("paper-fb100")
+    cfg = api.make_train_config(scene, steps=2, seed=4, n_data=16, width=4, depth=1)
+    tr = Trainer(scene, cfg, load_model(model).meta.name)
+    tr.cfg.steps = 1
+    tr.run()
+    tr.save_checkpoint(checkpoint_path(model))
+    said = update()
+    assert "continuing from its checkpoint" in said and not checkpoint_path(model).exists()
+    m = load_model(model)
+    assert m.meta.training["seed"] == 4 and m.meta.training["steps_done"] == 2
+    code, _, err = run_main(["train", "--preset", "paper-fb100", "--update", "--steps", "1"], capsys, monkeypatch)
+    assert code == 2 and "--update compares a model file with its recipe" in err and len(err.strip().splitlines()) == 1
+
+
 def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monkeypatch):
     bad = tmp_path / "bad.toml"
     for text, what in [("fb = 100\nminute = 5\n", "unknown key 'minute'"), ("minutes = \"ten\"\n", "minutes must be"),

@@ -34,6 +34,7 @@ def train(
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Model file (default ./models/<name>.safetensors)."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing model file."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint beside --out."),
+    update: bool = typer.Option(False, "--update", help="With --config: train only if the model file is missing, unreadable or stale against the recipe (replacing it), continuing from its checkpoint if an interrupted run left one; otherwise say it is up to date (`make models`)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress (a bar in a terminal, a line every 10 s elsewhere)."),
     score: Optional[Path] = typer.Option(None, "--score", help="Train a range model for the bows this score (.toml) or MIDI file (.mid) plays."),
     a4: Optional[float] = typer.Option(None, "--a4", help="With --score: the pitch of A4 in Hz (default 440)."),
@@ -74,6 +75,18 @@ def train(
                                 range_n_data=n_data if box is not None else None,
                                 checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
                                 batch_states=batch, device=device)
+    if update:
+        if config is None or out_path is None:
+            raise UsageError("--update compares a model file with its recipe: give --config (a recipe with `out`)")
+        why = api.model_status(scene, cfg, out_path, box)
+        if why is None:
+            tell(quiet, f"{out_path} is up to date with {config}")
+            return
+        from ..training.config import checkpoint_path
+
+        resume = resume or checkpoint_path(out_path).exists()
+        force = True  # the recipe's own file, missing, unreadable or stale: replaced is what --update is for
+        tell(quiet, f"{out_path}: {why}; training it" + (" (continuing from its checkpoint)" if resume else ""))
     res = api.train(scene, config=cfg, out=out_path, force=force, resume=resume, progress=not quiet, console=err,
                     box=box, init=from_model)
     v = res.model.meta.validation
