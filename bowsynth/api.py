@@ -269,7 +269,7 @@ def make_train_config(scene: Scene, window_ms=None, width=None, depth=None, **fi
     """A TrainConfig from keyword settings (None means the config's default)."""
     import dataclasses
 
-    from .engines.operator.network import NetConfig
+    from .engines.operator.npnet import NetConfig  # torch-free: `train --update` on a current model loads no torch
     from .training import TrainConfig
 
     known = {f.name for f in dataclasses.fields(TrainConfig)}

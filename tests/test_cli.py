@@ -218,6 +218,30 @@ def test_train_update_builds_what_is_missing_stale_or_unreadable_and_leaves_the_
     assert code == 2 and "--update compares a model file with its recipe" in err and len(err.strip().splitlines()) == 1
 
 
+def test_models_names_a_shipped_unit_that_is_missing_or_stale_and_lists_the_rest(tmp_path, capsys, monkeypatch):
+    import shutil
+
+    shipped = tmp_path / "shipped"
+    shipped.mkdir()
+    real = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
+    for name in ("paper-fb100", "paper-fb10"):
+        shutil.copy(real / f"{name}.safetensors", shipped)
+        shutil.copy(real / f"{name}.toml", shipped)
+    shutil.copy(real / "soft-range.toml", shipped)  # its model is gone
+    (shipped / "paper-fb10.toml").write_text((real / "paper-fb10.toml").read_text().replace("minutes = 8",
+                                                                                         "minutes = 9"))
+    monkeypatch.setattr("bowsynth.engines.operator.choose.SHIPPED_DIR", shipped)
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["models"], capsys, monkeypatch)
+    lines = out.splitlines()
+    assert code == 0, err
+    assert any("soft-range.safetensors" in ln and "MISSING" in ln and "make models" in ln for ln in lines), out
+    assert any("paper-fb10.safetensors" in ln and "stale: trained with minutes 8.0, the recipe asks for 9" in ln
+               for ln in lines), out
+    assert not any("paper-fb100.safetensors" in ln and ("stale" in ln or "MISSING" in ln) for ln in lines), out
+    assert sum("fb100_f0100_vb0.2_a100@" in ln for ln in lines) == 1  # the current unit is listed as usual
+
+
 def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monkeypatch):
     bad = tmp_path / "bad.toml"
     for text, what in [("fb = 100\nminute = 5\n", "unknown key 'minute'"), ("minutes = \"ten\"\n", "minutes must be"),

@@ -60,6 +60,10 @@ def models(
     found = scan_models()
     if not found:
         out.print("no models found (train one with `bowsynth train --fb 100`)")
+    for recipe, why in _recipe_problems(found):
+        out.print(f"[bold]{escape(str(recipe.with_suffix('.safetensors')))}[/bold]  {escape(why.upper() if why == 'missing' else why)}: "
+                  f"`make models` (or `bowsynth train --config {escape(str(recipe))} --update`) trains it",
+                  soft_wrap=True)
     for path, m, why in found:
         if m is None:
             out.print(f"[bold]{escape(str(path))}[/bold]  UNREADABLE: {escape(why)}", soft_wrap=True)
@@ -84,3 +88,21 @@ def models(
 
         write_models_report(report, found, report_grid, force, progress=lambda s: err.print(s, soft_wrap=True))
         out.print(f"report written to {report}")
+
+
+def _recipe_problems(found) -> list[tuple[Path, str]]:
+    """The shipped recipes whose model file is missing or stale (an unreadable one is listed with the files)."""
+    from ..engines.operator.choose import SHIPPED_DIR
+    from ..errors import BowsynthError
+    from .train import recipe_status
+
+    unreadable = {p for p, m, _ in found if m is None}
+    problems = []
+    for recipe in sorted(SHIPPED_DIR.glob("*.toml")):
+        try:
+            why = recipe_status(recipe)
+        except BowsynthError as e:  # a recipe that no longer parses: said, the listing goes on
+            why = f"recipe {recipe.name} unusable: {str(e).splitlines()[0]}"
+        if why and recipe.with_suffix(".safetensors") not in unreadable:
+            problems.append((recipe, why))
+    return problems

@@ -57,18 +57,7 @@ def train(
         minutes, steps, seed, out_path = merged["minutes"], merged["steps"], merged["seed"], merged["out"]
         rest_linear = bool(merged["rest_linear"])
         batch, width, device = merged["batch"], merged["width"], merged["device"]
-    box = None
-    if score is not None:
-        if fb is not None or vb is not None or preset is not None:
-            raise UsageError("--score trains for the bows the score plays: drop --fb, --vb and --preset")
-        scene, box = _score_box(score, a4)
-    elif (fb is not None and ":" in fb) or (vb is not None and ":" in vb):
-        scene, box = _range_box(preset, f0, fb, vb, a)
-    else:
-        scene = scene_from_flags(preset, f0, fb, vb, a, None, None, q0, p0)
-        if scene.varying:
-            raise UsageError("train takes a number or a range LO:HI for --fb and --vb, not a curve (a range model "
-                             "follows curves inside its range): e.g. --fb 50:200")
+    scene, box = _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4)
     cfg = api.make_train_config(scene, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer,
                                 lbfgs_fraction=lbfgs, hybrid=hybrid, window_ms=window_ms, width=width, depth=depth,
                                 n_data=n_data if box is None else None,
@@ -104,6 +93,36 @@ def train(
     tell(False, f"validation (1 s from the scene's initial state vs FDM x{v.get('ref_oversample')}): "
                 f"NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, NCC {fmt_num(v.get('ncc_percent'), '.3f')} %, "
                 f"pitch error {fmt_num(v.get('cents'), '+.3f')} cents")
+
+
+def _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4):
+    """The scene a training renders at and its box of bows (None: a point model), from train's flags."""
+    if score is not None:
+        if fb is not None or vb is not None or preset is not None:
+            raise UsageError("--score trains for the bows the score plays: drop --fb, --vb and --preset")
+        return _score_box(score, a4)
+    if (fb is not None and ":" in str(fb)) or (vb is not None and ":" in str(vb)):
+        return _range_box(preset, f0, fb, vb, a)
+    scene = scene_from_flags(preset, f0, fb, vb, a, None, None, q0, p0)
+    if scene.varying:
+        raise UsageError("train takes a number or a range LO:HI for --fb and --vb, not a curve (a range model "
+                         "follows curves inside its range): e.g. --fb 50:200")
+    return scene, None
+
+
+def recipe_status(recipe: Path) -> str | None:
+    """api.model_status of a recipe's model file against the recipe alone (what `train --config R --update` would
+    find, flags aside): None when it is up to date."""
+    from .. import api
+    from ..training.recipe import load_recipe
+
+    r = load_recipe(recipe)
+    scene, box = _scene_and_box(r.get("preset"), r.get("f0"), r.get("fb"), r.get("vb"), r.get("a"), None, None,
+                                None, None)
+    cfg = api.make_train_config(scene, minutes=r.get("minutes"), steps=r.get("steps"), seed=r.get("seed"),
+                                width=r.get("width"), batch_states=r.get("batch"), device=r.get("device"),
+                                rest_linear=r.get("rest_linear"))
+    return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box)
 
 
 def _range_box(preset, f0, fb, vb, a):
