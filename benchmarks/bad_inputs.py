@@ -39,6 +39,7 @@ CASES = [
     ("--from a point model", "train --fb 100 --from paper-fb100 --steps 1 --out r.safetensors"),
     ("--from a range model that does not hold the bows", "train --fb 300:400 --from soft-range --steps 1 --out r.safetensors"),
     ("--from a model that does not exist", "train --fb 100 --from no-such-model --steps 1 --out r.safetensors"),
+    ("--update with no recipe", "train --fb 100 --update --steps 1 --out r.safetensors"),
     ("--model a name no model has", "render --fb 100 --model no-such-model x.wav"),
     ("curve times not increasing", "render --fb 50@1,100@0 x.wav"),
     ("a non-finite curve value", "render --fb nan@0,100@1 x.wav"),
