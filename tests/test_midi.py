@@ -309,8 +309,15 @@ def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys
     assert "bow stops" not in out  # the FDM plays whole notes: nothing was handed over
     code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "o.wav")],
                               capsys, monkeypatch)
-    # who played the bow stops, counted: the shipped models do not reach v_B = 0, so the FDM played each
-    assert code == 0 and "rendered 8 notes" in out and "bow stops: 0 by the operator, 8 by the FDM" in out, out + err
+    # who played the bow stops, counted: the shipped soft-range reaches v_B = 0, so it plays every note whole
+    assert code == 0 and "rendered 8 notes" in out and "bow stops: 8 by the operator, 0 by the FDM" in out, out + err
+    # as the live engine plays them: every bow stop by the FDM from the hold
+    code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "l.wav"),
+                               "--releases", "fdm"], capsys, monkeypatch)
+    assert code == 0 and "bow stops: 0 by the operator, 8 by the FDM" in out, out + err
+    code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "x.wav"),
+                               "--releases", "model"], capsys, monkeypatch)
+    assert code == 2 and "--releases must be auto or fdm" in err and not (tmp_path / "x.wav").exists()
 
 
 def test_timing_matches_mido_through_tempo_changes(tmp_path):

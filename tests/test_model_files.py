@@ -174,15 +174,16 @@ def test_the_narrowest_covering_box_wins_over_a_lower_validation_nmse():
 
     from bowsynth.engines.operator.choose import covering_model
 
-    soft = load_model(SHIPPED_DIR / "soft-range.safetensors")
+    base = load_model(SHIPPED_DIR / "soft-range.safetensors")
 
     def variant(box, nmse):
-        m = copy.copy(soft)
-        m.meta = copy.deepcopy(soft.meta)
-        m.meta.domain = dataclasses.replace(soft.domain, box=list(box))
+        m = copy.copy(base)
+        m.meta = copy.deepcopy(base.meta)
+        m.meta.domain = dataclasses.replace(base.domain, box=list(box))
         m.meta.validation["nmse"] = nmse
         return m
 
+    soft = variant([0.015, 0.4, 0.05, 0.3], 0.05)
     wide = variant([0.01, 0.45, 0.0, 0.3], 1e-3)
     narrow = variant([0.1, 0.2, 0.1, 0.2], 0.05)
     sc = Scene(fb=0.15 * 2 * np.pi * 100, vb=0.15, duration=0.1)

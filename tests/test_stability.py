@@ -32,11 +32,12 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
 # left the domain (all after their first window) 0 / 1 / 3; the others' largest relative amplitude deviation from the
 # FDM's limit cycle over the last 0.5 s 7.1e-5 / 3.9e-4 / 6.8e-3, largest pitch error 0.0025 / 0.0099 / 0.20 cents.
 # Limits: 4x (at least 2 voices for the count).
-# soft-range (its centre bow, F_B / w 0.078, v_B 0.175; states drawn over the union of its box's bands): 5 left,
-# 5.4e-3, 0.086 cents.
+# soft-range (session 10: its centre bow, F_B / w 0.067, v_B 0.15; states drawn over the union of its box's bands,
+# `benchmarks/stability.py`, seeds 1-3): 8 / 3 / 3 left, 7.8e-3, 0.108 cents (seed 0 of its recipe: one voice on a
+# limit cycle 3.1x the FDM's, not shipped).
 # scratch-g2 (rest-linearised flow): 3 left, 2.9e-3, 0.146 cents.
 CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), "paper-fb1000": (12, 2.7e-2, 0.8),
-               "soft-range": (20, 2.2e-2, 0.35), "scratch-g2": (12, 1.2e-2, 0.6)}
+               "soft-range": (32, 3.1e-2, 0.43), "scratch-g2": (12, 1.2e-2, 0.6)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])

@@ -27,6 +27,7 @@ def score(
     a4: Optional[float] = typer.Option(None, "--a4", help="MIDI files: the tuning of A4 in Hz (default 440)."),
     bend_range: Optional[float] = typer.Option(None, "--bend-range", help="MIDI files: semitones at full pitch "
                                                                           "bend (default 2)."),
+    releases: str = typer.Option("auto", "--releases", help="Who plays the bow stops: auto (a model that covers the bow stop, else the FDM) or fdm (the FDM from each hold, as the live engine plays them: to compare with a `play` recording)."),
     fallback: str = typer.Option("none", "--fallback", help="A note no model covers, or that leaves its model's domain: "
                                                             "none (stop before rendering) or fdm (render it with the FDM)."),
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
@@ -103,7 +104,7 @@ def score(
 
         check_mix([n.start for n in notes], [n.scene for n in notes], force)
     t0 = time.perf_counter()
-    renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file)
+    renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file, releases=releases)
     secs = time.perf_counter() - t0
     say = console_for(output)
     # a remark that holds for many notes (a model's physics check, say) is said once, with how many notes it concerns
@@ -120,9 +121,9 @@ def score(
     used = sorted({f"{r.info.model_id} ({r.info.model_path})" for r in renders if r.info.model_path}
                   | {r.info.release_model for r in renders if r.info.release_model})
     by = [r.info.release for r in renders if r.info.release]
-    releases = (f"; bow stops: {by.count('operator')} by the operator, {by.count('fdm')} by the FDM"
-                if method == "operator" and by else "")
+    stops = (f"; bow stops: {by.count('operator')} by the operator, {by.count('fdm')} by the FDM"
+             if method == "operator" and by else "")
     shown = ", ".join(str(p) for p in paths[:4]) + (f" and {len(paths) - 4} more" if len(paths) > 4 else "")
     tell(quiet, f"rendered {len(notes)} notes in {voices} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
                 f"({audio / max(secs, 1e-9):.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
-                + releases + f"; wrote {shown}", say)
+                + stops + f"; wrote {shown}", say)

@@ -89,9 +89,9 @@ class Stream(VoiceBank):
         if engine == "operator":
             d = model.domain
             # a stick-slip model's notes go to the FDM (_plays says why)
-            a_ok = math.isclose(d.a, self.a, rel_tol=1e-9) and not needs_whole_windows(d)
+            a_ok = math.isclose(d.a, self.a, rel_tol=1e-9)
             self.covered = np.array([v > 0 and a_ok and bool(d.box_contains(t.v_beta[v], t.v_vb[v]))
-                                     for v in range(128)])
+                                     and not needs_whole_windows(d, t.v_beta[v]) for v in range(128)])
             # per velocity (neutral controllers): the branch's bow inputs, the correction's gain, the state scaling
             # (NumpyOperator.window_inputs: the offline rollout's own code)
             pin, gain, c, h = self.op.window_inputs(np.stack([t.v_beta, t.v_vb], 1)[None])
@@ -317,10 +317,10 @@ class Stream(VoiceBank):
 
     def _plays(self, beta: float, vb: float) -> bool:
         """Does the model play this bow (Domain.box_contains for one bow, in scalars)? A point model plays only
-        the velocities the table found it covers. A stick-slip model (grid.needs_whole_windows) leaves its notes to
-        the FDM: the live voice loop has no whole-window grid yet."""
+        the velocities the table found it covers. A stick-slip bow (grid.needs_whole_windows) leaves its note to the
+        FDM: the live voice loop has no whole-window grid yet."""
         d = self.model.domain
-        if d.box is None or needs_whole_windows(d):
+        if d.box is None or needs_whole_windows(d, beta):
             return False
         b0, b1, v0, v1 = d.box
         return (b0 <= beta <= b1 or (d.plays_below and 0.0 <= beta <= b0)) and v0 <= vb <= v1

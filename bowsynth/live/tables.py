@@ -90,16 +90,17 @@ class Tuning:
         """The validated model that covers the most velocities at neutral controllers (ties: lowest validation
         NMSE), so that one model plays the keyboard; the other velocities play the FDM."""
         best, score = None, (-1, 0.0)
+        betas, vbs = [M.bow_beta(v) for v in range(1, 128)], [M.bow_vb(v) for v in range(1, 128)]
         for m in models:
-            # a stick-slip model plays no note live (Stream._plays): it would hand the keyboard to the FDM
-            if m.failure is not None or not math.isclose(m.domain.a, a, rel_tol=1e-9) or needs_whole_windows(m.domain):
+            if m.failure is not None or not math.isclose(m.domain.a, a, rel_tol=1e-9):
                 continue
-            betas, vbs = [M.bow_beta(v) for v in range(1, 128)], [M.bow_vb(v) for v in range(1, 128)]
-            n = int(np.sum(m.domain.box_contains(np.array(betas), np.array(vbs))))
+            # a stick-slip bow plays no note live (Stream._plays): it would hand its velocity to the FDM
+            soft = np.array([not needs_whole_windows(m.domain, b) for b in betas])
+            n = int(np.sum(m.domain.box_contains(np.array(betas), np.array(vbs)) & soft))
             s = (n, -float((m.meta.validation or {}).get("nmse", math.inf)))
             if n and s > score:
                 best, score = m, s
         if best is None:
             raise DomainError("no validated operator model plays any MIDI velocity; play with --method fdm or train "
-                              "one (bowsynth train --f0 100 --fb 9.42:251.4 --vb 0.05:0.3)")
+                              "one (bowsynth train --f0 100 --fb 6.283:282.7 --vb 0:0.3)")
         return best

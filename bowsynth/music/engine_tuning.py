@@ -68,11 +68,6 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
         from ..engines.fdm import check_oversample
 
         os_ = check_oversample(scene, oversample, warn=False)
-        if not scene.varying:
-            try:  # measured here (then cached) so that a scheme that settles on no period is said, not hidden
-                fdm_measured_ratio(scene.beta, scene.vb, scene.a, scene.f0, scene.sample_rate * os_)
-            except SilentNoteError:
-                return None, f"the FDM at x{os_} settles on no period at this bow"
         return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
     from ..engines.operator.choose import as_model, find_model
 

@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from ..controls import after
-from ..errors import DomainError
+from ..errors import DomainError, UsageError
 from ..render import Render
 from ..scene import Scene
 from .note import Note
@@ -66,15 +66,23 @@ def coverage_message(notes: list[Note], missing: list[tuple[Note, str]], source=
             f"--method fdm (or --fallback fdm for these notes only)")
 
 
+RELEASES = ("auto", "fdm")
+
+
 def render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
-                 source=None) -> list[Render]:
+                 source=None, releases: str = "auto") -> list[Render]:
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
-    of the sustains, each release then by the FDM from the sustain's last state. Notes no model covers are
-    refused before anything renders (fallback 'fdm': rendered by the FDM instead, noted in info.notes)."""
+    of the sustains, each bow stop then by a model that covers it (the sustain's own, whole; or one handed the
+    sustain's state at the hold), else by the FDM from there. releases 'fdm': every bow stop by the FDM from the hold,
+    as the live engine plays them (its voice loop has no operator bow stop yet), so that a live recording can be
+    compared sample for sample. Notes no model covers are refused before anything renders (fallback 'fdm': rendered
+    by the FDM instead, noted in info.notes)."""
     from ..engines import Engine, Fallback, parse_choice, render
 
     engine = parse_choice(Engine, method, "--method")
     fb_mode = parse_choice(Fallback, fallback, "--fallback")
+    if releases not in RELEASES:
+        raise UsageError(f"--releases must be {' or '.join(RELEASES)}, got {releases!r}")
     if engine is Engine.fdm:
         return render([n.scene for n in notes], engine="fdm")
     missing = {id(n): why for n, why in uncovered(notes, model)}
@@ -91,7 +99,8 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     from ..engines.operator.choose import available_models
 
     pool = available_models() if model is None else None  # one look at the model directories for all the notes
-    whole = [i for i in op if notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
+    by_model = releases == "auto"
+    whole = [i for i in op if by_model and notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
     if whole:
         for i, r in zip(whole, render([notes[i].scene for i in whole], engine="operator", model=model,
                                       fallback=fallback)):
@@ -102,7 +111,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
         sustains = [notes[i].rollout_scene() for i in part]
         rs = render(sustains, engine="operator", model=model, fallback=fallback)
         # the other releases: by a model that covers the bow stop (picked among the same models), else the FDM
-        for i, r in zip(part, finish_releases([notes[i] for i in part], rs, models=pool)):
+        for i, r in zip(part, finish_releases([notes[i] for i in part], rs, models=pool if by_model else None)):
             out[i] = r
     return out
 

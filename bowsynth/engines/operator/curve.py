@@ -34,7 +34,7 @@ def render_curve(scene, model):
         raise SceneError(f"a pitch curve for the operator holds at most {CURVE_POINTS} breakpoints, this one "
                          f"{len(scene.f0.points)}")
     m = as_model(model)
-    if needs_whole_windows(m.domain):
+    if needs_whole_windows(m.domain, float(betas.max())):
         raise DomainError(f"model {m.path or m.meta.name} plays stick-slip, which the operator computes on whole "
                           f"windows (a fixed pitch per note); under a pitch curve it does not yet: render with "
                           f"--method fdm")

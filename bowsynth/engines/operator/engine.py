@@ -205,9 +205,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         checked = _physics_notes(m) + (unreadable_notes() if model is None else [])
         op = _operator(m)
         # each voice on the grid its model needs (grid.py: whole windows for stick-slip models), and back
-        whole = needs_whole_windows(m.domain)
-        grids = [whole_window_scene(scenes[i], op.samples_per_window(scenes[i].dtau)) if whole
-                 else (scenes[i], Fraction(1)) for i in idx]
+        grids = [whole_window_scene(scenes[i], op.samples_per_window(scenes[i].dtau))
+                 if needs_whole_windows(m.domain, scenes[i].beta_range[1]) else (scenes[i], Fraction(1)) for i in idx]
         group = [g for g, _ in grids]
         x0 = np.array([[sc.q0, sc.p0] for sc in group])
         dtau = np.array([sc.dtau for sc in group])

@@ -35,11 +35,14 @@ HALF_TAPS = 10  # the filter's half length in input samples (scipy's choice): ou
 PAD = HALF_TAPS + 2  # output samples rendered past the end, and given up before a failure, for that reach
 
 
-def needs_whole_windows(domain) -> bool:
+def needs_whole_windows(domain, beta_max: float | None = None) -> bool:
     """Does a model play stick-slip (the friction's stiffness at its largest F_B / w at or above physics.STIFF, the
-    soft/stick-slip boundary its training uses too)? Those voices are computed on whole windows."""
-    beta_max = domain.box[1] if domain.is_range else domain.beta
-    return physics.stiffness(beta_max, domain.a) >= physics.STIFF
+    soft/stick-slip boundary its training uses too)? Those voices are computed on whole windows. beta_max: the largest
+    F_B / w a voice bows (a range model's box can reach just past the boundary: the soft bows below it keep the
+    output grid's windows, on which the soft models were measured); None: the model's largest."""
+    top = domain.box[1] if domain.is_range else domain.beta
+    beta = top if beta_max is None else min(float(beta_max), top)
+    return physics.stiffness(beta, domain.a) >= physics.STIFF
 
 
 def whole_window_scene(scene: Scene, spw: float) -> tuple[Scene, Fraction]:
