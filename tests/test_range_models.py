@@ -243,6 +243,21 @@ def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_pat
     assert "range model" in so
 
 
+def test_train_score_with_one_bow_trains_a_point_model_and_says_so(tmp_path, capsys, monkeypatch):
+    """A score whose notes all hold one bow (a chorale at one velocity) is a box of zero width: a point model, and no
+    line speaks of its box (its validation line read 'a None x None grid of the box')."""
+    score = tmp_path / "one.toml"
+    score.write_text('[[voice]]\n[[voice.note]]\nduration = 0.3\nf0 = 100\nfb = 100\nvb = 0.2\n'
+                     '[[voice.note]]\nstart = 0.3\nduration = 0.3\nf0 = 100\nfb = 100\nvb = 0.2\n')
+    out = tmp_path / "p.safetensors"
+    code, so, err = run_main(["train", "--score", str(score), "--steps", "2", "--n-data", "64", "--out", str(out)],
+                             capsys, monkeypatch)
+    assert code == 0, err
+    m = load_model(out)
+    assert not m.domain.is_range and m.meta.scene["fb"] == 100 and m.meta.scene["vb"] == 0.2
+    assert "grid of the box" not in so and "None x None" not in so, so
+
+
 def test_bench_scores_held_out_bows_of_a_range_model(range_model):
     """bench: a range model's held-out bows are the grid of cell centres of its box, each scored against the FDM
     x100 where the note speaks (nmse is the metrics' NMSE of p), reported finite where it does not."""

@@ -85,7 +85,7 @@ def train(
                   f"longer (--minutes) before rendering with it", soft_wrap=True)
     if v.get("error"):
         return
-    if box is not None:
+    if box is not None and not box.is_point:  # a score with one bow trains a point model
         tell(False, f"validation (1 s from rest on a {v.get('grid')} x {v.get('grid')} grid of the box vs FDM "
                     f"x{v.get('ref_oversample')}, where the note speaks): median NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, "
                     f"worst {fmt_num(v.get('nmse_max'), '.3g')}")
