@@ -49,7 +49,7 @@ def score(
     from ..io.audio import check_audio_output, check_dc, check_gain_db
     from ..io.outfile import check_output_path
     from ..music.mix import check_outputs_fit, stem_paths, write_voices
-    from ..music.perform import render_notes
+    from ..music.perform import check_releases, render_notes
     from ..music.score import load_score, voices_from_presets
 
     if (score_file is None) == (presets_list is None):
@@ -57,6 +57,7 @@ def score(
     from ..engines import Engine, Fallback, parse_choice
 
     method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
+    check_releases(releases)  # before the score is read and tuned
     check_dc(dc)
     check_gain_db(gain)
     if stems is not None and not mix:

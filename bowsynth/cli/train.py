@@ -58,12 +58,9 @@ def train(
         rest_linear = bool(merged["rest_linear"])
         batch, width, device = merged["batch"], merged["width"], merged["device"]
     scene, box = _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4)
-    cfg = api.make_train_config(scene, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer,
-                                lbfgs_fraction=lbfgs, hybrid=hybrid, window_ms=window_ms, width=width, depth=depth,
-                                n_data=n_data if box is None else None,
-                                range_n_data=n_data if box is not None else None,
-                                checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
-                                batch_states=batch, device=device)
+    cfg = _train_config(scene, box, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs,
+                        hybrid=hybrid, window_ms=window_ms, width=width, depth=depth, n_data=n_data,
+                        checkpoint_every=checkpoint_every, rest_linear=rest_linear, batch=batch, device=device)
     if update:
         if config is None or out_path is None:
             raise UsageError("--update compares a model file with its recipe: give --config (a recipe with `out`)")
@@ -110,6 +107,21 @@ def _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4):
     return scene, None
 
 
+def _train_config(scene, box, minutes=None, steps=None, seed=None, optimizer=None, lbfgs=None, hybrid=True,
+                  window_ms=None, width=None, depth=None, n_data=None, checkpoint_every=None, rest_linear=False,
+                  batch=None, device=None):
+    """The TrainConfig of train's flags (a recipe's keys are those flags' names): the one mapping of flags to its
+    fields, for a training and for `recipe_status`'s comparison alike."""
+    from .. import api
+
+    return api.make_train_config(scene, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer,
+                                 lbfgs_fraction=lbfgs, hybrid=hybrid, window_ms=window_ms, width=width, depth=depth,
+                                 n_data=n_data if box is None else None,
+                                 range_n_data=n_data if box is not None else None,
+                                 checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
+                                 batch_states=batch, device=device)
+
+
 def recipe_status(recipe: Path) -> str | None:
     """api.model_status of a recipe's model file against the recipe alone (what `train --config R --update` would
     find, flags aside): None when it is up to date."""
@@ -119,9 +131,8 @@ def recipe_status(recipe: Path) -> str | None:
     r = load_recipe(recipe)
     scene, box = _scene_and_box(r.get("preset"), r.get("f0"), r.get("fb"), r.get("vb"), r.get("a"), None, None,
                                 None, None)
-    cfg = api.make_train_config(scene, minutes=r.get("minutes"), steps=r.get("steps"), seed=r.get("seed"),
-                                width=r.get("width"), batch_states=r.get("batch"), device=r.get("device"),
-                                rest_linear=r.get("rest_linear"))
+    cfg = _train_config(scene, box, **{k: r.get(k) for k in ("minutes", "steps", "seed", "width", "batch", "device",
+                                                             "rest_linear")})
     return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box)
 
 

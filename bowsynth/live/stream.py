@@ -88,7 +88,7 @@ class Stream(VoiceBank):
         super().__init__(sample_rate, block, voices, engine, model if engine == "operator" else None, lowest)
         if engine == "operator":
             d = model.domain
-            # a stick-slip model's notes go to the FDM (_plays says why)
+            # a stick-slip bow's notes go to the FDM (_plays says why)
             a_ok = math.isclose(d.a, self.a, rel_tol=1e-9)
             self.covered = np.array([v > 0 and a_ok and bool(d.box_contains(t.v_beta[v], t.v_vb[v]))
                                      and not needs_whole_windows(d, t.v_beta[v]) for v in range(128)])

@@ -90,13 +90,14 @@ class Tuning:
         """The validated model that covers the most velocities at neutral controllers (ties: lowest validation
         NMSE), so that one model plays the keyboard; the other velocities play the FDM."""
         best, score = None, (-1, 0.0)
-        betas, vbs = [M.bow_beta(v) for v in range(1, 128)], [M.bow_vb(v) for v in range(1, 128)]
+        betas = np.array([M.bow_beta(v) for v in range(1, 128)])
+        vbs = np.array([M.bow_vb(v) for v in range(1, 128)])
         for m in models:
             if m.failure is not None or not math.isclose(m.domain.a, a, rel_tol=1e-9):
                 continue
             # a stick-slip bow plays no note live (Stream._plays): it would hand its velocity to the FDM
             soft = np.array([not needs_whole_windows(m.domain, b) for b in betas])
-            n = int(np.sum(m.domain.box_contains(np.array(betas), np.array(vbs)) & soft))
+            n = int(np.sum(m.domain.box_contains(betas, vbs) & soft))
             s = (n, -float((m.meta.validation or {}).get("nmse", math.inf)))
             if n and s > score:
                 best, score = m, s

@@ -69,6 +69,13 @@ def coverage_message(notes: list[Note], missing: list[tuple[Note, str]], source=
 RELEASES = ("auto", "fdm")
 
 
+def check_releases(releases: str) -> str:
+    """Who plays the bow stops: 'auto' or 'fdm' (render_notes), else one line."""
+    if releases not in RELEASES:
+        raise UsageError(f"--releases must be {' or '.join(RELEASES)}, got {releases!r}")
+    return releases
+
+
 def render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
                  source=None, releases: str = "auto") -> list[Render]:
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
@@ -81,8 +88,7 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
 
     engine = parse_choice(Engine, method, "--method")
     fb_mode = parse_choice(Fallback, fallback, "--fallback")
-    if releases not in RELEASES:
-        raise UsageError(f"--releases must be {' or '.join(RELEASES)}, got {releases!r}")
+    check_releases(releases)
     if engine is Engine.fdm:
         return render([n.scene for n in notes], engine="fdm")
     missing = {id(n): why for n, why in uncovered(notes, model)}

@@ -7,7 +7,6 @@ truth's fundamental, the pitch track and the envelope.
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from ..analysis.metrics import f0_estimate, harmonic_amplitudes
