@@ -81,6 +81,20 @@ def test_the_fdm_refuses_bad_curves_and_short_outputs():
         c.fdm_run(0.0, 0.0, 0.0, 0, 10, 1, 1e-5, t, v, t, v, t, v, 100.0, 1e-14, 60, out.astype(np.float32), out)
 
 
+def test_the_dc_filter_refuses_what_it_cannot_filter_in_place():
+    c = core.load()
+    x = np.ones(8)
+    c.highpass_zero_phase(x, 7e-4)
+    assert np.max(np.abs(x)) < 1e-12  # a constant is steady state: nothing comes out
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="positive"):
+            c.highpass_zero_phase(np.ones(8), bad)
+    for arr in (np.ones(8, np.float32), np.ones((2, 4)), np.ones(16)[::2]):  # a copy would be filtered, not arr
+        with pytest.raises(TypeError):
+            c.highpass_zero_phase(arr, 7e-4)
+    c.highpass_zero_phase(np.zeros(0), 7e-4)
+
+
 def test_the_fdm_follows_a_w2_curve_like_the_numpy_scheme():
     """w^2 given per step as breakpoints (a pitch that moves): the compiled loop against the same scheme written out
     in numpy, step by step."""

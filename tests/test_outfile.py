@@ -12,8 +12,6 @@ import numpy as np
 import pytest
 import soundfile as sf
 from conftest import run_main
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from bowsynth import Scene, render_fdm
 from bowsynth.errors import UsageError
@@ -254,32 +252,18 @@ def test_edited_header_data_size_is_refused(tmp_path):
         read_wav(tmp_path / "e.wav")
 
 
-@given(st.integers(1, 3_000_000))
-@settings(max_examples=200, deadline=None)
-def test_fft_length_is_the_next_5_smooth_length(n):
-    from bowsynth.io.audio import fft_length
-
-    m = fft_length(n)
-    assert m >= n
-    r = m
-    for p in (2, 3, 5):
-        while r % p == 0:
-            r //= p
-    assert r == 1
-    assert m < 2 * n or n == 1  # a power of two is always a candidate
-
-
-@pytest.mark.parametrize("n", [92_604, 48_505, 4_410])
-def test_dc_removal_on_a_fast_length_equals_the_exact_length(n):
-    """The zero fill up to a fast FFT length changes nothing audible: the same filter applied at the padded signal's
-    own length (pocketfft handles any length, slowly) gives the same samples to 1e-5 of the peak (-100 dB; each
-    differs from the ideal filter by what rings round from its far end, ~e^-11 of the jump there)."""
-    from bowsynth.io.audio import DC_HZ, DC_PAD_S, remove_dc
+@pytest.mark.parametrize("n", [92_604, 48_505, 4_410, 441])
+def test_dc_removal_is_the_ideal_zero_phase_filter(n):
+    """The compiled recursive filter, forward and backward, against the ideal zero-phase response (f/fc)^4 /
+    (1 + (f/fc)^4) applied in the frequency domain to the signal padded by 4 s of odd reflection (its circular wrap
+    rings out to e^-88): the same samples to 2e-5 of the peak (-94 dB; measured 0.3-1.0e-5: the bilinear warp and
+    what is left of each pass's start-up after the 0.5 s padding)."""
+    from bowsynth.io.audio import DC_HZ, remove_dc
 
     rng = np.random.default_rng(n)
     x = 0.05 + np.cumsum(rng.standard_normal(n)) * 1e-3 + np.sin(np.arange(n) * 0.014)
-    pad = int(DC_PAD_S * 44100)
+    pad = 4 * 44100
     padded = np.pad(x, pad, mode="reflect", reflect_type="odd")
     f4 = (np.fft.rfftfreq(padded.size, 1 / 44100) / DC_HZ) ** 4
     y = np.fft.irfft(np.fft.rfft(padded) * (f4 / (1 + f4)), n=padded.size)[pad:pad + n]
-    assert np.max(np.abs(remove_dc(x, 44100) - (y - y.mean()))) < 1e-5 * np.abs(x).max()
+    assert np.max(np.abs(remove_dc(x, 44100) - (y - y.mean()))) < 2e-5 * np.abs(x).max()

@@ -438,6 +438,14 @@ NB_MODULE(_core, mod) {
         bowsynth::dc_block(x.data(), n, r, state.data(), y.data());
     }, "x"_a.noconvert(), "n"_a, "r"_a, "state"_a.noconvert(), "y"_a.noconvert(),
        "y[:n] = the causal DC blocker y[i] = x[i] - x[i - 1] + r y[i - 1] of x[:n], its memory in state.");
+    mod.def("highpass_zero_phase", [](Out<double, 1> x, double K) {
+        need(std::isfinite(K) && K > 0, "highpass_zero_phase: K = tan(pi f_c / f_s) must be a positive number");
+        double* xs = x.data();
+        const int64_t n = x.shape(0);
+        nb::gil_scoped_release nogil;
+        bowsynth::highpass_zero_phase(xs, n, K);
+    }, "x"_a.noconvert(), "K"_a,
+       "x high-passed in place, forward then backward, by a 2nd-order Butterworth at K = tan(pi f_c / f_s).");
     mod.def("polyphase", [](In<double, 2> x, In<double, 2> w, int64_t up, int64_t down, Out<float, 2> y) {
         // y[r, j] = sum_k w[(j down) mod up, k] x[r, (j down) div up + k]: a rational resampler whose filter is
         // given per phase (engines.operator.grid)

@@ -326,4 +326,28 @@ void dc_block(const double* x, int64_t n, double r, double* state, float* y) {
     state[1] = yp;
 }
 
+
+// x[:n] high-passed in place by a 2nd-order Butterworth at corner K = tan(pi f_c / f_s) (bilinear), run forward then
+// backward: the zero-phase |H|^2 io.audio.remove_dc asks for. Each pass starts in the filter's steady state for its
+// first input (a constant gives 0 out, as scipy's filtfilt starts), so the padding's first sample is no step.
+void highpass_zero_phase(double* x, int64_t n, double K) {
+    if (n < 1) return;
+    const double r2 = std::sqrt(2.0), norm = 1.0 / (1.0 + r2 * K + K * K);
+    const double b0 = norm, b1 = -2.0 * norm, b2 = norm;
+    const double a1 = 2.0 * (K * K - 1.0) * norm, a2 = (1.0 - r2 * K + K * K) * norm;
+    auto pass = [&](int64_t first, int64_t step) {
+        // transposed direct form II; steady state for a constant c: y = 0, z1 = -b0 c, z2 = b2 c
+        const double c = x[first];
+        double z1 = -b0 * c, z2 = b2 * c;
+        for (int64_t i = 0, j = first; i < n; ++i, j += step) {
+            const double xi = x[j], y = b0 * xi + z1;
+            z1 = b1 * xi - a1 * y + z2;
+            z2 = b2 * xi - a2 * y;
+            x[j] = y;
+        }
+    };
+    pass(0, 1);
+    pass(n - 1, -1);
+}
+
 }  // namespace bowsynth

@@ -3,6 +3,7 @@ checked before the loop, a voice that leaves its model finished by the FDM when 
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from fractions import Fraction
@@ -10,7 +11,7 @@ from fractions import Fraction
 import numpy as np
 
 from ...errors import DomainError, ModelFileError, UsageError
-from ...render import Played, Render, RenderInfo
+from ...render import LazyControls, Played, Render, RenderInfo
 from ...scene import Scene
 from .basis import _operator
 from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_fits_best
@@ -162,6 +163,22 @@ def render_operator(scene, model=None, fallback: str = "none"):
     return render_operator_batch([scene], model=model, fallback=fallback, _single=True)[0]
 
 
+def _applied(sc: Scene, grid, op, bows, leave) -> dict:
+    """The controls a voice's render applied, per output sample (Render.controls, computed when read): the bow of
+    each window on the voice's grid, and the scene's curves where the FDM played the rest."""
+    g, ratio = grid
+    ns = sc.n_samples
+    ctrl = applied_controls(g, op.samples_per_window(g.dtau), bows)
+    if ratio != 1:
+        j = to_grid(ns, ratio, g.n_samples)
+        ctrl = {k: v[j] for k, v in ctrl.items()}
+    if leave is not None:  # the FDM played the rest: its controls are the curves themselves
+        at = from_grid(leave[0], ratio)
+        tt = np.arange(at, ns) / sc.sample_rate
+        ctrl["fb"][at:], ctrl["vb"][at:] = sc.fb_at(tt), sc.vb_at(tt)
+    return ctrl
+
+
 def _voice_bows(m: OperatorModel, scenes: list[Scene]):
     """Per voice: the bows of its windows (padded to a common length) and where the bow first leaves the model's
     range ((sample, what) or None: only a --fallback fdm render gets here with one)."""
@@ -260,15 +277,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid")}
             ctrl = None
             if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
-                g, ratio = grids[row]
-                ctrl = applied_controls(g, op.samples_per_window(g.dtau), bows[row])
-                if ratio != 1:
-                    j = to_grid(ns, ratio, g.n_samples)
-                    ctrl = {k: v[j] for k, v in ctrl.items()}
-                if leave[row] is not None:  # the FDM played the rest: its controls are the curves themselves
-                    at = from_grid(leave[row][0], ratio)
-                    tt = np.arange(at, ns) / sc.sample_rate
-                    ctrl["fb"][at:], ctrl["vb"][at:] = sc.fb_at(tt), sc.vb_at(tt)
+                ctrl = LazyControls(functools.partial(_applied, sc, grids[row], op, bows[row], leave[row]))
             out[i] = Render(sc, t_all[sc.sample_rate][:ns], qv, pv,
                             method=Played("operator", fdm_fallback=len(notes[i]) > len(checked)), seconds=secs,
                             info=info, **({"controls": ctrl} if ctrl is not None else {}))
