@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bowsynth.engines import core
+from bowsynth import compiled as core
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.rollout import rollout_states

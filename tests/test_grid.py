@@ -14,7 +14,7 @@ import pytest
 import bowsynth
 from bowsynth import Scene, load_model, render_fdm, render_operator
 from bowsynth.analysis.metrics import listener_errors
-from bowsynth.engines import core
+from bowsynth import compiled as core
 from bowsynth.engines.operator import grid
 from bowsynth.engines.operator.basis import _operator
 from bowsynth.errors import DomainError

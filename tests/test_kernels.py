@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from bowsynth import Scene
-from bowsynth.engines import core
+from bowsynth import compiled as core
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states

@@ -17,7 +17,7 @@ PKG_DIR = Path(__file__).resolve().parents[1] / "bowsynth"
 # The stages, lowest first: a module may import its own stage or a lower one, never a higher one.
 STAGES = [
     ("core", {"bowsynth", "bowsynth.errors", "bowsynth.physics", "bowsynth.controls", "bowsynth.scene",
-              "bowsynth.render"}),
+              "bowsynth.render", "bowsynth.compiled"}),
     ("io", {"bowsynth.io"}),
     ("engines", {"bowsynth.engines"}),
     ("uses", {"bowsynth.music", "bowsynth.live", "bowsynth.analysis", "bowsynth.training"}),

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bowsynth import physics
-from bowsynth.engines import core
+from bowsynth import compiled as core
 from bowsynth.engines.operator import voices as V
 from bowsynth.engines.operator.bank import VoiceBank
 

@@ -10,7 +10,7 @@ u^{+-1} = u^0 +- k p0 - k^2/2 (w^2 u^0 + F_B phi(p0 - v_B)) -- the second-order 
 p[0] = p0, and the render converges at second order to the initial-value problem. The paper's own file instead uses
 u^{-1} = u^0 = 0 (see `run_fdm_raw`).
 
-Two paths: `render_fdm` (one voice, the compiled loop of `engines.core`, src/core/fdm.cpp) and `fdm_batch` (numpy,
+Two paths: `render_fdm` (one voice, the compiled loop of `bowsynth.compiled`, src/core/fdm.cpp) and `fdm_batch` (numpy,
 vectorised across initial states, for training data, and the readable reference the tests hold the compiled loop to).
 They run the same iteration and agree to the bit.
 """
@@ -66,7 +66,7 @@ def run_fdm_raw(u_prev, u_cur, n_out, stride, k, w, fb, vb, a, eta0=None, w2=Non
     breakpoints (a pitch that moves), as the scheme wants it; the compiled step follows w^2 piecewise linearly, so
     each segment is cut finely enough that the two differ by less than 1e-10 of w^2 (1e-4 cents)."""
     from ..controls import breakpoints
-    from . import core
+    from .. import compiled as core
 
     u_out = np.empty(n_out)
     eta_out = np.empty(n_out)

@@ -122,7 +122,7 @@ def remove_dc(x: np.ndarray, sample_rate: float) -> np.ndarray:
     the signal; then the remaining mean subtracted. No scipy (0.3-0.9 s of start-up) and no FFT: the FFT of a
     23 s chorale's mix took 50-60 ms, a third of the operator's render, where the recursive filter takes ~5 ms.
     """
-    from ..engines import core
+    from .. import compiled as core
 
     x = np.asarray(x, dtype=np.float64)
     if x.size < 2:

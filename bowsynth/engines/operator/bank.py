@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from ... import physics
-from .. import core
+from ... import compiled as core
 from . import voices as V
 from .basis import _operator
 from .npnet import PARAM_SPAN, trunk_features

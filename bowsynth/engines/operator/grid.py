@@ -27,7 +27,7 @@ import numpy as np
 
 from ... import physics
 from ...scene import Scene
-from .. import core
+from ... import compiled as core
 
 MAX_DENOMINATOR = 2000
 KAISER_BETA = 12.0

@@ -2,7 +2,7 @@
 
 The audio samples sit at fixed offsets tau_j = j w / sr inside every window, so the trunk features there are
 computed once per render and pitch; a window then costs one branch evaluation and a small matmul. No torch here; the
-loops run compiled (`engines.core`: src/core/rollout.cpp), or in numpy (`_roll_numpy`, the tests' readable reference).
+loops run compiled (`bowsynth.compiled`: src/core/rollout.cpp), or in numpy (`_roll_numpy`, the tests' readable reference).
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
     if loop in ("auto", "core", "core-batch"):
-        from .. import core
+        from ... import compiled as core
 
         core.roll(loop == "core-batch", *args)
     elif loop == "numpy":

@@ -13,7 +13,7 @@ they agree) and the core's small helpers.
 
 from __future__ import annotations
 
-from .. import core
+from ... import compiled as core
 
 FREE, OPERATOR, FDM = 0, 1, 2  # a slot's mode
 HELD, CURVE, LIVE = 0, 1, 2  # a slot's pitch: constant, breakpoints (a scene's f0 curve), bend and vibrato (play)

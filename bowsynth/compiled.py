@@ -15,7 +15,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from ...errors import BowsynthError
+from .errors import BowsynthError
 
 ABI = 2  # src/core/core.h: bowsynth::ABI
 _REBUILD = "rebuild it with `pip install -e .` (or `make core` in a source tree run with PYTHONPATH)"
@@ -43,9 +43,9 @@ def load():
     global _module
     if _module is not None:
         return _module
-    pkg = Path(__file__).resolve().parents[2]  # bowsynth/
+    pkg = Path(__file__).resolve().parent  # bowsynth/
     try:
-        from ... import _core
+        from . import _core
     except ImportError as e:  # not built, or built for another interpreter (the file name carries its tag)
         raise CoreError(f"bowsynth's compiled core (bowsynth._core) could not be imported ({e}): {_REBUILD}") from None
     if getattr(_core, "ABI", None) != ABI:
