@@ -131,7 +131,8 @@ def remove_dc(x: np.ndarray, sample_rate: float) -> np.ndarray:
     padded = np.pad(x, pad, mode="reflect", reflect_type="odd")
     core.load().highpass_zero_phase(padded, math.tan(math.pi * DC_HZ / sample_rate))
     y = padded[pad:pad + x.size]
-    return y - y.mean()
+    y -= y.mean()  # in place: a 23 s mix is 8 MB, and each fresh array of that size may stall on its pages
+    return y
 
 
 def gain_for(x: np.ndarray, gain_db: float | None) -> float:
@@ -218,11 +219,16 @@ def write_mix(path, x: np.ndarray, names: list[str], sample_rate: int, dc: str =
     check_dc(dc)
     if not np.all(np.isfinite(x)):
         raise ValueError("refusing to write non-finite samples")
-    if dc == "remove":
+    own = dc == "remove"
+    if own:
         x = remove_dc(x, sample_rate)
     gain = gain_for(x, gain_db)
     meta = mix_meta(names, gain, dc, **fields)
-    write_float_wav(path, x * gain, sample_rate, meta, force=force)
+    if own:  # remove_dc's new array: scaled in place (a fresh 8 MB array may stall on its pages)
+        x *= gain
+    else:
+        x = x * gain
+    write_float_wav(path, x, sample_rate, meta, force=force)
     return meta
 
 
