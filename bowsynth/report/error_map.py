@@ -114,7 +114,7 @@ def plot(res: dict, path) -> None:
                                 color="w" if val[i, j] < math.sqrt(lo * hi) else "k")
                     elif status[i, j] == 1:
                         sounds = cells_of(res, f0)[(b, vb)].get("op_silent") is False
-                        ax.text(b, vb, "op sounds" if sounds else "silent", ha="center", va="center", fontsize=6,
+                        ax.text(b, vb, "op\nsounds" if sounds else "silent", ha="center", va="center", fontsize=5.5,
                                 color="tab:red" if sounds else "0.5")
                     else:
                         ax.text(b, vb, UNPLAYED_MARK, ha="center", va="center", fontsize=7, color="0.3")
