@@ -73,3 +73,12 @@ def test_bench_map_refuses_bad_flags_in_one_line(flags, capsys, monkeypatch):
 
     code, _, err = run_main(["bench", "map", *flags], capsys, monkeypatch)
     assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1
+
+
+def test_bench_map_with_a_model_that_is_not_there_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    from conftest import run_main
+
+    code, _, err = run_main(["bench", "map", "--grid", "1x1", "--model", str(tmp_path / "none.safetensors"),
+                             "--out", str(tmp_path / "m")], capsys, monkeypatch)
+    assert code != 0 and err.startswith("error: ") and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
