@@ -354,3 +354,26 @@ def test_a_header_announcing_more_tracks_than_present_is_truncated(tmp_path):
     bad.write_bytes(src[:10] + (65535).to_bytes(2, "big") + src[12:])
     with pytest.raises(UsageError, match="truncated|ends early"):
         read_midi(bad)
+
+
+def test_loud_notes_past_the_stick_slip_boundary_play_with_the_operator_in_tune(tmp_path, capsys, monkeypatch):
+    # velocity 110-127 bows at F_B / w 0.44-0.64 (music.midi.bow_beta), just into stick-slip: the shipped
+    # velocity-loud plays them (before session 11 no model did and `score` refused the piece); measured 0.02-0.16
+    # cents from equal temperament, tuned with the model's own sounding ratio. Their bow stops (v_B -> 0 at that
+    # force) are outside every model: the FDM plays those, and says so.
+    mid = mido.MidiFile(type=1, ticks_per_beat=TPB)
+    tr = mido.MidiTrack()
+    for note, vel in ((48, 112), (60, 120), (67, 127)):
+        tr.append(mido.Message("note_on", channel=0, note=note, velocity=vel, time=0))
+        tr.append(mido.Message("note_off", channel=0, note=note, velocity=0, time=2 * TPB))
+    mid.tracks.append(tr)
+    mid.save(tmp_path / "loud.mid")
+    code, out, err = run_main(["score", "--score", str(tmp_path / "loud.mid"), "--mix", str(tmp_path / "l.wav"),
+                               "--stems", str(tmp_path / "stems")], capsys, monkeypatch)
+    assert code == 0 and "velocity-loud.safetensors" in out and "bow stops: 0 by the operator, 3 by the FDM" in out
+    stems = sorted((tmp_path / "stems").glob("ch1-*.wav"))
+    assert len(stems) == 3
+    for path, note in zip(stems, (48, 60, 67)):
+        w = read_wav(path)
+        x, sr = w.physical, w.sample_rate
+        assert abs(cents(f0_estimate(x[int(0.3 * sr):int(0.95 * sr)], sr, tail=1.0), et(note))) < 0.5

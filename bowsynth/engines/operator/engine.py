@@ -118,8 +118,8 @@ def _physics_notes(m: OperatorModel) -> list[str]:
             m.__dict__["_claim"] = claim_fits_best(m, err)
         honest, b_alt, v_alt = m.__dict__["_claim"]
         if honest:  # an inaccuracy, not a lie: the claimed bow is still the one the weights play
-            return [f"note: model {m.path or m.meta.name}: {what}, but they fit the claimed bow {MISLABEL_MARGIN:g}x "
-                    f"better than bows 10 % away: an inaccurate onset, not a mislabelled file"]
+            return [f"note: model {m.path or m.meta.name}: {what}, but its windows fit the claimed bow "
+                    f"{MISLABEL_MARGIN:g}x better than bows 10 % away: an inaccurate onset, not a mislabelled file"]
         raise ModelFileError(f"model {m.path or m.meta.name} does not do what it claims: {what}, and they fit "
                              f"F_B / w = {b_alt:.4g}, v_B = {v_alt:.4g} as well or better: its metadata does not "
                              f"describe its weights. Retrain it, or render with --method fdm")
@@ -274,7 +274,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                               setup_seconds=t0 - t_setup, batched=None if _single else len(idx))
             if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
                 v = m.meta.validation or {}
-                info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid")}
+                info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid", "harm_db_median",
+                                                               "cents_abs_max")}
             ctrl = None
             if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
                 ctrl = LazyControls(functools.partial(_applied, sc, grids[row], op, bows[row], leave[row]))

@@ -29,9 +29,17 @@ RANGE_VERSION = 3  # 3: a range model (its domain has a box of bows, its branch 
 READ_VERSIONS = (1, 2, 3)
 META_KEY = "bowsynth"
 
-# A model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above this is
-# not picked by default: the shipped models score 1e-7 to 3e-4; 0.1 is a note visibly off in phase or pitch.
+# A point model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above
+# this is not picked by default: the shipped models score 1e-7 to 3e-4; 0.1 is a note visibly off in phase or pitch.
 MAX_VALIDATION_NMSE = 0.1
+# A range model is judged by what a listener hears over its validation grid (issue 21: NMSE from rest asks for the bow
+# exact to 1e-4 and is not the target, GUIDE section 9): not picked by default where the grid's median harmonic error
+# is above MAX_VALIDATION_HARM_DB or a bow's pitch is off by more than MAX_VALIDATION_CENTS. Measured (session 11):
+# soft-range 0.19 dB / 3.5 cents, the stick-slip tile velocity-loud 0.16 dB / 7.4 cents (NMSE 1.1: phase, where its
+# held-out pitch is as close as the audio-rate FDM's, 0.5 / 4.0 against 0.5 / 4.5 cents); round 3's failed stick-slip
+# tiles were 10-210 cents off.
+MAX_VALIDATION_HARM_DB = 1.0
+MAX_VALIDATION_CENTS = 10.0
 
 
 @dataclass
@@ -77,14 +85,26 @@ def digest(meta: dict, tensors: dict) -> str:
     return "sha256:" + h.hexdigest()
 
 
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def validation_failure(meta: ModelMeta) -> str | None:
     """Why a model's validation rollout disqualifies it from being picked by default (None when it passed): it
-    failed, has no finite NMSE(p), or its NMSE(p) exceeds MAX_VALIDATION_NMSE."""
+    failed; a range model with listener errors on record (its grid's median harmonic dB and worst |cents|) exceeds
+    MAX_VALIDATION_HARM_DB or MAX_VALIDATION_CENTS; any other has no finite NMSE(p) or exceeds MAX_VALIDATION_NMSE."""
     v = meta.validation or {}
     if v.get("error"):
         return f"validation failed: {v['error']}"
+    harm, cents = v.get("harm_db_median"), v.get("cents_abs_max")
+    if v.get("points") is not None and _finite(harm) and _finite(cents):
+        if harm > MAX_VALIDATION_HARM_DB:
+            return f"validation harmonics {harm:.3g} dB (median) > {MAX_VALIDATION_HARM_DB:g}"
+        if cents > MAX_VALIDATION_CENTS:
+            return f"validation pitch {cents:.3g} cents (worst) > {MAX_VALIDATION_CENTS:g}"
+        return None
     n = v.get("nmse")
-    if not isinstance(n, (int, float)) or isinstance(n, bool) or not math.isfinite(n):
+    if not _finite(n):
         return "no validation score"
     if n > MAX_VALIDATION_NMSE:
         return f"validation NMSE(p) {n:.3g} > {MAX_VALIDATION_NMSE:g}"
