@@ -397,3 +397,17 @@ def test_a_stick_slip_tile_is_told_from_a_mislabelled_file_over_a_longer_span():
     assert honest
     r = render_operator(Scene(f0=261.63, fb=0.55 * 2 * np.pi * 261.63, vb=0.244, duration=0.5))
     assert "velocity-loud" in r.info.model_path and any("not a mislabelled file" in n for n in r.info.notes)
+
+
+def test_only_a_box_that_starts_near_a_lifted_bow_plays_the_bows_below_it():
+    # soft-range (bottom F_B / w 0.01) plays an attack from F_B 0; velocity-loud (bottom 0.42) learned stick-slip
+    # states and does not claim F_B / w 0.02-0.4: before session 11 it did, won those bows as the smaller box, and left
+    # its trained states within 0.06-0.42 s (`bench map`: a row of unplayed cells at v_B 0.24)
+    soft = load_model(SHIPPED_DIR / "soft-range.safetensors")
+    loud = load_model(SHIPPED_DIR / "velocity-loud.safetensors")
+    assert soft.domain.plays_below and not loud.domain.plays_below
+    weak = Scene(f0=110.0, fb=0.1 * 2 * np.pi * 110.0, vb=0.24, duration=0.5)
+    assert soft.covers(weak) and not loud.covers(weak)
+    assert "soft-range" in render_operator(weak).info.model_path
+    attack = Scene(f0=100.0, fb=[[0.0, 0.0], [0.05, 0.2 * 2 * np.pi * 100.0]], vb=0.2, duration=0.3)
+    assert soft.covers(attack) and "soft-range" in render_operator(attack).info.model_path

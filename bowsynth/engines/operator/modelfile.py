@@ -20,7 +20,7 @@ import numpy as np
 from ... import __version__
 from ...errors import ModelFileError
 from ...scene import Scene
-from .domain import Domain
+from .domain import PLAYS_BELOW_MAX, Domain
 from .npnet import NetConfig, weight_shapes
 
 FORMAT = "bowsynth-operator"
@@ -127,7 +127,8 @@ class OperatorModel:
         self.from_file = net is None
         self.meta = meta
         self.path = path
-        meta.domain.plays_below = bool(meta.domain.is_range and NetConfig(**meta.net).corr_beta)
+        d = meta.domain
+        d.plays_below = bool(d.is_range and NetConfig(**meta.net).corr_beta and d.box[0] <= PLAYS_BELOW_MAX)
 
     @property
     def net(self):
