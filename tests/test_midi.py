@@ -206,10 +206,13 @@ def _type2(p):
 
 def test_notes_outside_every_model_are_reported_before_rendering(tmp_path, capsys, monkeypatch):
     mid = mido.MidiFile(type=0, ticks_per_beat=TPB)
-    mid.tracks.append(mido.MidiTrack([mido.Message("note_on", note=60, velocity=64, time=0),  # paper-fb100's scene
+    # the second note, on its own channel, bowed at full pressure (CC2 127: 4x the force of velocity 120, F_B / w 2.2,
+    # deep in stick-slip where no model plays; velocity 120 alone is velocity-loud's since session 11)
+    mid.tracks.append(mido.MidiTrack([mido.Message("control_change", channel=1, control=2, value=127, time=0),
+                                      mido.Message("note_on", note=60, velocity=64, time=0),  # paper-fb100's scene
                                       mido.Message("note_off", note=60, time=TPB),
-                                      mido.Message("note_on", note=62, velocity=120, time=0),  # no model
-                                      mido.Message("note_off", note=62, time=TPB)]))
+                                      mido.Message("note_on", channel=1, note=62, velocity=120, time=0),  # no model
+                                      mido.Message("note_off", channel=1, note=62, time=TPB)]))
     path = tmp_path / "loud.mid"
     mid.save(path)
     out = tmp_path / "mix.wav"

@@ -39,7 +39,7 @@ BAD = [
     (["train", "--fb", "100", "--resume", "--out", "m.safetensors"], 2, "no checkpoint"),
     (["score", "outdir"], 2, "exactly one of"),
     (["score", "--score", "bad.toml", "outdir"], 2, "not valid TOML"),
-    (["bench", "gpu"], 2, "fdm, equal or all"),
+    (["bench", "gpu"], 2, "fdm, equal, map or all"),
     (["bench", "--anchors", "no_such_dir"], 2, "not a directory"),
     (["score", "--presets", "paper-fb100", "--fallback", "maybe", "outdir"], 2, "--fallback must be"),
 ]
