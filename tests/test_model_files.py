@@ -399,8 +399,8 @@ def test_a_stick_slip_tile_is_told_from_a_mislabelled_file_over_a_longer_span():
     assert "velocity-loud" in r.info.model_path and any("not a mislabelled file" in n for n in r.info.notes)
 
 
-def test_only_a_box_that_starts_near_a_lifted_bow_plays_the_bows_below_it():
-    # soft-range (bottom F_B / w 0.01) plays an attack from F_B 0; velocity-loud (bottom 0.42) learned stick-slip
+def test_only_a_box_that_starts_in_the_soft_bow_plays_the_bows_below_it():
+    # soft-range (bottom F_B / w 0.01) plays an attack from F_B 0; velocity-loud (bottom 0.42, at the boundary) learned stick-slip
     # states and does not claim F_B / w 0.02-0.4: before session 11 it did, won those bows as the smaller box, and left
     # its trained states within 0.06-0.42 s (`bench map`: a row of unplayed cells at v_B 0.24)
     soft = load_model(SHIPPED_DIR / "soft-range.safetensors")

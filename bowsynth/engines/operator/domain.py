@@ -28,10 +28,11 @@ def within(x, lo: float, hi: float, rel_tol: float = REL_TOL) -> np.ndarray:
     return (x >= lo - tol) & (x <= hi + tol)
 
 
-# The highest box bottom (F_B / w) from which a range model also plays the bows below it down to 0 (see plays_below):
-# soft-range's bottom, 0.01, plays attacks from F_B 0 (BENCHMARKS.md, gestures), and 0.02 is where the playing
-# space starts
-PLAYS_BELOW_MAX = 0.02
+# A range model plays the bows below its box down to 0 (see plays_below) only where the box starts in the soft bow,
+# at a friction stiffness at most this (a quarter of the way to stick-slip, physics.STIFF: F_B / w 0.107 at a = 100),
+# where what friction adds is still about first order in F_B / w: soft-range's bottom, 0.01, plays attacks from F_B 0
+# (BENCHMARKS.md, gestures); velocity-loud's, 0.42, is at the boundary
+PLAYS_BELOW_STIFFNESS = physics.STIFF / 4
 
 
 @dataclass
@@ -54,10 +55,9 @@ class Domain:
     # to F_B = 0 (a bow lifted, an attack from rest): what friction adds over a window is first order in beta, so the
     # branch's bow input is held at the bottom (npnet.param_inputs) and the gain carries beta to 0, where the flow is
     # exactly the free rotation. Set from the network's settings (OperatorModel), not stored in files; only for a box
-    # whose bottom is at most PLAYS_BELOW_MAX, where the held input is a bow that barely acts (below it the first order
-    # carries beta to 0). A box that starts higher (velocity-loud at 0.42, a user's 50:200) learned other states and
-    # another shape of friction: from rest at F_B / w 0.02-0.26, v_B 0.24 velocity-loud left its trained states within
-    # 0.06-0.42 s (`bench map`, session 11), where soft-range plays those bows.
+    # whose bottom is soft (PLAYS_BELOW_STIFFNESS). A box that starts at the stick-slip boundary learned other states
+    # and another shape of friction: from rest at F_B / w 0.02-0.26, v_B 0.24 velocity-loud (bottom 0.42) left its
+    # trained states within 0.06-0.42 s (`bench map`, session 11), where soft-range plays those bows.
     plays_below: bool = field(default=False, repr=False, compare=False)
 
     @property

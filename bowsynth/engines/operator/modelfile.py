@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ... import __version__
+from ... import __version__, physics
 from ...errors import ModelFileError
 from ...scene import Scene
-from .domain import PLAYS_BELOW_MAX, Domain
+from .domain import PLAYS_BELOW_STIFFNESS, Domain
 from .npnet import NetConfig, weight_shapes
 
 FORMAT = "bowsynth-operator"
@@ -128,7 +128,8 @@ class OperatorModel:
         self.meta = meta
         self.path = path
         d = meta.domain
-        d.plays_below = bool(d.is_range and NetConfig(**meta.net).corr_beta and d.box[0] <= PLAYS_BELOW_MAX)
+        d.plays_below = bool(d.is_range and NetConfig(**meta.net).corr_beta
+                             and physics.stiffness(d.box[0], d.a) <= PLAYS_BELOW_STIFFNESS)
 
     @property
     def net(self):
