@@ -374,11 +374,13 @@ def test_range_models_are_judged_by_what_a_listener_hears():
     v = meta.validation
     assert validation_failure(meta) is None
     assert validation_failure(replace(meta, validation={**v, "nmse": 1.5})) is None  # phase, not sound
-    assert "harmonics" in validation_failure(replace(meta, validation={**v, "harm_db_median": MAX_VALIDATION_HARM_DB * 1.5}))
+    loud_timbre = replace(meta, validation={**v, "harm_db_median": MAX_VALIDATION_HARM_DB * 1.5})
+    assert "harmonics" in validation_failure(loud_timbre)
     assert "pitch" in validation_failure(replace(meta, validation={**v, "cents_abs_max": MAX_VALIDATION_CENTS + 1}))
     assert "failed" in validation_failure(replace(meta, validation={**v, "error": "1 of 9 grid points failed"}))
     point = load_model(FB100).meta
-    assert validation_failure(replace(point, validation={**point.validation, "nmse": 0.5})).startswith("validation NMSE")
+    off = replace(point, validation={**point.validation, "nmse": 0.5})
+    assert validation_failure(off).startswith("validation NMSE")
     # the shipped stick-slip tile: NMSE 1.1 from rest (a phase), its sound within the limits, so it plays by default
     loud = load_model(SHIPPED_DIR / "velocity-loud.safetensors")
     assert loud.meta.validation["nmse"] > 0.1 and loud.failure is None
@@ -400,9 +402,9 @@ def test_a_stick_slip_tile_is_told_from_a_mislabelled_file_over_a_longer_span():
 
 
 def test_only_a_box_that_starts_in_the_soft_bow_plays_the_bows_below_it():
-    # soft-range (bottom F_B / w 0.01) plays an attack from F_B 0; velocity-loud (bottom 0.42, at the boundary) learned stick-slip
-    # states and does not claim F_B / w 0.02-0.4: before session 11 it did, won those bows as the smaller box, and left
-    # its trained states within 0.06-0.42 s (`bench map`: a row of unplayed cells at v_B 0.24)
+    # soft-range (bottom F_B / w 0.01) plays an attack from F_B 0; velocity-loud (bottom 0.42, at the boundary)
+    # learned stick-slip states and does not claim F_B / w 0.02-0.4: before session 11 it did, won those bows as the
+    # smaller box, and left its trained states within 0.06-0.42 s (`bench map`: a row of unplayed cells at v_B 0.24)
     soft = load_model(SHIPPED_DIR / "soft-range.safetensors")
     loud = load_model(SHIPPED_DIR / "velocity-loud.safetensors")
     assert soft.domain.plays_below and not loud.domain.plays_below
