@@ -413,3 +413,17 @@ def test_only_a_box_that_starts_in_the_soft_bow_plays_the_bows_below_it():
     assert "soft-range" in render_operator(weak).info.model_path
     attack = Scene(f0=100.0, fb=[[0.0, 0.0], [0.05, 0.2 * 2 * np.pi * 100.0]], vb=0.2, duration=0.3)
     assert soft.covers(attack) and "soft-range" in render_operator(attack).info.model_path
+
+
+@pytest.mark.parametrize("name", ["soft-range", "velocity-loud", "paper-fb1000"])
+def test_one_state_is_in_the_domain_exactly_when_the_vectorised_test_says_so(name):
+    # Domain.contains takes a fast path for one state in plain floats (a score asks it ~1100 times): the same rule,
+    # on random states around the box, its edges and a NaN
+    d = load_model(SHIPPED_DIR / f"{name}.safetensors").domain
+    rng = np.random.default_rng(3)
+    q = rng.uniform(d.q_lo - 0.1, d.q_hi + 0.1, 5000)
+    p = rng.uniform(d.p_lo - 0.1, d.p_hi + 0.1, 5000)
+    q[:3], p[3:6], q[6], p[7] = d.q_lo, d.p_hi, np.nan, np.nan
+    many = d.contains(q, p)
+    assert 0 < many.sum() < len(q)
+    assert [d.contains(float(a), float(b)) for a, b in zip(q, p)] == many.tolist()
