@@ -61,6 +61,10 @@ CASES = [
     ("unknown fallback for a score", "score --presets paper-fb100 --fallback maybe outdir"),
     ("anchors directory missing", "bench --anchors no_such_dir"),
     ("a bench target that does not exist", "bench gpu"),
+    ("an error map's grid that is not CELLSxCELLS", "bench map --grid 10by8"),
+    ("an error map's pitch out of range", "bench map --f0 5"),
+    ("an error map's notes too short to hear", "bench map --seconds 0.01"),
+    ("an error map's model that is not there", "bench map --model nosuch"),
     # round 3: playing live (no server named so runs here; the rest needs a server: LIVE_ROWS)
     ("no JACK server running", "play --server nosuch"),
     ("no polyphony", "play --voices 0"),
