@@ -110,5 +110,4 @@ def summary(res: dict) -> dict:
     for who, rows in (("op", [c["op"] for c in played]), ("fdm", [c["fdm"] for c in played])):
         out[who] = {"harm_db": stats(rows, "harm_db_median"), "cents": stats(rows, "cents"),
                     "onset_err_ms": stats(rows, "onset_err_ms"), "nmse": stats(rows, "nmse")}
-    out["fdm_all_sounding"] = {"cents": stats([c["fdm"] for c in sounding], "cents")}
     return out

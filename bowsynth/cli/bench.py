@@ -103,6 +103,7 @@ def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: b
     from .app import err
 
     f0s, nb, nv, seconds = args
+
     def progress(done: int, total: int) -> None:  # a line at each tenth: a map takes minutes
         if done == total or done % max(1, total // 10) == 0:
             err.print(f"bench map: {done}/{total} cells")
