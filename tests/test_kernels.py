@@ -11,7 +11,7 @@ from bowsynth import Scene
 from bowsynth import compiled as core
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
-from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
+from bowsynth.engines.operator.rollout import BATCH_FROM, MIN_THREAD_SAMPLES, rollout_states, voice_runs
 from bowsynth.engines.operator.windows import FAIL_DOMAIN, FAIL_NONFINITE, FAILURES
 
 kernels = core.load()
@@ -91,6 +91,39 @@ def test_one_voice_failing_stops_only_that_voice(tiny_model, loop, voices):
     assert np.all(fail[others, 0] == -1) and np.all(np.isfinite(q[others])) and np.all(np.isfinite(p[others]))
     assert (kernels.FAIL_NONFINITE, kernels.FAIL_DOMAIN) == (FAIL_NONFINITE, FAIL_DOMAIN)  # the codes agree
     assert FAIL_NONFINITE in FAILURES and FAIL_DOMAIN in FAILURES
+
+
+def test_voices_split_over_threads_roll_as_on_one(tiny_model):
+    """The voice loop on several threads (contiguous runs of voices, rows of the same output arrays) gives the bits of
+    one thread, failures included, in whichever run the failing voice falls."""
+    m = load_model(tiny_model)
+    voices, n = 9, 12_000
+    f0 = np.linspace(90.0, 400.0, voices)
+    dtau = 2 * np.pi * f0 / 44_100
+    x0 = np.zeros((voices, 2))
+    x0[6] = [np.nan, 0.0]  # fails at once, in the last run
+    x0[2] = [m.domain.q_hi * 50, 0.0]  # starts far outside the trained states: a domain failure in the first
+    runs = voice_runs(n * (1 + 245 / (2 * np.pi / dtau)), 2)
+    assert len(runs) == 2  # the work is split, else this test tests nothing
+    one = rollout_states(m, x0, n, dtau, loop="core-1")
+    two = rollout_states(m, x0, n, dtau, loop="core")
+    for a, b in zip(one, two):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert tuple(two[2][6]) == (0, FAIL_NONFINITE) and two[2][2, 0] >= 0 and two[2][2, 1] == FAIL_DOMAIN
+    assert np.all(two[2][[0, 1, 3, 4, 5, 7, 8], 0] == -1)
+
+
+@pytest.mark.parametrize("work,n_threads", [([1e6] * 10, 2), ([1e6] * 10, 3), ([5e5, 1e3, 1e3, 5e5], 2),
+                                            ([1e6, 1.0], 2), ([4e4] * 4, 8), ([1e6], 4), ([2e5] * 5, 8)])
+def test_voice_runs_cover_the_voices_in_balanced_runs(work, n_threads):
+    work = np.array(work)
+    runs = voice_runs(work, n_threads)
+    assert runs[0][0] == 0 and runs[-1][1] == len(work)
+    assert all(a < b for a, b in runs) and all(r[1] == s[0] for r, s in zip(runs, runs[1:]))
+    assert len(runs) <= min(n_threads, len(work))
+    assert len(runs) == 1 or all(work[a:b].sum() >= MIN_THREAD_SAMPLES for a, b in runs)
+    if len(runs) > 1:  # no run holds more than a fair share plus one voice
+        assert max(work[a:b].sum() for a, b in runs) <= work.sum() / len(runs) + work.max()
 
 
 def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path):

@@ -7,6 +7,9 @@ loops run compiled (`bowsynth.compiled`: src/core/rollout.cpp), or in numpy (`_r
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from ...scene import Scene
@@ -21,6 +24,67 @@ from .windows import FAIL_DOMAIN, FAIL_NONFINITE, max_windows, window_bounds, wi
 # renders use the first; loop="core-batch" asks for the second (the parity tests keep it honest). BATCH_FROM: the
 # voices a test needs for the window-at-a-time loop to work on more than one block of voices.
 BATCH_FROM = 8
+
+# The voice-after-voice loop releases the GIL and keeps its workspace per thread (rollout.cpp), so the voices of one
+# call split into contiguous runs rolled on several cores. A run must hold this many samples of work: below, starting
+# a thread costs more than it saves. Per voice the work is n_samples (1 + WINDOW_SAMPLES / samples per window): a
+# window's branch costs ~33k multiply-adds, a sample ~134 (shared/GUIDE.md 9), so a window weighs ~245 samples.
+MIN_THREAD_SAMPLES = 100_000
+WINDOW_SAMPLES = 245.0
+_pool: ThreadPoolExecutor | None = None
+
+
+def threads() -> int:
+    """The cores a render may use: this process's CPU affinity (what a container or `taskset` grants), at most 8."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(n, 8))
+
+
+def voice_runs(work: np.ndarray, n_threads: int) -> list[tuple[int, int]]:
+    """Contiguous runs [a, b) of voices whose summed work is about equal, at most n_threads of them, none with
+    less than MIN_THREAD_SAMPLES of work unless there is only one."""
+    B = len(work)
+    n = int(min(n_threads, B, max(1, work.sum() // MIN_THREAD_SAMPLES)))
+    if n <= 1:
+        return [(0, B)]
+    cum = np.cumsum(work)
+    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, n) / n) + 1  # each run ends after the voice that crosses
+    bounds = [int(b) for b in np.unique(np.concatenate([[0], np.minimum(cuts, B), [B]]))]
+    runs = [[a, b] for a, b in zip(bounds[:-1], bounds[1:])]
+    while len(runs) > 1:  # a run of too little work joins its lighter neighbour
+        w = [cum[b - 1] - (cum[a - 1] if a else 0) for a, b in runs]
+        i = int(np.argmin(w))
+        if w[i] >= MIN_THREAD_SAMPLES:
+            break
+        j = i - 1 if i == len(runs) - 1 or (i > 0 and w[i - 1] <= w[i + 1]) else i + 1
+        lo, hi = min(i, j), max(i, j)
+        runs[lo:hi + 1] = [[runs[lo][0], runs[hi][1]]]
+    return [(a, b) for a, b in runs]
+
+
+def _roll_threads(args: tuple, runs: list[tuple[int, int]]) -> None:
+    """The compiled voice-after-voice loop over runs of voices, one run per thread: the per-voice arguments and
+    outputs sliced by run (rows of C-contiguous arrays: still contiguous, written in place)."""
+    from ... import compiled as core
+
+    global _pool
+    per_voice = {0, 4, 9, 10, 12, 13}  # x0, vidx, center, halfrange, pin, gain; then q_out, p_out, fail at the end
+    n_w = len(args) - 3
+
+    def run(ab):
+        a, b = ab
+        sl = [v[a:b] if (i in per_voice or i >= n_w) else v for i, v in enumerate(args)]
+        core.roll(False, *sl)
+
+    if _pool is None:
+        _pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="bowsynth-roll")
+    others = [_pool.submit(run, ab) for ab in runs[1:]]
+    run(runs[0])  # the first run on this thread while the pool rolls the others
+    for f in others:
+        f.result()
 
 
 def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
@@ -63,7 +127,8 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau (one spacing for all voices,
     or one per voice: voices at different pitches roll in one batch).
 
-    loop: 'core' (the compiled loops, src/core/rollout.cpp; 'auto' is the same), or 'numpy' (`_roll_numpy`, the
+    loop: 'core' (the compiled loops, src/core/rollout.cpp, the voices split over this process's cores; 'auto' is the
+    same), 'core-1' (on this thread alone), 'core-batch' (the window-at-a-time loop), or 'numpy' (`_roll_numpy`, the
     readable reference the tests hold the compiled loops to).
     Returns q, p (B, n_samples) float32 and fail (B, 2) int: per voice the first sample of the window where the
     rollout left the model's domain or went non-finite, and the reason (a key of FAILURES), or (-1, 0). A failed
@@ -86,14 +151,17 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     pin, gain, center, halfrange = op.window_inputs(_window_bows(model, B, W, params))
     args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
-    if loop in ("auto", "core", "core-batch"):
+    runs = voice_runs(n_samples * (1 + WINDOW_SAMPLES / spw[vidx]), threads()) if loop in ("auto", "core") else []
+    if len(runs) > 1:
+        _roll_threads(args, runs)
+    elif loop in ("auto", "core", "core-batch", "core-1"):
         from ... import compiled as core
 
         core.roll(loop == "core-batch", *args)
     elif loop == "numpy":
         _roll_numpy(*args)
     else:
-        raise ValueError(f"loop must be auto, core, core-batch or numpy, got {loop!r}")
+        raise ValueError(f"loop must be auto, core, core-1, core-batch or numpy, got {loop!r}")
     for b in np.flatnonzero(fail[:, 0] >= 0):
         q[b, fail[b, 0]:] = np.nan
         p[b, fail[b, 0]:] = np.nan
