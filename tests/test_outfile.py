@@ -267,3 +267,12 @@ def test_dc_removal_is_the_ideal_zero_phase_filter(n):
     f4 = (np.fft.rfftfreq(padded.size, 1 / 44100) / DC_HZ) ** 4
     y = np.fft.irfft(np.fft.rfft(padded) * (f4 / (1 + f4)), n=padded.size)[pad:pad + n]
     assert np.max(np.abs(remove_dc(x, 44100) - (y - y.mean()))) < 2e-5 * np.abs(x).max()
+
+
+@pytest.mark.parametrize("n,pad", [(10, 9), (10, 1), (1000, 0), (50_000, 22_050)])
+def test_odd_reflection_is_numpys(n, pad):
+    from bowsynth.io.audio import PEAK, gain_for, odd_reflection
+
+    x = np.random.default_rng(n).standard_normal(n)
+    assert np.array_equal(odd_reflection(x, pad), np.pad(x, pad, mode="reflect", reflect_type="odd"))
+    assert gain_for(x, None) == gain_for(-x, None) == PEAK / np.abs(x).max()

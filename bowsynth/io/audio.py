@@ -128,16 +128,31 @@ def remove_dc(x: np.ndarray, sample_rate: float) -> np.ndarray:
     if x.size < 2:
         return x - x.mean() if x.size else x.copy()
     pad = int(DC_PAD_S * sample_rate)
-    padded = np.pad(x, pad, mode="reflect", reflect_type="odd")
+    # a signal shorter than the pad is reflected again and again (np.pad's rule)
+    padded = odd_reflection(x, pad) if pad < x.size else np.pad(x, pad, mode="reflect", reflect_type="odd")
     core.load().highpass_zero_phase(padded, math.tan(math.pi * DC_HZ / sample_rate))
     y = padded[pad:pad + x.size]
     y -= y.mean()  # in place: a 23 s mix is 8 MB, and each fresh array of that size may stall on its pages
     return y
 
 
+def odd_reflection(x: np.ndarray, pad: int) -> np.ndarray:
+    """x (1-D, pad < len(x)) padded by pad samples at each end by odd reflection about its end samples:
+    np.pad(x, pad, mode="reflect", reflect_type="odd"), written into one array (np.pad took 27 ms of a chorale's 1 M
+    samples, this ~3 ms)."""
+    n = x.size
+    out = np.empty(n + 2 * pad)
+    out[pad:pad + n] = x
+    if pad:
+        np.subtract(2 * x[0], x[pad:0:-1], out=out[:pad])
+        np.subtract(2 * x[-1], x[-2:-pad - 2:-1], out=out[pad + n:])
+    return out
+
+
 def gain_for(x: np.ndarray, gain_db: float | None) -> float:
     """Peak normalisation to PEAK, or the fixed gain 10^(gain_db/20); a fixed gain that would clip is refused."""
-    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    # max and -min rather than abs(x).max(): no array of the signal's size (a chorale's mix: 8 MB) to allocate
+    peak = float(max(np.max(x), -np.min(x))) if x.size else 0.0
     if gain_db is None:
         if peak < TINY_PEAK:  # e.g. --fb 1e-300 moves the mass by 1e-311 m: the gain would overflow
             warnings.warn(f"the signal peaks at {peak:.3g}, too small to normalise: written as silence" if peak > 0
