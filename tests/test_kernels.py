@@ -11,7 +11,8 @@ from bowsynth import Scene
 from bowsynth import compiled as core
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
-from bowsynth.engines.operator.rollout import BATCH_FROM, MIN_THREAD_SAMPLES, rollout_states, voice_runs
+from bowsynth.engines.operator.rollout import (BATCH_FROM, MIN_THREAD_SAMPLES, rollout_states, voice_groups,
+                                               voice_runs)
 from bowsynth.engines.operator.windows import FAIL_DOMAIN, FAIL_NONFINITE, FAILURES
 
 kernels = core.load()
@@ -61,8 +62,9 @@ def test_window_starts_stay_on_multiples_of_the_window():
 
 
 @pytest.mark.parametrize("f0", [100.0, 200.0], ids=["441-sample-windows", "220-and-221"])
-@pytest.mark.parametrize("loop,voices", [("core", 1), ("core", BATCH_FROM + 1), ("core-batch", BATCH_FROM + 1)],
-                         ids=["voice-loop", "voice-loop-many", "batch-loop"])
+@pytest.mark.parametrize("loop,voices", [("core-voices", 1), ("core-voices", BATCH_FROM + 1),
+                                         ("core-batch", BATCH_FROM + 1), ("core", 1), ("core", BATCH_FROM + 1)],
+                         ids=["voice-loop", "voice-loop-many", "batch-loop", "groups-one", "groups"])
 def test_rollout_follows_the_torch_network(tiny_model, loop, voices, f0):
     m = load_model(tiny_model)
     sc = Scene(fb=f0, f0=f0)
@@ -79,7 +81,8 @@ def test_rollout_follows_the_torch_network(tiny_model, loop, voices, f0):
     assert np.abs(p - ref[..., 1]).max() < 2e-5 * scale
 
 
-@pytest.mark.parametrize("loop,voices", [("core", 3), ("core-batch", BATCH_FROM + 2)], ids=["voice-loop", "batch-loop"])
+@pytest.mark.parametrize("loop,voices", [("core-voices", 3), ("core-batch", BATCH_FROM + 2), ("core", 6)],
+                         ids=["voice-loop", "batch-loop", "groups"])
 def test_one_voice_failing_stops_only_that_voice(tiny_model, loop, voices):
     m = load_model(tiny_model)
     sc = Scene(fb=100)
@@ -94,23 +97,29 @@ def test_one_voice_failing_stops_only_that_voice(tiny_model, loop, voices):
 
 
 def test_voices_split_over_threads_roll_as_on_one(tiny_model):
-    """The voice loop on several threads (contiguous runs of voices, rows of the same output arrays) gives the bits of
-    one thread, failures included, in whichever run the failing voice falls."""
+    """A render's voices in groups by pitch over several threads (whole groups per thread; a group of rows that are
+    not neighbours rolled into its own arrays and copied back) give the bits of one thread, failures included, in
+    whichever group the failing voice falls; and each voice as the same loop gives it alone, to float32 rounding."""
     m = load_model(tiny_model)
-    voices, n = 9, 12_000
-    f0 = np.linspace(90.0, 400.0, voices)
+    voices, n = 9, 40_000
+    f0 = np.array([400.0, 90.0, 250.0, 130.0, 330.0, 170.0, 210.0, 110.0, 290.0])  # groups of rows far apart
     dtau = 2 * np.pi * f0 / 44_100
     x0 = np.zeros((voices, 2))
-    x0[6] = [np.nan, 0.0]  # fails at once, in the last run
-    x0[2] = [m.domain.q_hi * 50, 0.0]  # starts far outside the trained states: a domain failure in the first
-    runs = voice_runs(n * (1 + 245 / (2 * np.pi / dtau)), 2)
+    x0[6] = [np.nan, 0.0]  # fails at once
+    x0[2] = [m.domain.q_hi * 50, 0.0]  # starts far outside the trained states: a domain failure
+    groups = voice_groups(2 * np.pi / dtau)
+    assert any(g.max() - g.min() + 1 > len(g) for g in groups)  # the copy-back path is taken
+    runs = voice_runs(np.array([(n * (1 + 245 * dtau[g] / (2 * np.pi))).sum() for g in groups]), 2)
     assert len(runs) == 2  # the work is split, else this test tests nothing
-    one = rollout_states(m, x0, n, dtau, loop="core-1")
+    one = rollout_states(m, x0, n, dtau, loop="core-1")  # the same groups, on one thread
     two = rollout_states(m, x0, n, dtau, loop="core")
     for a, b in zip(one, two):
         assert np.array_equal(a, b, equal_nan=True)
     assert tuple(two[2][6]) == (0, FAIL_NONFINITE) and two[2][2, 0] >= 0 and two[2][2, 1] == FAIL_DOMAIN
     assert np.all(two[2][[0, 1, 3, 4, 5, 7, 8], 0] == -1)
+    for v in (0, 5):
+        q1, p1, _ = rollout_states(m, x0[v:v + 1], n, dtau[v], loop="core-voices")
+        assert np.abs(q1[0] - two[0][v]).max() < 1e-4 * np.abs(q1).max()
 
 
 @pytest.mark.parametrize("work,n_threads", [([1e6] * 10, 2), ([1e6] * 10, 3), ([5e5, 1e3, 1e3, 5e5], 2),
@@ -144,8 +153,9 @@ def test_batched_render_finishes_a_stray_voice_with_the_fdm(tiny_model, tmp_path
         assert len(r.q) == r.scene.n_samples  # what the continuation holds: tests/test_fallback.py
 
 
-@pytest.mark.parametrize("loop,voices", [("numpy", 5), ("core", 3), ("core-batch", BATCH_FROM + 1)],
-                         ids=["numpy-loop", "core-voice-loop", "core-batch-loop"])
+@pytest.mark.parametrize("loop,voices", [("numpy", 5), ("core-voices", 3), ("core-batch", BATCH_FROM + 1),
+                                         ("core", BATCH_FROM + 1)],
+                         ids=["numpy-loop", "core-voice-loop", "core-batch-loop", "core-groups"])
 def test_voices_at_different_pitches_roll_in_one_batch(loop, voices):
     from bowsynth.engines.operator.choose import SHIPPED_DIR
 
@@ -195,8 +205,9 @@ def test_trunk_features_interpolated_for_many_pitches_match_the_network():
             assert np.abs(f - direct).max() < 1e-7 * np.abs(direct).max()  # float32 rounding is 6e-8
 
 
-@pytest.mark.parametrize("loop,voices", [("numpy", 2), ("core", 1), ("core-batch", BATCH_FROM + 1)],
-                         ids=["numpy", "voice-loop", "batch-loop"])
+@pytest.mark.parametrize("loop,voices", [("numpy", 2), ("core-voices", 1), ("core-batch", BATCH_FROM + 1),
+                                         ("core", 5)],
+                         ids=["numpy", "voice-loop", "batch-loop", "groups"])
 def test_rest_linearised_flow_rolls_like_the_torch_network(tiny_rest_model, loop, voices):
     """A model whose linear part is the flow linearised at rest (damped rotation about the static deflection, in
     the window bases and the end states): every loop follows the torch network, at a pitch whose windows hold 220

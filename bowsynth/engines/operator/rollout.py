@@ -21,16 +21,25 @@ from .windows import FAIL_DOMAIN, FAIL_NONFINITE, max_windows, window_bounds, wi
 # time (matrix-matrix products over the voices). Measured on the chorale's 172 voices at 92-660 Hz (benchmarks/
 # chorale.py's piece; CPU shared): one voice after another took 0.019 / 0.049 / 0.20 / 0.41 / 0.85 / 1.69 s for
 # 2 / 8 / 32 / 64 / 256 / 512 voices, the window-at-a-time loop 0.023 / 0.059 / 0.25 / 0.60 / 1.22 / 2.75 s. So
-# renders use the first; loop="core-batch" asks for the second (the parity tests keep it honest). BATCH_FROM: the
-# voices a test needs for the window-at-a-time loop to work on more than one block of voices.
+# all of a render's voices never go through the second in one call; renders use it on small groups (below), and
+# loop="core-voices" / "core-batch" ask for either loop over all voices (the parity tests keep each honest).
+# BATCH_FROM: the voices a test needs for the window-at-a-time loop to work on more than one block of voices.
 BATCH_FROM = 8
 
-# The voice-after-voice loop releases the GIL and keeps its workspace per thread (rollout.cpp), so the voices of one
-# call split into contiguous runs rolled on several cores. A run must hold this many samples of work: below, starting
-# a thread costs more than it saves. Per voice the work is n_samples (1 + WINDOW_SAMPLES / samples per window): a
-# window's branch costs ~33k multiply-adds, a sample ~134 (shared/GUIDE.md 9), so a window weighs ~245 samples.
+# The compiled loops release the GIL and keep their workspaces per thread (rollout.cpp), so a render's voices roll on
+# several cores. They go in groups of GROUP voices at about the same pitch, each group through the window-at-a-time
+# loop: its products then run over GROUP voices at once (each weight loaded once for all of them), the group's voices
+# need about as many windows, and its bases (GROUP pitches) stay in cache. Measured on 64 voices at 100-800 Hz (CPU
+# time, one thread): voice after voice 1084x real time, all 64 window at a time 857x, groups of 2 / 4 / 8 / 16 sorted
+# by pitch 1242x / 1560x / 1442x / 1307x (unsorted: 982x / 1197x / 1092x / 1046x). The groups are fixed by the
+# voices' pitches alone and split over threads as whole groups, so a voice's samples never depend on the threads.
+# A run of groups must hold MIN_THREAD_SAMPLES of work: below, starting a thread costs more than it saves. Per voice
+# the work is n_samples (1 + WINDOW_SAMPLES / samples per window): a window's branch costs ~33k multiply-adds, a
+# sample ~134 (shared/GUIDE.md 9), so a window weighs ~245 samples.
+GROUP = 4
 MIN_THREAD_SAMPLES = 100_000
 WINDOW_SAMPLES = 245.0
+PER_VOICE = (0, 4, 9, 10, 12, 13)  # the loops' per-voice inputs: x0, vidx, center, halfrange, pin, gain
 _pool: ThreadPoolExecutor | None = None
 
 
@@ -44,14 +53,14 @@ def threads() -> int:
 
 
 def voice_runs(work: np.ndarray, n_threads: int) -> list[tuple[int, int]]:
-    """Contiguous runs [a, b) of voices whose summed work is about equal, at most n_threads of them, none with
-    less than MIN_THREAD_SAMPLES of work unless there is only one."""
+    """Contiguous runs [a, b) of items (voices, or groups of them) whose summed work is about equal, at most
+    n_threads of them, none with less than MIN_THREAD_SAMPLES of work unless there is only one."""
     B = len(work)
     n = int(min(n_threads, B, max(1, work.sum() // MIN_THREAD_SAMPLES)))
     if n <= 1:
         return [(0, B)]
     cum = np.cumsum(work)
-    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, n) / n) + 1  # each run ends after the voice that crosses
+    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, n) / n) + 1  # each run ends after the item that crosses
     bounds = [int(b) for b in np.unique(np.concatenate([[0], np.minimum(cuts, B), [B]]))]
     runs = [[a, b] for a, b in zip(bounds[:-1], bounds[1:])]
     while len(runs) > 1:  # a run of too little work joins its lighter neighbour
@@ -65,20 +74,42 @@ def voice_runs(work: np.ndarray, n_threads: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in runs]
 
 
-def _roll_threads(args: tuple, runs: list[tuple[int, int]]) -> None:
-    """The compiled voice-after-voice loop over runs of voices, one run per thread: the per-voice arguments and
-    outputs sliced by run (rows of C-contiguous arrays: still contiguous, written in place)."""
+def voice_groups(spw_voice: np.ndarray) -> list[np.ndarray]:
+    """The voices' indices in groups of GROUP, by samples per window (pitch), slowest first."""
+    order = np.argsort(-np.asarray(spw_voice), kind="stable")
+    # within a group in row order: a voice's bits may depend on its place in the group's products, not on the path
+    return [np.sort(order[a:a + GROUP]) for a in range(0, len(order), GROUP)]
+
+
+def _roll_groups(args: tuple, n_threads: int) -> None:
+    """The compiled window-at-a-time loop over voice_groups, the groups split over n_threads threads (voice_runs).
+    A group whose voices are contiguous rows rolls into the outputs in place; another into its own rows, copied back."""
     from ... import compiled as core
 
     global _pool
-    per_voice = {0, 4, 9, 10, 12, 13}  # x0, vidx, center, halfrange, pin, gain; then q_out, p_out, fail at the end
-    n_w = len(args) - 3
+    x0, n_samples, spw, vidx, q, p, fail = args[0], args[1], args[2], args[4], args[-3], args[-2], args[-1]
+    groups = voice_groups(spw[vidx])
+    work = n_samples * (1 + WINDOW_SAMPLES / spw[vidx])
 
     def run(ab):
-        a, b = ab
-        sl = [v[a:b] if (i in per_voice or i >= n_w) else v for i, v in enumerate(args)]
-        core.roll(False, *sl)
+        for g in groups[ab[0]:ab[1]]:
+            a, b = int(g.min()), int(g.max()) + 1
+            if b - a == len(g):  # contiguous rows: in place, sliced
+                sl = slice(a, b)
+                core.roll(True, *[v[sl] if i in PER_VOICE else v for i, v in enumerate(args[:-3])], q[sl], p[sl],
+                          fail[sl])
+                continue
+            qg = np.empty((len(g), q.shape[1]), np.float32)
+            pg = np.empty_like(qg)
+            fg = fail[g]
+            core.roll(True, *[np.ascontiguousarray(v[g]) if i in PER_VOICE else v for i, v in enumerate(args[:-3])],
+                      qg, pg, fg)
+            q[g], p[g], fail[g] = qg, pg, fg
 
+    runs = voice_runs(np.array([work[g].sum() for g in groups]), n_threads)
+    if len(runs) == 1:
+        run(runs[0])
+        return
     if _pool is None:
         _pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="bowsynth-roll")
     others = [_pool.submit(run, ab) for ab in runs[1:]]
@@ -127,9 +158,10 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau (one spacing for all voices,
     or one per voice: voices at different pitches roll in one batch).
 
-    loop: 'core' (the compiled loops, src/core/rollout.cpp, the voices split over this process's cores; 'auto' is the
-    same), 'core-1' (on this thread alone), 'core-batch' (the window-at-a-time loop), or 'numpy' (`_roll_numpy`, the
-    readable reference the tests hold the compiled loops to).
+    loop: 'core' (the compiled loops, src/core/rollout.cpp: voices in groups at about the same pitch through the
+    window-at-a-time loop, the groups over this process's cores; 'auto' is the same), 'core-1' (the same groups on this
+    thread alone), 'core-voices' (the voice-after-voice loop), 'core-batch' (every voice in one window-at-a-time call),
+    or 'numpy' (`_roll_numpy`, the readable reference the tests hold the compiled loops to).
     Returns q, p (B, n_samples) float32 and fail (B, 2) int: per voice the first sample of the window where the
     rollout left the model's domain or went non-finite, and the reason (a key of FAILURES), or (-1, 0). A failed
     voice stops there (its later samples are NaN); the other voices go on.
@@ -151,17 +183,16 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     pin, gain, center, halfrange = op.window_inputs(_window_bows(model, B, W, params))
     args = (x, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, halfrange, op.ff, pin, gain, *op.weights,
             np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi]), np.ascontiguousarray(d.mask), bool(check_domain), q, p, fail)
-    runs = voice_runs(n_samples * (1 + WINDOW_SAMPLES / spw[vidx]), threads()) if loop in ("auto", "core") else []
-    if len(runs) > 1:
-        _roll_threads(args, runs)
-    elif loop in ("auto", "core", "core-batch", "core-1"):
+    if loop in ("auto", "core", "core-1"):
+        _roll_groups(args, 1 if loop == "core-1" else threads())
+    elif loop in ("core-voices", "core-batch"):
         from ... import compiled as core
 
         core.roll(loop == "core-batch", *args)
     elif loop == "numpy":
         _roll_numpy(*args)
     else:
-        raise ValueError(f"loop must be auto, core, core-1, core-batch or numpy, got {loop!r}")
+        raise ValueError(f"loop must be auto, core, core-1, core-voices, core-batch or numpy, got {loop!r}")
     for b in np.flatnonzero(fail[:, 0] >= 0):
         q[b, fail[b, 0]:] = np.nan
         p[b, fail[b, 0]:] = np.nan
