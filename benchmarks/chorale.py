@@ -1,7 +1,7 @@
 """A chorale-sized piece as a user plays it: `score --mix` of a four-part MIDI file with the operator and with the FDM,
 whole processes alternated with `bowsynth --help`, and how far the operator's mix sounds from the FDM's.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/chorale.py [--runs 3] [--keep DIR] [--model PATH]
+    PYTHONPATH=. .venv/bin/python benchmarks/chorale.py [--runs 3] [--keep DIR] [--model PATH] [--velocity 90]
 
 The piece is written here (no corpus file ships with the repository) in the layout GUIDE section 9 describes for a
 chorale exported from a public corpus: MIDI type 1, a tempo track and four part tracks, every part on channel 1, one
@@ -37,7 +37,7 @@ PHRASES = [
 ]
 
 
-def write_piece(path: Path) -> int:
+def write_piece(path: Path, velocity: int = 90) -> int:
     import mido
 
     beats = [chord for phrase in PHRASES for chord in phrase] * 2
@@ -54,7 +54,7 @@ def write_piece(path: Path) -> int:
             j = i + 1
             while j < len(beats) and beats[j][part] == n and part in (1, 2) and j - i < 2:
                 j += 1  # inner parts hold a repeated note over two beats; soprano and bass re-strike
-            tr.append(mido.Message("note_on", channel=0, note=n, velocity=90, time=wait))
+            tr.append(mido.Message("note_on", channel=0, note=n, velocity=velocity, time=wait))
             tr.append(mido.Message("note_off", channel=0, note=n, velocity=0, time=(j - i) * TPB - 20))
             wait, i, notes = 20, j, notes + 1
         mid.tracks.append(tr)
@@ -91,13 +91,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--keep", type=Path, default=None, help="write the piece and the two mixes here")
+    ap.add_argument("--velocity", type=int, default=90, help="every note's velocity (90: the corpus file's; 110-127: "
+                    "loud notes, played by velocity-loud)")
     ap.add_argument("--model", type=Path, default=None,
                     help="the operator plays with this model (`train --score` of the piece, say) instead of its pick")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(args.keep or tmp)
         d.mkdir(parents=True, exist_ok=True)
-        n_notes = write_piece(d / "chorale.mid")
+        n_notes = write_piece(d / "chorale.mid", args.velocity)
         times = {"help": [], "operator": [], "fdm": []}
         outs = {}
         for _ in range(args.runs):
