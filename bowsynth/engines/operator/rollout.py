@@ -37,6 +37,7 @@ BATCH_FROM = 8
 # the work is n_samples (1 + WINDOW_SAMPLES / samples per window): a window's branch costs ~33k multiply-adds, a
 # sample ~134 (shared/GUIDE.md 9), so a window weighs ~245 samples.
 GROUP = 4
+MAX_THREADS = 8
 MIN_THREAD_SAMPLES = 100_000
 WINDOW_SAMPLES = 245.0
 PER_VOICE = (0, 4, 9, 10, 12, 13)  # the loops' per-voice inputs: x0, vidx, center, halfrange, pin, gain
@@ -44,12 +45,13 @@ _pool: ThreadPoolExecutor | None = None
 
 
 def threads() -> int:
-    """The cores a render may use: this process's CPU affinity (what a container or `taskset` grants), at most 8."""
+    """The cores a render may use: this process's CPU affinity (what a container or `taskset` grants), at most
+    MAX_THREADS."""
     try:
         n = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # not on Linux
         n = os.cpu_count() or 1
-    return max(1, min(n, 8))
+    return max(1, min(n, MAX_THREADS))
 
 
 def voice_runs(work: np.ndarray, n_threads: int) -> list[tuple[int, int]]:
@@ -87,7 +89,7 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
     from ... import compiled as core
 
     global _pool
-    x0, n_samples, spw, vidx, q, p, fail = args[0], args[1], args[2], args[4], args[-3], args[-2], args[-1]
+    n_samples, spw, vidx, q, p, fail = args[1], args[2], args[4], args[-3], args[-2], args[-1]
     groups = voice_groups(spw[vidx])
     work = n_samples * (1 + WINDOW_SAMPLES / spw[vidx])
 
@@ -111,7 +113,7 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
         run(runs[0])
         return
     if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="bowsynth-roll")
+        _pool = ThreadPoolExecutor(max_workers=MAX_THREADS, thread_name_prefix="bowsynth-roll")
     others = [_pool.submit(run, ab) for ab in runs[1:]]
     run(runs[0])  # the first run on this thread while the pool rolls the others
     for f in others:
