@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .errors import BowsynthError
 
-ABI = 2  # src/core/core.h: bowsynth::ABI
+ABI = 3  # src/core/core.h: bowsynth::ABI
 _REBUILD = "rebuild it with `pip install -e .` (or `make core` in a source tree run with PYTHONPATH)"
 
 
@@ -66,7 +66,8 @@ def fdm_run(*args):
 
 def roll(batch: bool, *args) -> None:
     """The rollout loop: `_core.roll_batch` (every voice one window at a time) or `_core.roll_voices` (one voice
-    after another); arguments as engines.operator.rollout._roll_numpy."""
+    after another); arguments as engines.operator.rollout._roll_numpy, then rows (B,) int64: voice b's row of
+    q_out, p_out and fail."""
     core = load()
     (core.roll_batch if batch else core.roll_voices)(*args)
 

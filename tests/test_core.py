@@ -26,11 +26,11 @@ def loop_args(monkeypatch, voices=2):
     monkeypatch.setattr(core, "roll", lambda batch, *args: seen.setdefault("args", args))
     rollout_states(load_model(FB100), np.zeros((voices, 2)), 500, [0.02] * voices)
     monkeypatch.undo()
-    return list(seen["args"])
+    return list(seen["args"])  # the last: rows, voice b's row of the outputs
 
 
 NAMES = ["x0", "n_samples", "spw", "n_lo", "vidx", "Bq", "Bp", "endb", "endlin", "center", "halfrange", "ff", "pin",
-         "gain", "Gw", "Gb", "Hw", "Hb", "Ow", "Ob", "box", "mask", "check", "q_out", "p_out", "fail"]
+         "gain", "Gw", "Gb", "Hw", "Hb", "Ow", "Ob", "box", "mask", "check", "q_out", "p_out", "fail", "rows"]
 
 
 @pytest.mark.parametrize("kernel", ["roll_voices", "roll_batch"])
@@ -58,7 +58,8 @@ def test_the_loops_refuse_wrong_dtypes_ranks_and_shapes_with_one_error(monkeypat
     with pytest.raises(TypeError):  # an output it cannot write
         fn(*args[:23], ro, *args[24:])
     for i, value, what in [(1, 10**9, "q_out"), (4, np.array([0, 5]), "vidx"), (3, args[3] + 1, "n_lo"),
-                           (2, np.array([0.5]), "spw")]:
+                           (2, np.array([0.5]), "spw"), (26, np.array([0, 2]), "rows"),
+                           (26, np.array([-1, 0]), "rows")]:
         with pytest.raises(ValueError, match=what):
             fn(*args[:i], value, *args[i + 1:])
 
@@ -191,3 +192,21 @@ def test_a_build_without_a_compiler_says_so_in_one_line(tmp_path):
     assert r.returncode != 0
     said = [line.strip() for line in r.stderr.splitlines() if "bowsynth:" in line]
     assert said == ["bowsynth: no C++ compiler found: install g++ (apt-get install g++)"], r.stderr
+
+
+@pytest.mark.parametrize("kernel", ["roll_voices", "roll_batch"])
+def test_the_loops_write_each_voice_into_its_row_and_leave_the_others(monkeypatch, kernel):
+    args = loop_args(monkeypatch)
+    args[0] = np.array([[0.0, 0.0], [1e-3, -2e-3]])  # two voices that sound different, both in the model's states
+    fn = getattr(core.load(), kernel)
+    fn(*args)
+    q1, p1 = args[23].copy(), args[24].copy()
+    assert (args[25][:, 0] == -1).all() and not np.array_equal(q1[0], q1[1])
+    n = q1.shape[1]
+    q, p = np.full((3, n), 7.0, np.float32), np.full((3, n), 7.0, np.float32)
+    fail = np.array([[-1, 0], [9, 9], [-1, 0]], np.int64)  # the loops write only a voice that fails
+    fn(*args[:23], q, p, fail, np.array([2, 0], np.int64))  # voice 0 into row 2, voice 1 into row 0
+    np.testing.assert_array_equal(q[2], q1[0])
+    np.testing.assert_array_equal(p[0], p1[1])
+    np.testing.assert_array_equal(fail[[2, 0]], args[25])
+    assert (q[1] == 7.0).all() and (p[1] == 7.0).all() and (fail[1] == 9).all()  # a row no voice names: untouched

@@ -6,7 +6,7 @@
 namespace bowsynth {
 
 // Raised whenever an argument list or a kernel's meaning changes: bowsynth/core.py refuses a module of another ABI.
-constexpr int ABI = 2;
+constexpr int ABI = 3;
 // Why a voice stopped (bowsynth.rollout writes the same codes; a test checks they agree).
 constexpr int64_t FAIL_NONFINITE = 1, FAIL_DOMAIN = 2;
 
@@ -63,10 +63,13 @@ struct Rollout {
     const double* box;      // (4,)
     const bool* mask;       // (grid, grid)
     bool check;
-    float* q_out;           // (B, ld_out)
-    float* p_out;           // (B, ld_out)
+    float* q_out;           // (rows, ld_out)
+    float* p_out;           // (rows, ld_out)
     int64_t ld_out;
-    int64_t* fail;          // (B, 2)
+    int64_t* fail;          // (rows, 2)
+    // (B,): voice b's row of q_out, p_out and fail, so that a group of voices scattered over a render's rows writes
+    // in place (gathered into arrays of its own and copied back, the copies cost a third of a chorale's render)
+    const int64_t* rows;
 };
 void roll_voices(const Rollout& r);
 // The branch network and the model's states (a live voice's window: voices.cpp)

@@ -109,7 +109,7 @@ void roll(const char* fn, In<double, 2> x0, int64_t n_samples, In<double, 1> spw
           In<double, 3> center, In<double, 3> halfrange, In<double, 2> ff, In<double, 3> pin, In<double, 2> gain,
           In<float, 2> Gw, In<float, 1> Gb, In<float, 3> Hw, In<float, 2> Hb, In<float, 2> Ow, In<float, 1> Ob,
           In<double, 1> box, In<bool, 2> mask, bool check, Out<float, 2> q_out, Out<float, 2> p_out,
-          Out<int64_t, 2> fail) {
+          Out<int64_t, 2> fail, In<int64_t, 1> rows) {
     const int64_t B = x0.shape(0), P = spw.shape(0), k = endb.shape(3), n_max = Bq.shape(2), W = pin.shape(1);
     const int64_t m = ff.shape(1), npar = pin.shape(2), width = Ow.shape(0), layers = Hw.shape(0);
     const int64_t g = mask.shape(0);
@@ -128,10 +128,12 @@ void roll(const char* fn, In<double, 2> x0, int64_t n_samples, In<double, 1> spw
     shape(fn, "pin", pin, {B, W, npar});
     shape(fn, "gain", gain, {B, W});
     check_net(fn, npar, k, ff, Gw, Gb, Hw, Hb, Ow, Ob, box, mask);
-    need(static_cast<int64_t>(q_out.shape(0)) == B && static_cast<int64_t>(q_out.shape(1)) >= n_samples,
-         f + ": q_out must have shape (B, >= n_samples)");
-    shape(fn, "p_out", p_out, {B, static_cast<int64_t>(q_out.shape(1))});
-    shape(fn, "fail", fail, {B, 2});
+    const int64_t n_rows = q_out.shape(0);
+    need(static_cast<int64_t>(q_out.shape(1)) >= n_samples, f + ": q_out must have shape (rows, >= n_samples)");
+    shape(fn, "p_out", p_out, {n_rows, static_cast<int64_t>(q_out.shape(1))});
+    shape(fn, "fail", fail, {n_rows, 2});
+    shape(fn, "rows", rows, {B});
+    for (int64_t b = 0; b < B; ++b) need(rows(b) >= 0 && rows(b) < n_rows, f + ": rows must index q_out's rows");
     for (int64_t i = 0; i < P; ++i) {  // every window holds floor(spw) or ceil(spw) samples, within the basis
         const double s = spw(i);
         need(std::isfinite(s) && s >= 1.0 && s < 1e12, f + ": spw must be finite and >= 1 (samples per window)");
@@ -143,7 +145,8 @@ void roll(const char* fn, In<double, 2> x0, int64_t n_samples, In<double, 1> spw
                         x0.data(), spw.data(), n_lo.data(), vidx.data(), Bq.data(), Bp.data(), endb.data(),
                         endlin.data(), center.data(), halfrange.data(), ff.data(), pin.data(), gain.data(),
                         Gw.data(), Gb.data(), Hw.data(), Hb.data(), Ow.data(), Ob.data(), box.data(), mask.data(),
-                        check, q_out.data(), p_out.data(), static_cast<int64_t>(q_out.shape(1)), fail.data()};
+                        check, q_out.data(), p_out.data(), static_cast<int64_t>(q_out.shape(1)), fail.data(),
+                        rows.data()};
     nb::gil_scoped_release unlocked;
     kernel(r);
 }
@@ -154,7 +157,7 @@ void roll(const char* fn, In<double, 2> x0, int64_t n_samples, In<double, 1> spw
         "center"_a.noconvert(), "halfrange"_a.noconvert(), "ff"_a.noconvert(), "pin"_a.noconvert(),                \
         "gain"_a.noconvert(), "Gw"_a.noconvert(), "Gb"_a.noconvert(), "Hw"_a.noconvert(), "Hb"_a.noconvert(),      \
         "Ow"_a.noconvert(), "Ob"_a.noconvert(), "box"_a.noconvert(), "mask"_a.noconvert(), "check"_a,             \
-        "q_out"_a.noconvert(), "p_out"_a.noconvert(), "fail"_a.noconvert()
+        "q_out"_a.noconvert(), "p_out"_a.noconvert(), "fail"_a.noconvert(), "rows"_a.noconvert()
 
 
 // ---- the block-by-block voices (voices.cpp) ----
@@ -394,9 +397,9 @@ NB_MODULE(_core, mod) {
            In<float, 3> Bp, In<double, 4> endb, In<double, 3> endlin, In<double, 3> c, In<double, 3> hr,
            In<double, 2> ff, In<double, 3> pin, In<double, 2> gain, In<float, 2> Gw, In<float, 1> Gb, In<float, 3> Hw,
            In<float, 2> Hb, In<float, 2> Ow, In<float, 1> Ob, In<double, 1> box, In<bool, 2> mask, bool check,
-           Out<float, 2> q, Out<float, 2> p, Out<int64_t, 2> fail) {
+           Out<float, 2> q, Out<float, 2> p, Out<int64_t, 2> fail, In<int64_t, 1> rows) {
             roll<bowsynth::roll_voices>("roll_voices", x0, n, spw, n_lo, vidx, Bq, Bp, endb, endlin, c, hr, ff, pin,
-                                        gain, Gw, Gb, Hw, Hb, Ow, Ob, box, mask, check, q, p, fail);
+                                        gain, Gw, Gb, Hw, Hb, Ow, Ob, box, mask, check, q, p, fail, rows);
         },
         ROLL_ARGS, "The rollout, one voice after another (matrix-vector products).");
     mod.def(
@@ -405,9 +408,9 @@ NB_MODULE(_core, mod) {
            In<float, 3> Bp, In<double, 4> endb, In<double, 3> endlin, In<double, 3> c, In<double, 3> hr,
            In<double, 2> ff, In<double, 3> pin, In<double, 2> gain, In<float, 2> Gw, In<float, 1> Gb, In<float, 3> Hw,
            In<float, 2> Hb, In<float, 2> Ow, In<float, 1> Ob, In<double, 1> box, In<bool, 2> mask, bool check,
-           Out<float, 2> q, Out<float, 2> p, Out<int64_t, 2> fail) {
+           Out<float, 2> q, Out<float, 2> p, Out<int64_t, 2> fail, In<int64_t, 1> rows) {
             roll<bowsynth::roll_batch>("roll_batch", x0, n, spw, n_lo, vidx, Bq, Bp, endb, endlin, c, hr, ff, pin,
-                                       gain, Gw, Gb, Hw, Hb, Ow, Ob, box, mask, check, q, p, fail);
+                                       gain, Gw, Gb, Hw, Hb, Ow, Ob, box, mask, check, q, p, fail, rows);
         },
         ROLL_ARGS, "The rollout, every voice one window at a time (matrix-matrix products over the voices).");
     nb::class_<VoicesPy>(mod, "Voices",

@@ -293,13 +293,13 @@ inline bool in_domain(const double* box, const bool* mask, int64_t g, double q, 
 
 inline bool check_window(const Rollout& R, int64_t b, int64_t start, int64_t n, double nq, double np) {
     if (!(std::isfinite(nq) && std::isfinite(np))) {
-        R.fail[2 * b] = start;
-        R.fail[2 * b + 1] = FAIL_NONFINITE;
+        R.fail[2 * R.rows[b]] = start;
+        R.fail[2 * R.rows[b] + 1] = FAIL_NONFINITE;
         return false;
     }
     if (R.check && start + n < R.n_samples && !in_domain(R.box, R.mask, R.grid, nq, np)) {
-        R.fail[2 * b] = start + n;
-        R.fail[2 * b + 1] = FAIL_DOMAIN;
+        R.fail[2 * R.rows[b]] = start + n;
+        R.fail[2 * R.rows[b] + 1] = FAIL_DOMAIN;
         return false;
     }
     return true;
@@ -383,7 +383,8 @@ HOT void roll_voices(const Rollout& R) {
             const double gw = R.gain[bw];
             branch(N, q0, p0, R.center + 2 * bw, R.halfrange + 2 * bw, R.pin + R.npar * bw, gw, s, zd, o);
             const int64_t cnt = std::min({n, R.n_samples - start, R.n_max});
-            samples(R, q0, p0, o, gw, P, cnt, x, R.q_out + b * R.ld_out + start, R.p_out + b * R.ld_out + start);
+            samples(R, q0, p0, o, gw, P, cnt, x, R.q_out + R.rows[b] * R.ld_out + start,
+                    R.p_out + R.rows[b] * R.ld_out + start);
             const int64_t li = length_index(R, P, n);
             double nq, np;
             end_state(q0, p0, o, o + k, gw, R.endb + (P * 2 + li) * 2 * k, R.endlin + (P * 2 + li) * 6, k, nq, np);
@@ -491,7 +492,8 @@ HOT void roll_batch(const Rollout& R) {
                 if (s0 < 0) continue;
                 const int64_t cnt = std::min({window_end(win - nb + i, R.spw[P]) - s0, R.n_samples - s0, R.n_max});
                 samples(R, X_blk[(b * BLOCK + i) * 2], X_blk[(b * BLOCK + i) * 2 + 1], O_blk + (b * BLOCK + i) * 2 * k,
-                        G_blk[b * BLOCK + i], P, cnt, x3, R.q_out + b * R.ld_out + s0, R.p_out + b * R.ld_out + s0);
+                        G_blk[b * BLOCK + i], P, cnt, x3, R.q_out + R.rows[b] * R.ld_out + s0,
+                        R.p_out + R.rows[b] * R.ld_out + s0);
             }
         }
     }

@@ -86,7 +86,7 @@ def voice_groups(spw_voice: np.ndarray) -> list[np.ndarray]:
 
 def _roll_groups(args: tuple, n_threads: int) -> None:
     """The compiled window-at-a-time loop over voice_groups, the groups split over n_threads threads (voice_runs).
-    A group whose voices are contiguous rows rolls into the outputs in place; another into its own rows, copied back."""
+    Every group writes into the render's own rows of the outputs, in place."""
     from ... import compiled as core
 
     global _pool
@@ -96,18 +96,11 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
 
     def run(ab):
         for g in groups[ab[0]:ab[1]]:
-            a, b = int(g.min()), int(g.max()) + 1
-            if b - a == len(g):  # contiguous rows: in place, sliced
-                sl = slice(a, b)
-                core.roll(True, *[v[sl] if i in PER_VOICE else v for i, v in enumerate(args[:-3])], q[sl], p[sl],
-                          fail[sl])
-                continue
-            qg = np.empty((len(g), q.shape[1]), np.float32)
-            pg = np.empty_like(qg)
-            fg = fail[g]
-            core.roll(True, *[np.ascontiguousarray(v[g]) if i in PER_VOICE else v for i, v in enumerate(args[:-3])],
-                      qg, pg, fg)
-            q[g], p[g], fail[g] = qg, pg, fg
+            a, b = int(g[0]), int(g[-1]) + 1
+            pick = slice(a, b) if b - a == len(g) else g  # contiguous rows: views, not copies
+            # the loop writes each voice into its own row of q, p and fail (rows = g): nothing to copy back
+            core.roll(True, *[np.ascontiguousarray(v[pick]) if i in PER_VOICE else v
+                              for i, v in enumerate(args[:-3])], q, p, fail, g)
 
     runs = voice_runs(np.array([work[g].sum() for g in groups]), n_threads)
     if len(runs) == 1:
@@ -191,7 +184,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     elif loop in ("core-voices", "core-batch"):
         from ... import compiled as core
 
-        core.roll(loop == "core-batch", *args)
+        core.roll(loop == "core-batch", *args, np.arange(B, dtype=np.int64))
     elif loop == "numpy":
         _roll_numpy(*args)
     else:
