@@ -97,7 +97,11 @@ def test_a_note_struck_with_moved_controllers_plays_the_bow_score_gives_it(tmp_p
     body = slice(15000, 30000)
     cents = 1200 * np.log2(f0_estimate(out[body], RATE, tail=1.0) / f0_estimate(ref[body], RATE, tail=1.0))
     assert abs(cents) < 1.5
-    assert np.corrcoef(out[:3000], ref[:3000])[0, 1] > 0.999
+    # the onset: its envelope (RMS per 256 samples over the first 93 ms) and its first 23 ms, which the tuning gap
+    # (1.16 cents here) does not move; a bow one CC2 step of 16 away: 18 % of the peak off, correlation 0.96
+    rms = lambda x: np.sqrt(np.mean(x[:4096].reshape(16, 256) ** 2, axis=1))  # noqa: E731
+    assert np.max(np.abs(rms(out) - rms(ref))) < 0.02 * rms(ref).max()
+    assert np.corrcoef(out[:1000], ref[:1000])[0, 1] > 0.999
 
 
 def test_the_callback_creates_no_array_and_imports_nothing(monkeypatch):
