@@ -68,7 +68,7 @@ struct Rollout {
     int64_t ld_out;
     int64_t* fail;          // (rows, 2)
     // (B,): voice b's row of q_out, p_out and fail, so that a group of voices scattered over a render's rows writes
-    // in place (gathered into arrays of its own and copied back, the copies cost a third of a chorale's render)
+    // in place (rolled into arrays of its own and copied back: a chorale's render 0.202 s against 0.192 s in place)
     const int64_t* rows;
 };
 void roll_voices(const Rollout& r);
