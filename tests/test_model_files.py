@@ -427,3 +427,44 @@ def test_one_state_is_in_the_domain_exactly_when_the_vectorised_test_says_so(nam
     many = d.contains(q, p)
     assert 0 < many.sum() < len(q)
     assert [d.contains(float(a), float(b)) for a, b in zip(q, p)] == many.tolist()
+
+
+def test_a_voice_that_leaves_the_picked_models_states_is_played_by_the_next_covering_model(tmp_path, monkeypatch):
+    """A tile (a narrower box of bows, so picked first) that has not learnt the states a bow near its edge reaches:
+    the voice is played again by the next model that covers it, whole, and says so; asked for by name the tile still
+    stops the render (or hands the rest to the FDM)."""
+    from bowsynth import DomainError
+    from bowsynth.engines.operator.engine import render_operator_batch
+
+    soft = SHIPPED_DIR / "soft-range.safetensors"
+
+    def tile(meta):  # a smaller box of bows, and trained states a third of the note's swing
+        meta["domain"]["box"] = [0.05, 0.2, 0.1, 0.25]
+        meta["domain"].update(q_lo=-0.1, q_hi=0.1, p_lo=-0.1, p_hi=0.1)
+    models = tmp_path / "models"
+    models.mkdir()
+    monkeypatch.chdir(tmp_path)
+    rewrite(soft, models / "tile.safetensors", tile)
+    sc = Scene(fb=0.1 * 2 * np.pi * 220, f0=220, vb=0.2, duration=0.3)
+    outside = Scene(fb=0.3 * 2 * np.pi * 220, f0=220, vb=0.2, duration=0.3)  # only soft-range covers it
+    r = render_operator(sc)
+    assert r.info.model_path == str(soft) and r.method.engine == "operator" and not r.method.fdm_fallback
+    assert any("tile: the rollout left the model's trained states" in n and "played by soft-range" in n
+               for n in r.info.notes), r.info.notes
+    np.testing.assert_array_equal(r.p, render_operator(sc, model=soft).p)
+    # in a batch: the voice keeps its number and its place; the other voice is untouched
+    a, b = render_operator_batch([outside, sc])
+    assert b.info.model_path == str(soft) and any(n.startswith("note: voice 2: tile:") for n in b.info.notes)
+    np.testing.assert_array_equal(b.p, r.p)
+    np.testing.assert_array_equal(a.p, render_operator(outside, model=soft).p)
+    # a glide (pitch curve, beta held): the per-window loop hands over the same way
+    pts = [(0.0, 220.0), (0.3, 233.0)]
+    glide = Scene(f0=pts, fb=[(t, 0.1 * 2 * np.pi * f) for t, f in pts], vb=0.2, duration=0.3)
+    g = render_operator(glide)
+    assert g.info.model_path == str(soft) and not g.method.fdm_fallback
+    assert any("tile: the rollout left" in n and "played by soft-range" in n for n in g.info.notes), g.info.notes
+    np.testing.assert_array_equal(g.p, render_operator(glide, model=soft).p)
+    assert render_operator(glide, model=models / "tile.safetensors").method.fdm_fallback
+    with pytest.raises(DomainError, match="left the model's trained states"):
+        render_operator(sc, model=models / "tile.safetensors")
+    assert render_operator(sc, model=models / "tile.safetensors", fallback="fdm").method.fdm_fallback

@@ -7,6 +7,7 @@ import functools
 import math
 import time
 from fractions import Fraction
+from pathlib import Path
 
 import numpy as np
 
@@ -19,6 +20,7 @@ from .choose import (
     _bow_exit,
     as_model,
     available_models,
+    covering_model,
     find_model,
     first_bow_outside,
     partial_model,
@@ -201,20 +203,40 @@ def _voice_bows(m: OperatorModel, scenes: list[Scene]):
     return par, rows, leave
 
 
-def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none", _single: bool = False) -> list[Render]:
+def _model_name(m: OperatorModel) -> str:
+    return m.path.stem if m.path else m.meta.name
+
+
+def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none", _single: bool = False,
+                          _models: list[OperatorModel] | None = None, _labels: list[int] | None = None) -> list[Render]:
     """Many voices in one batched rollout. Voices sharing a model roll together, at any mix of pitches, sample
-    rates and bow curves; a voice that leaves its model's domain (or its bow the model's range) is finished with the
-    FDM (fallback 'fdm') or stops the render (DomainError)."""
+    rates and bow curves. A voice whose picked model (no `model` given) leaves its trained states is played again by
+    the next model that covers it (a tile's box of bows is wider than the states it learnt at its edges); one with no
+    other model, or with the model given, is finished with the FDM (fallback 'fdm') or stops the render
+    (DomainError). _models / _labels: the models left and the voices' numbers, for that second pass."""
     t_setup = time.perf_counter()
     # load each model file once: the voices must share model objects to be grouped into one rollout
     model = None if model is None else as_model(model)
-    models = available_models() if model is None else None
+    models = (available_models() if _models is None else _models) if model is None else None
+    labels = list(range(1, len(scenes) + 1)) if _labels is None else _labels
     groups: dict = {}
     out: list = [None] * len(scenes)
     for i, sc in enumerate(scenes):
         if sc.pitch_varies:  # a pitch curve: per window its own sample spacing (the live engine's voice loop)
             from .curve import render_curve  # the bank and its arrays: only for a pitch curve
-            out[i] = render_curve(sc, _resolve(sc, model, models, fallback))
+            m = _resolve(sc, model, models, fallback)
+            r = render_curve(sc, m)
+            rest = models
+            while model is None and r.method.fdm_fallback:  # it left the picked model's states: the next one plays
+                rest = [x for x in rest if x is not m]
+                nxt = covering_model(sc, rest)
+                if nxt is None:
+                    break
+                r2 = render_curve(sc, nxt)
+                r2.info.notes = [f"note: {'' if _single else f'voice {labels[i]}: '}{_model_name(m)}: the rollout "
+                                 f"left the model's trained states; played by {_model_name(nxt)} instead"] + r2.info.notes
+                m, r = nxt, r2
+            out[i] = r
             continue
         m = _resolve(sc, model, models, fallback)
         groups.setdefault(id(m), (m, []))[1].append(i)
@@ -260,11 +282,28 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 qv[stop[0]:] = np.nan
                 pv[stop[0]:] = np.nan
             voices.append((qv, pv, stop))
-        notes = {i: _finish(scenes[i], qv, pv, stop, fallback, voice="" if _single else f"voice {i + 1}: ") + checked
-                 for i, (qv, pv, stop) in zip(idx, voices)}
+        again: list[int] = []
+        if model is None:  # a voice that left the picked model's states: the next covering model plays it
+            rest = [x for x in models if x is not m]
+            again = [row for row, (i, (_, _, stop)) in enumerate(zip(idx, voices))
+                     if stop[0] >= 0 and stop[1] != FAIL_BOW and covering_model(scenes[i], rest) is not None]
+            if again:
+                redo = render_operator_batch([scenes[idx[r]] for r in again], fallback=fallback, _single=_single,
+                                             _models=rest, _labels=[labels[idx[r]] for r in again])
+                for r, rr in zip(again, redo):
+                    stop = voices[r][2]
+                    why = (f"note: {'' if _single else f'voice {labels[idx[r]]}: '}{_model_name(m)}: {FAILURES[stop[1]]} "
+                           f"at t = {stop[0] / scenes[idx[r]].sample_rate:.4f} s; played by "
+                           f"{Path(rr.info.model_path).stem if rr.info.model_path else rr.info.model_id} instead")
+                    rr.info.notes = [why] + rr.info.notes
+                    out[idx[r]] = rr
+        notes = {i: _finish(scenes[i], qv, pv, stop, fallback, voice="" if _single else f"voice {labels[i]}: ")
+                 + checked for row, (i, (qv, pv, stop)) in enumerate(zip(idx, voices)) if row not in again}
         secs = (time.perf_counter() - t0) / len(idx)
         t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
         for row, i in enumerate(idx):
+            if row in again:
+                continue
             sc = scenes[i]
             ns = sc.n_samples
             qv, pv, _ = voices[row]
