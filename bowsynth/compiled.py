@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .errors import BowsynthError
 
-ABI = 3  # src/core/core.h: bowsynth::ABI
+ABI = 4  # src/core/core.h: bowsynth::ABI
 _REBUILD = "rebuild it with `pip install -e .` (or `make core` in a source tree run with PYTHONPATH)"
 
 

@@ -11,6 +11,7 @@ Functions work on floats, numpy arrays and torch tensors alike (they only use ar
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -96,6 +97,43 @@ def rest_linearisation(b: float, vb: float, a: float) -> tuple[float, float]:
 
 
 MAX_REST_DAMPING = 1.9  # |d| of an underdamped linearisation (|d| < 2); beyond it the linearised flow is not used
+
+# How far the friction's slope phi' may move from its value at rest over a swing of the relative velocity before the
+# flow linearised at rest stops describing the mass (rest_radius). Measured (session 14, eight slow-corner bows at
+# 66-714 Hz, 2 s from rest: the exact linear flow to the radius, then the operator, against a x100 FDM): onsets
+# within 5.0 ms of the truth's 0.2-1.9 s at 0.2, within 22 ms at 0.1 and 33 ms at 0.4; the operator alone 2-700 ms.
+REST_TOL = 0.2
+
+
+@functools.lru_cache(maxsize=4096)
+def rest_radius(vb: float, a: float, tol: float = REST_TOL) -> float:
+    """The swing |(q - q_s, p)| within which the flow linearised at the rest state holds: phi' stays within tol
+    (relative) of phi'(-v_B) over relative velocities -v_B +- the swing. 0 where phi'(-v_B) = 0 (no linear flow)."""
+    d0 = dphi(-vb, a)
+    if not d0 or not math.isfinite(d0):
+        return 0.0
+
+    def off(u):
+        return max(abs(dphi(-vb + u, a) / d0 - 1.0), abs(dphi(-vb - u, a) / d0 - 1.0)) > tol
+    lo, hi = 0.0, 1e-4
+    while not off(hi):  # the slope moves on the scale 1 / (a v_B): a few dozen growing steps find the crossing
+        lo, hi = hi, hi * 1.25
+        if hi > 10.0:
+            return lo
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if off(mid) else (mid, hi)
+    return lo
+
+
+def rest_flow(b: float, vb: float, a: float, q: float, p: float):
+    """(d, q_s, radius) where the state (q, p) lies within the radius of the bow's rest state and the linearisation
+    there is underdamped (the exact flow linearised at rest plays it: engines/operator/onset.py); else None."""
+    d, qs = rest_linearisation(b, vb, a)
+    if not abs(d) < MAX_REST_DAMPING:
+        return None
+    r = rest_radius(float(vb), float(a))
+    return (d, qs, r) if (q - qs) ** 2 + p * p <= r * r else None
 
 
 def flow_coefficients(tau, lin=None):

@@ -38,7 +38,8 @@ def make(b, **swap):
 
 def test_the_slot_codes_are_the_cores():
     c = core.load()
-    for name in ("FREE", "OPERATOR", "FDM", "HELD", "CURVE", "LIVE", "WHY_OK", "WHY_FALLBACK", "P_COLS"):
+    for name in ("FREE", "OPERATOR", "FDM", "REST", "REST_COLS", "HELD", "CURVE", "LIVE", "WHY_OK", "WHY_FALLBACK",
+                 "P_COLS"):
         assert getattr(V, name) == getattr(c, name), name
     assert V.P_RAMP + 1 == V.P_COLS
 
@@ -94,17 +95,23 @@ def test_render_refuses_a_block_outside_its_output():
     ("pos", -3, "negative"),
     ("spw", 50.0, "spw"),  # an operator slot whose window would overrun its buffer (3 samples)
     ("wstart", 5, "window"),
+    ("rest_d", 2.5, "rest flow"),  # a rest-flow slot whose linearisation is overdamped
+    ("rest_r", float("nan"), "rest flow"),
+    ("orig", 9, "partition"),  # the operator's windows would count from after the slot's position
 ])
 def test_a_slot_holding_an_impossible_state_is_refused(field, value, match):
     b = bank()
     b.start_slot(0, 220.0, 0.1, 0.2, 100.0)
     b.start_fdm(0)
-    if field in ("spw", "wstart"):
-        b.mode[0] = V.OPERATOR
+    if field in ("spw", "wstart", "rest_d", "rest_r", "orig"):
+        b.mode[0] = V.REST if field.startswith(("rest", "orig")) else V.OPERATOR
         b.ops[1][0], b.ops[2][0] = 1.5, 1
     {"mode": lambda: b.mode.__setitem__(0, value), "nvb": lambda: b.fdm[4].__setitem__(0, value),
      "stride": lambda: b.fdm[1].__setitem__((0, 1), value), "pos": lambda: b.pos.__setitem__(0, value),
-     "spw": lambda: b.ops[1].__setitem__(0, value), "wstart": lambda: b.ops[12].__setitem__(0, value)}[field]()
+     "spw": lambda: b.ops[1].__setitem__(0, value), "wstart": lambda: b.ops[12].__setitem__(0, value),
+     "rest_d": lambda: b.ops[17].__setitem__((0, V.R_D), value),
+     "rest_r": lambda: b.ops[17].__setitem__((0, V.R_RADIUS), value),
+     "orig": lambda: b.ops[18].__setitem__(0, value)}[field]()
     with pytest.raises(ValueError, match=match):
         b.render(np.zeros(64), 0, 64, 1.0)
 

@@ -297,6 +297,7 @@ class Stream(VoiceBank):
                 else:
                     self.bow_inputs(slot, beta, vb)
                 if self.start_operator(slot, f0):
+                    self.start_rest(slot, beta, vb, self.a, f0)
                     return
             self.counts["fdm_notes"] += 1
         self.start_fdm(slot)

@@ -6,7 +6,7 @@
 namespace bowsynth {
 
 // Raised whenever an argument list or a kernel's meaning changes: bowsynth/core.py refuses a module of another ABI.
-constexpr int ABI = 3;
+constexpr int ABI = 4;
 // Why a voice stopped (bowsynth.rollout writes the same codes; a test checks they agree).
 constexpr int64_t FAIL_NONFINITE = 1, FAIL_DOMAIN = 2;
 
@@ -85,13 +85,23 @@ int64_t live_window(const Net& N, double& q, double& p, const double* center, co
                     const double* eb, const double* el, float* scratch, double* zd, float* qrow, float* prow);
 int64_t live_scratch(const Net& N);  // floats live_window's scratch holds (and m doubles for zd)
 void roll_batch(const Rollout& r);
+// ---- the flow at the bow's rest point (rest.cpp): a note's first samples, exact ----
+// c[:7]: M (m11, m12, m21, m22), k (kq, kp) and q_s of one sample's step dtau at the linearisation (d, q_s); a row
+// of rest_run's takes the radius (physics.rest_radius) in c[7]
+void rest_coefficients(double d, double qs, double dtau, double* c);
+// From (q, p): while the state is within the radius c[7] of (q_s, 0), its samples into oq, op and one step on (row
+// c + i stride for sample i: stride 0 for one bow throughout, REST_ROW for a row each). Returns how many samples it
+// wrote (n, or the first outside); (q, p) is then the state at that sample.
+constexpr int64_t REST_ROW = 8;
+int64_t rest_run(double& q, double& p, const double* c, int64_t stride, int64_t n, double* oq, double* op);
 // ---- voices that play block by block (voices.cpp): the live engine's and a pitch curve's; the arrays' layout is
 // bowsynth/engines/operator/bank.py's ----
-constexpr int64_t FREE = 0, OPERATOR = 1, FDM = 2;  // a slot's mode
+constexpr int64_t FREE = 0, OPERATOR = 1, FDM = 2, REST = 3;  // a slot's mode
 constexpr int64_t HELD = 0, CURVE = 1, LIVE = 2;    // a slot's pitch
 constexpr int64_t P_F0 = 0, P_BETA = 1, P_B0 = 2, P_B1 = 3, P_BT = 4, P_D0 = 5, P_D1 = 6, P_DT = 7, P_RATE = 8,
                   P_RAMP = 9, P_COLS = 10;  // a slot's pitch parameters (voices.P_*)
 constexpr int64_t WHY_OK = 0, WHY_FALLBACK = 1;
+constexpr int64_t R_RADIUS = 7, R_D = 8, R_DTAU = 9, REST_COLS = 10;  // a slot's rest row after the 7 coefficients
 struct Voices {
     // slots, correction rows, a window's buffer, bow inputs, trunk grid points, block, pitch-curve points
     int64_t nv, k, n_max, npar, G, bl, cp;
@@ -104,6 +114,8 @@ struct Voices {
     int64_t *win, *wstart, *wlen;
     float *qbuf, *pbuf;  // (nv, n_max)
     int64_t* op_end;
+    double* rest;   // (nv, REST_COLS): the rest flow's step (rest_coefficients), its radius, d, and the step's dtau
+    int64_t* orig;  // (nv,): the sample the operator's window partition starts from (0, or where the rest flow ends)
     Net net;
     const double* grid;  // (2, k, G): the trunk at s = (i - 1) h_grid
     double h_grid;

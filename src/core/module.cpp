@@ -201,7 +201,7 @@ struct VoicesPy {
              int64_t maxit) {
         const char* fn = "Voices";
         count(slots, 4, "slots");
-        count(ops, 17, "ops");
+        count(ops, 19, "ops");
         count(net, 9, "net");
         count(tb, 9, "tb");
         count(fdm, 9, "fdm");
@@ -226,12 +226,15 @@ struct VoicesPy {
              wlen = item<int64_t, 1>(ops, 13, "wlen");
         auto qbuf = item<float, 2>(ops, 14, "qbuf"), pbuf = item<float, 2>(ops, 15, "pbuf");
         auto op_end = item<int64_t, 1>(ops, 16, "op_end");
+        auto rest = item<double, 2>(ops, 17, "rest");
+        auto orig = item<int64_t, 1>(ops, 18, "orig");
         const int64_t k = endb.shape(3), n_max = Bq.shape(2), npar = pin.shape(1);
         need(n_max >= 3, "Voices: a slot's window buffer must hold at least 3 samples");
         shape(fn, "x", x, {nv, 2});
         for (auto* a : {&spw, &gain}) shape(fn, "spw / gain", *a, {nv});
-        for (auto* a : {&n_lo, &win, &wstart, &wlen, &op_end})
-            shape(fn, "n_lo / win / wstart / wlen / op_end", *a, {nv});
+        for (auto* a : {&n_lo, &win, &wstart, &wlen, &op_end, &orig})
+            shape(fn, "n_lo / win / wstart / wlen / op_end / orig", *a, {nv});
+        shape(fn, "rest", rest, {nv, bowsynth::REST_COLS});
         shape(fn, "Bq", Bq, {nv, k + 3, n_max});
         shape(fn, "Bp", Bp, {nv, k + 3, n_max});
         shape(fn, "endb", endb, {nv, 2, 2, k});
@@ -308,7 +311,7 @@ struct VoicesPy {
         V = bowsynth::Voices{nv, k, n_max, npar, G, bl, cp, mode.data(), pos.data(), end.data(), why.data(),
                              x.data(), spw.data(), n_lo.data(), Bq.data(), Bp.data(), endb.data(), endlin.data(),
                              center.data(), half.data(), pin.data(), gain.data(), win.data(), wstart.data(),
-                             wlen.data(), qbuf.data(), pbuf.data(), op_end.data(), N, grid.data(), h_grid,
+                             wlen.data(), qbuf.data(), pbuf.data(), op_end.data(), rest.data(), orig.data(), N, grid.data(), h_grid,
                              corr.data(), bias.data(), window, lin_kind, lin_d, lin_qs, sr, fst.data(), fint.data(),
                              vb_t.data(), vb_v.data(), nvb.data(), fb_t.data(), fb_v.data(), su.data(), se.data(),
                              pm.data(), pp.data(), pt.data(), pv.data(), npt.data(), wfrac.data(), bdtau.data(),
@@ -324,7 +327,8 @@ struct VoicesPy {
     void check_slot(const char* fn, int64_t v) const {
         const std::string f = std::string(fn) + ": slot " + std::to_string(v) + " ";
         const int64_t md = V.mode[v];
-        need(md == bowsynth::FREE || md == bowsynth::OPERATOR || md == bowsynth::FDM, f + "has no valid mode");
+        need(md == bowsynth::FREE || md == bowsynth::OPERATOR || md == bowsynth::FDM || md == bowsynth::REST,
+             f + "has no valid mode");
         if (md == bowsynth::FREE) return;
         const int64_t pm = V.pm[v];
         need(pm == bowsynth::HELD || pm == bowsynth::CURVE || pm == bowsynth::LIVE, f + "has no valid pitch mode");
@@ -333,7 +337,14 @@ struct VoicesPy {
         need(V.nvb[v] >= 1 && V.nvb[v] <= 3, f + "needs 1 to 3 bow breakpoints");
         need(V.fint[2 * v] >= 0 && V.fint[2 * v + 1] >= 1, f + "needs an FDM step count >= 0 and stride >= 1");
         need(std::isfinite(V.fst[7 * v + 3]) && V.fst[7 * v + 3] > 0, f + "needs a positive FDM step");
-        if (md != bowsynth::OPERATOR) return;
+        if (md != bowsynth::OPERATOR && md != bowsynth::REST) return;
+        if (md == bowsynth::REST) {  // the rest flow, then the operator from where it ends
+            const double* R = V.rest + bowsynth::REST_COLS * v;
+            need(std::isfinite(R[bowsynth::R_RADIUS]) && R[bowsynth::R_RADIUS] >= 0 &&
+                     std::fabs(R[bowsynth::R_D]) < 2.0 && std::isfinite(R[6]),
+                 f + "needs a rest flow of radius >= 0, |d| < 2 and a finite rest point");
+            need(V.pos[v] >= V.orig[v] && V.orig[v] >= 0, f + "has its partition's start after its position");
+        }
         const double sw = V.spw[v];
         need(std::isfinite(sw) && sw >= 1.0 && std::ceil(sw) + 1 <= V.n_max && V.n_lo[v] == std::floor(sw),
              f + "needs 1 <= spw, ceil(spw) + 1 <= the buffer, n_lo = floor(spw)");
@@ -476,10 +487,33 @@ NB_MODULE(_core, mod) {
     }, "x"_a.noconvert(), "w"_a.noconvert(), "up"_a, "down"_a, "y"_a.noconvert(),
        "y[r, j] = sum_k w[(j down) mod up, k] x[r, (j down) div up + k]: resampling by up / down, the filter per "
        "phase.");
+    mod.def("rest_coefficients", [](In<double, 1> d, In<double, 1> qs, In<double, 1> dtau, Out<double, 2> c) {
+        const int64_t n = d.shape(0);
+        shape("rest_coefficients", "qs", qs, {n});
+        shape("rest_coefficients", "dtau", dtau, {n});
+        need(static_cast<int64_t>(c.shape(0)) == n && c.shape(1) >= 7, "rest_coefficients: c must be (n, >= 7)");
+        for (int64_t i = 0; i < n; ++i)
+            need(std::fabs(d.data()[i]) < 2.0, "rest_coefficients: needs |d| < 2 (an underdamped linearisation)");
+        const int64_t w = c.shape(1);
+        for (int64_t i = 0; i < n; ++i)
+            bowsynth::rest_coefficients(d.data()[i], qs.data()[i], dtau.data()[i], c.data() + w * i);
+    }, "d"_a.noconvert(), "qs"_a.noconvert(), "dtau"_a.noconvert(), "c"_a.noconvert(),
+       "c[i, :7] = M (4), k (2) and q_s of one step dtau[i] of the flow linearised at the bow's rest point (d[i], "
+       "qs[i]); the columns after the 7th are left as they are.");
+    mod.def("rest_run", [](double q, double p, In<double, 2> c, int64_t n, Out<double, 1> oq, Out<double, 1> op) {
+        const int64_t m = c.shape(0);
+        need(c.shape(1) == bowsynth::REST_ROW && (m == 1 || m >= n), "rest_run: c must be (1, 8) or (>= n, 8)");
+        need(n >= 0 && static_cast<int64_t>(oq.shape(0)) >= n && static_cast<int64_t>(op.shape(0)) >= n,
+             "rest_run: oq and op must hold n samples");
+        const int64_t h = bowsynth::rest_run(q, p, c.data(), m == 1 ? 0 : bowsynth::REST_ROW, n, oq.data(), op.data());
+        return std::make_tuple(h, q, p);
+    }, "q"_a, "p"_a, "c"_a.noconvert(), "n"_a, "oq"_a.noconvert(), "op"_a.noconvert(),
+       "The rest flow from (q, p) while within the radius c[:, 7] of the rest point c[:, 6]: its samples into oq, "
+       "op (row i for sample i, or row 0 throughout); returns (samples written, q, p at the next).");
     mod.def("ramp", &bowsynth::voices_ramp, "a"_a, "b"_a, "t0"_a, "length"_a, "s"_a,
             "a until t0, then linear to b over length, then b (a live pitch control's ramp).");
     for (auto [name, value] : {std::pair{"FREE", bowsynth::FREE}, {"OPERATOR", bowsynth::OPERATOR},
-                               {"FDM", bowsynth::FDM}, {"HELD", bowsynth::HELD}, {"CURVE", bowsynth::CURVE},
+                               {"FDM", bowsynth::FDM}, {"REST", bowsynth::REST}, {"REST_COLS", bowsynth::REST_COLS}, {"HELD", bowsynth::HELD}, {"CURVE", bowsynth::CURVE},
                                {"LIVE", bowsynth::LIVE}, {"WHY_OK", bowsynth::WHY_OK},
                                {"WHY_FALLBACK", bowsynth::WHY_FALLBACK}, {"P_COLS", bowsynth::P_COLS}})
         mod.attr(name) = value;

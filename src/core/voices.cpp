@@ -52,7 +52,8 @@ int64_t next_window(Voices& V, int64_t v) {
     if (V.pm[v] == HELD) {
         V.wfrac[v] = (V.win[v] + 1) * V.spw[v];
         // within the buffer whatever Python wrote (a pitch mode set back to HELD mid-note)
-        V.wlen[v] = std::min(std::max(window_end(V.win[v], V.spw[v]) - V.wstart[v], int64_t(1)), V.n_max - 1);
+        V.wlen[v] = std::min(std::max(window_end(V.win[v], V.spw[v]) + V.orig[v] - V.wstart[v], int64_t(1)),
+                             V.n_max - 1);
         return V.wlen[v];
     }
     const double f = f0_at(V, v, V.wstart[v] + 0.5 * V.spw[v]);
@@ -132,6 +133,38 @@ void play_fdm(Voices& V, int64_t v, int64_t n, double* out, double* outp, double
         Cursor c{vb};
         for (int64_t i = 0; i < n; ++i) outp[i] += amp * (se[i] + c.at((fint[0] - (n - i) * stride) * k));
     }
+}
+
+// The rest flow of slot v has left its radius at the note's sample pos: the operator goes on from the state there,
+// its window partition starting at that sample (as the offline render rolls out the rest of the note)
+void rest_to_operator(Voices& V, int64_t v) {
+    const int64_t s = V.pos[v];
+    V.mode[v] = OPERATOR;
+    V.orig[v] = s;
+    V.win[v] = -1;
+    V.wstart[v] = s;
+    V.wlen[v] = 0;
+    V.wfrac[v] = static_cast<double>(s);
+    V.op_end[v] = -1;
+}
+
+// Slot v's rest flow for up to n samples into su, se (from the note's sample pos); returns how many it played (fewer
+// when the state leaves its radius). A moving pitch steps each sample at its own dtau.
+int64_t play_rest(Voices& V, int64_t v, int64_t n, double* su, double* se) {
+    double* R = V.rest + REST_COLS * v;
+    double* x = V.x + 2 * v;
+    if (V.pm[v] == HELD) return rest_run(x[0], x[1], R, 0, n, su, se);
+    int64_t done = 0;
+    while (done < n) {
+        const double dtau = 2.0 * PI * f0_at(V, v, static_cast<double>(V.pos[v] + done)) / V.sr;
+        if (dtau != R[R_DTAU]) {
+            rest_coefficients(R[R_D], R[6], dtau, R);
+            R[R_DTAU] = dtau;
+        }
+        if (rest_run(x[0], x[1], R, 0, 1, su + done, se + done) == 0) break;
+        ++done;
+    }
+    return done;
 }
 
 }  // namespace
@@ -271,7 +304,18 @@ void voices_render(Voices& V, double* out, double* outp, int64_t m, double amp) 
             }
             int64_t lim = m - j;
             if (V.end[v] >= 0) lim = std::min(lim, V.end[v] - V.pos[v]);
-            if (V.mode[v] == OPERATOR) {
+            if (V.mode[v] == REST) {
+                double *su = V.su + v * V.bl, *se = V.se + v * V.bl;
+                const int64_t n = std::min(lim, V.bl), done = play_rest(V, v, n, su, se);
+                // float32, as the offline render stores the operator's samples
+                for (int64_t i = 0; i < done; ++i) out[j + i] += amp * static_cast<double>(static_cast<float>(su[i]));
+                if (outp)
+                    for (int64_t i = 0; i < done; ++i)
+                        outp[j + i] += amp * static_cast<double>(static_cast<float>(se[i]));
+                V.pos[v] += done;
+                j += done;
+                if (done < n) rest_to_operator(V, v);
+            } else if (V.mode[v] == OPERATOR) {
                 const float *qbuf = V.qbuf + v * V.n_max, *pbuf = V.pbuf + v * V.n_max;
                 if (V.op_end[v] >= 0 && V.pos[v] >= V.op_end[v]) {  // the FDM takes over, with the slot's bow
                     const int64_t a = V.pos[v] - V.wstart[v];

@@ -14,6 +14,7 @@ from ... import compiled as core
 from . import voices as V
 from .basis import _operator
 from .npnet import PARAM_SPAN, trunk_features
+from .onset import uses_rest_flow
 
 TRUNK_POINTS = 8192  # the trunk grid: spacing ~2.4e-4 of a window, interpolation error ~1e-9 (basis.TRUNK_GRID)
 CURVE_POINTS = 4096  # breakpoints a slot's pitch curve may hold (render_curve)
@@ -72,12 +73,14 @@ class VoiceBank:
                         np.zeros(0, np.float32), np.zeros(4), np.ones((1, 1), np.bool_))
             self.tb = (np.zeros((2, 0, 4)), 1.0, np.zeros(2), np.zeros(2), 1.0, 0, 0.0, 0.0, float(self.sample_rate))
         # the operator: state, samples per window, floor of it, the basis and end-state rows, the state scaling, the
-        # bow inputs and gain, the window's index, first sample and length, its samples, where the FDM takes over
+        # bow inputs and gain, the window's index, first sample and length, its samples, where the FDM takes over,
+        # the rest flow's row (voices.REST_COLS) and the sample the windows count from
         self.ops = (np.zeros((nv, 2)), np.zeros(nv), np.zeros(nv, np.int64), np.zeros((nv, k + 3, n), np.float32),
                     np.zeros((nv, k + 3, n), np.float32), np.zeros((nv, 2, 2, k)), np.zeros((nv, 2, 6)),
                     np.zeros((nv, 2)), np.ones((nv, 2)), np.zeros((nv, npar)), np.ones(nv), np.zeros(nv, np.int64),
                     np.zeros(nv, np.int64), np.zeros(nv, np.int64), np.zeros((nv, n), np.float32),
-                    np.zeros((nv, n), np.float32), np.full(nv, -1, np.int64))
+                    np.zeros((nv, n), np.float32), np.full(nv, -1, np.int64), np.zeros((nv, V.REST_COLS)),
+                    np.zeros(nv, np.int64))
         # the FDM: state (u_prev, u_cur, eta, k, w, a, fb), (steps done, stride), v_B breakpoints (and how many), F_B
         # breakpoints, scratch rows
         self.fdm = (np.zeros((nv, 7)), np.zeros((nv, 2), np.int64), np.zeros((nv, 3)), np.zeros((nv, 3)),
@@ -89,6 +92,7 @@ class VoiceBank:
                     np.zeros((nv, CURVE_POINTS)), np.ones(nv, np.int64), np.zeros(nv), np.zeros(nv), np.zeros((nv, 2)),
                     np.zeros((nv, 2)))
         self._nop = np.zeros(0)
+        self._rest_in = (np.zeros(1), np.zeros(1), np.zeros(1))
         _resident((*self.ops, *self.fdm, *self.pit))
         self.voices = core.load().Voices((self.mode, self.pos, self.end, self.why), self.ops, self.net, self.tb,
                                          self.fdm, self.pit, physics.NEWTON_TOL, physics.NEWTON_MAXIT)
@@ -134,7 +138,28 @@ class VoiceBank:
         x[slot, 0], x[slot, 1] = 0.0, 0.0
         spw_a[slot], nlo_a[slot], win[slot], wstart[slot], wlen[slot] = spw, n_lo, -1, 0, 0
         self.ops[16][slot] = -1
+        self.ops[18][slot] = 0
         self.mode[slot] = V.OPERATOR
+        return True
+
+    def start_rest(self, slot: int, beta: float, vb: float, a: float, f0: float) -> bool:
+        """An operator slot (start_operator) whose state lies near its bow's rest point starts with the exact flow
+        linearised there (physics.rest_flow; for the models onset.uses_rest_flow names), the operator taking over
+        where the state leaves its radius; False (the slot unchanged) where it does not apply."""
+        x = self.ops[0]
+        if not uses_rest_flow(self.model):
+            return False
+        flow = physics.rest_flow(beta, vb, a, float(x[slot, 0]), float(x[slot, 1]))
+        if flow is None:
+            return False
+        d, qs, r = flow
+        rows = self.ops[17]
+        dtau = physics.dtau(f0, self.sample_rate)
+        d_, qs_, dt_ = self._rest_in  # preallocated: a live note-on creates no array
+        d_[0], qs_[0], dt_[0] = d, qs, dtau
+        core.load().rest_coefficients(d_, qs_, dt_, rows[slot:slot + 1])
+        rows[slot, V.R_RADIUS], rows[slot, V.R_D], rows[slot, V.R_DTAU] = r, d, dtau
+        self.mode[slot] = V.REST
         return True
 
     def bow_inputs(self, slot: int, beta: float, vb: float) -> None:
@@ -165,9 +190,13 @@ class VoiceBank:
         total = int(round((h / sr + release + tail) * sr))
         if self.mode[slot] == V.OPERATOR and self.ops[16][slot] < 0:
             self.voices.advance_to(slot, h)
-        if self.mode[slot] == V.OPERATOR and (self.ops[16][slot] < 0 or h < self.ops[16][slot]):
-            a = h - self.ops[12][slot]
-            q0, p0 = float(self.ops[14][slot, a]), float(self.ops[15][slot, a])
+        op_here = self.mode[slot] == V.OPERATOR and (self.ops[16][slot] < 0 or h < self.ops[16][slot])
+        if op_here or self.mode[slot] == V.REST:
+            if op_here:
+                a = h - self.ops[12][slot]
+                q0, p0 = float(self.ops[14][slot, a]), float(self.ops[15][slot, a])
+            else:  # still in the flow at rest: its state at sample h, in float32 as the offline sustain holds it
+                q0, p0 = float(np.float32(self.ops[0][slot, 0])), float(np.float32(self.ops[0][slot, 1]))
             vb_t[slot, 0], vb_t[slot, 1], vb_v[slot, 0], vb_v[slot, 1], nvb[slot] = 0.0, release, vb, 0.0, 2
             self.voices.to_fdm(slot, q0, p0, h)
             self.mode[slot] = V.FDM

@@ -55,6 +55,7 @@ def render_curve(scene, model):
     pm[0], npt[0] = V.CURVE, len(scene.f0.points)
     pt[0, :npt[0]], pv[0, :npt[0]] = scene.f0.times, scene.f0.values
     bank.ops[0][0] = (scene.q0, scene.p0)
+    bank.start_rest(0, beta, vb, scene.a, f0)  # a note near its bow's rest point starts with the flow there
     bank.pit[6][0] = -1.0  # the first window builds its own basis at its own spacing
     bank.end[0] = scene.n_samples
     n = scene.n_samples

@@ -29,6 +29,7 @@ from .choose import (
 )
 from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
 from .modelfile import OperatorModel
+from .onset import rest_onset
 from .rollout import applied_controls, rollout_states, scene_bows
 from .windows import FAIL_BOW, FAIL_DOMAIN, FAILURES, window_bounds
 
@@ -181,6 +182,18 @@ def _applied(sc: Scene, grid, op, bows, leave) -> dict:
     return ctrl
 
 
+def _applied_after_rest(sc: Scene, m: OperatorModel, h: int, rest) -> dict:
+    """_applied for a voice whose first h samples the flow at rest played (with the bows of the note's windows) and
+    the operator the rest (`rest`: its _applied, or None where the flow played the whole note)."""
+    spw = _operator(m).samples_per_window(sc.dtau)
+    ctrl = applied_controls(sc, spw, scene_bows(sc, spw))
+    if rest is not None:
+        after = rest()
+        for k in ctrl:
+            ctrl[k][h:] = after[k][:sc.n_samples - h]
+    return ctrl
+
+
 def _voice_bows(m: OperatorModel, scenes: list[Scene]):
     """Per voice: the bows of its windows (padded to a common length) and where the bow first leaves the model's
     range ((sample, what) or None: only a --fallback fdm render gets here with one)."""
@@ -243,18 +256,39 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     for m, idx in groups.values():
         checked = _physics_notes(m) + (unreadable_notes() if model is None else [])
         op = _operator(m)
+        t0 = time.perf_counter()
+        # a note's first samples near its bow's rest point: the exact flow there (onset.py); the operator rolls out
+        # the rest of the note from where it leaves (None: the whole note stayed there)
+        pre, base = {}, {}
+        for i in idx:
+            sc = scenes[i]
+            ro = None if needs_whole_windows(m.domain, sc.beta_range[1]) else rest_onset(
+                sc, m, op.samples_per_window(sc.dtau))
+            if ro is None:
+                continue
+            h, qr, pr, qh, ph = ro
+            n = sc.n_samples
+            if n - h < 2:  # a note too short (or too quiet) to leave: its last sample the state there
+                qr, pr, h = np.append(qr, [qh] * (n - h)), np.append(pr, [ph] * (n - h)), n
+            pre[i] = (h, qr, pr)
+            base[i] = None if h == n else sc.after(h / sc.sample_rate, duration=(n - h) / sc.sample_rate, q0=qh,
+                                                   p0=ph)
+        t_rest = time.perf_counter() - t0
+        idx_all, idx = idx, [i for i in idx if base.get(i, scenes[i]) is not None]
+        rs = [base.get(i, scenes[i]) for i in idx]  # what the operator plays of each voice
         # each voice on the grid its model needs (grid.py: whole windows for stick-slip models), and back
-        grids = [whole_window_scene(scenes[i], op.samples_per_window(scenes[i].dtau))
-                 if needs_whole_windows(m.domain, scenes[i].beta_range[1]) else (scenes[i], Fraction(1)) for i in idx]
+        grids = [whole_window_scene(sc, op.samples_per_window(sc.dtau))
+                 if needs_whole_windows(m.domain, sc.beta_range[1]) else (sc, Fraction(1)) for sc in rs]
         group = [g for g, _ in grids]
-        x0 = np.array([[sc.q0, sc.p0] for sc in group])
+        x0 = np.array([[sc.q0, sc.p0] for sc in group]).reshape(-1, 2)
         dtau = np.array([sc.dtau for sc in group])
-        par, bows, leave = _voice_bows(m, group)
+        par, bows, leave = _voice_bows(m, group) if group else (None, [], [])
         loop = "core"
         # warm-up: converts the weights and computes the trunk features at these sample offsets, so that `seconds`
         # measures the rollout itself (start-up: info.setup_seconds)
-        rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
-        t0 = time.perf_counter()
+        if group:
+            rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
+        t0 = time.perf_counter() - t_rest
         q, p, fail = [None] * len(group), [None] * len(group), [None] * len(group)
         for rows in length_buckets([g.n_samples for g in group]):
             qb, pb, fb = rollout_states(m, x0[rows], max(group[r].n_samples for r in rows), dtau[rows], loop=loop,
@@ -270,7 +304,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             lv = leave[row]
             if lv is not None and (stop[0] < 0 or lv[0] < stop[0]):
                 stop = [lv[0], FAIL_BOW, lv[1]]
-            ns = scenes[idx[row]].n_samples
+            ns = rs[row].n_samples
             if ratio == 1:
                 qv, pv = q[row][:ns], p[row][:ns]
             else:
@@ -282,6 +316,21 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 qv[stop[0]:] = np.nan
                 pv[stop[0]:] = np.nan
             voices.append((qv, pv, stop))
+        ctrl_of = {i: functools.partial(_applied, rs[row], grids[row], op, bows[row], leave[row])
+                   for row, i in enumerate(idx)}
+        played = dict(zip(idx, voices))
+        voices = []
+        for i in idx_all:  # the flow at rest's samples before the operator's
+            if i not in pre:
+                voices.append(played[i])
+                continue
+            h, qr, pr = pre[i]
+            qv, pv, stop = played.get(i, (np.zeros(0, np.float32), np.zeros(0, np.float32), [-1, 0]))
+            stop = [stop[0] + h if stop[0] >= 0 else stop[0], *stop[1:]]
+            voices.append((np.concatenate([qr.astype(np.float32), qv]), np.concatenate([pr.astype(np.float32), pv]),
+                           stop))
+            ctrl_of[i] = functools.partial(_applied_after_rest, scenes[i], m, h, ctrl_of.get(i))
+        idx = idx_all
         again: list[int] = []
         if model is None:  # a voice that left the picked model's states: the next covering model plays it
             rest = [x for x in models if x is not m]
@@ -315,9 +364,11 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 v = m.meta.validation or {}
                 info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid", "harm_db_median",
                                                                "cents_abs_max")}
+            if i in pre:
+                info.rest_flow = pre[i][0] / sc.sample_rate
             ctrl = None
             if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
-                ctrl = LazyControls(functools.partial(_applied, sc, grids[row], op, bows[row], leave[row]))
+                ctrl = LazyControls(ctrl_of[i])
             out[i] = Render(sc, t_all[sc.sample_rate][:ns], qv, pv,
                             method=Played("operator", fdm_fallback=len(notes[i]) > len(checked)), seconds=secs,
                             info=info, **({"controls": ctrl} if ctrl is not None else {}))

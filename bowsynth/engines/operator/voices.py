@@ -6,8 +6,8 @@ The loop is the compiled core's (src/core/voices.cpp, `_core.Voices`): a window 
 (`roll_voices`' body) and the FDM the core's step. What it adds is only the bookkeeping a stream needs and a whole
 render does not: a voice's window partition continues across blocks (window w of a note starts at the sample nearest
 w T from the note's start, exactly as offline, so the live samples are the offline samples), the window's samples
-wait in the voice's buffer until the blocks reach them, and a voice changes engine (operator sustain -> FDM release)
-at a note-off's sample. Here: the codes the Python side writes into a slot (the core has the same; a test checks
+wait in the voice's buffer until the blocks reach them, and a voice changes engine (the flow at the bow's rest point
+-> operator sustain -> FDM release) at a sample of its own. Here: the codes the Python side writes into a slot (the core has the same; a test checks
 they agree) and the core's small helpers.
 """
 
@@ -15,7 +15,9 @@ from __future__ import annotations
 
 from ... import compiled as core
 
-FREE, OPERATOR, FDM = 0, 1, 2  # a slot's mode
+FREE, OPERATOR, FDM, REST = 0, 1, 2, 3  # a slot's mode (REST: the flow at the bow's rest point, then the operator)
+REST_COLS = 10  # rest[slot]: the rest flow's step (7: M, k, q_s; core.rest_coefficients), its radius, d, step's dtau
+R_RADIUS, R_D, R_DTAU = 7, 8, 9
 HELD, CURVE, LIVE = 0, 1, 2  # a slot's pitch: constant, breakpoints (a scene's f0 curve), bend and vibrato (play)
 # pp[slot] columns: the note's f0 (Hz), F_B / w, then for LIVE the pitch bend's ramp (from, to in semitones, its
 # start in the note's samples), the vibrato depth's (from, to in semitones), its start, the vibrato rate (Hz), and the

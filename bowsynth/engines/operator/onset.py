@@ -1,0 +1,74 @@
+"""A note's first samples near its bow's rest point: the exact flow linearised there (physics.rest_flow), the
+operator taking over where the state leaves the radius.
+
+Why: a note from rest grows from its bow's rest point by exp(-d tau / 2); at a light, slow bow (d small) that takes
+0.2-2 s, and over it the network's small absolute errors near rest, compounded window after window, set when the note
+speaks (a range model's onsets 12-700 ms off at the slow corner, docs/BENCHMARKS.md "The flow at rest"). There the
+linearised flow is exact up to the friction's curvature, which the radius bounds. The loop is the compiled core's
+rest_run, the one the live voices run (voices.cpp, REST mode), so the offline and live notes agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ... import compiled as core
+from ... import physics
+from ...scene import Scene
+from .rollout import scene_bows
+from .windows import window_bounds
+
+CHUNK = 256  # windows whose rows are built at a time when the bow moves (most notes leave the radius in the first)
+
+
+def uses_rest_flow(m) -> bool:
+    """Range models start a note with the flow at rest. A point model learnt its own bow's trajectory from rest
+    (paper-fb10: onset errors of microseconds; scratch-g2 carries the rest flow inside its network), so its notes
+    are left to it."""
+    return m.domain.is_range
+
+
+def rest_onset(sc: Scene, m, spw: float):
+    """The scene's first samples by the flow at rest, while its state stays within the radius of each window's bow
+    (the bows the operator would play, scene_bows): (h, q, p, qh, ph) with q, p its h samples (float64) and (qh, ph)
+    the state at sample h, where the operator goes on (h = n_samples: the whole note); or None where it does not
+    apply (a point model, a start away from the rest point, an overdamped bow)."""
+    if not uses_rest_flow(m) or sc.pitch_varies:
+        return None
+    bows = scene_bows(sc, spw)
+    if physics.rest_flow(float(bows[0, 0]), float(bows[0, 1]), sc.a, sc.q0, sc.p0) is None:
+        return None
+    n = sc.n_samples
+    oq, op = np.empty(n), np.empty(n)
+    lib = core.load()
+    q, p = float(sc.q0), float(sc.p0)
+    if np.ptp(bows[:, 0]) == 0 and np.ptp(bows[:, 1]) == 0:  # one bow throughout: one row, as a live note's
+        d, qs, r = physics.rest_flow(float(bows[0, 0]), float(bows[0, 1]), sc.a, q, p)
+        c = np.zeros((1, 8))
+        lib.rest_coefficients(np.array([d]), np.array([qs]), np.array([sc.dtau]), c)
+        c[0, 7] = r
+        h, q, p = lib.rest_run(q, p, c, n, oq, op)
+        return h, oq[:h], op[:h], q, p
+    starts, ends = window_bounds(spw, n)
+    ends = np.minimum(ends, n)
+    W = min(len(starts), len(bows))
+    h = 0
+    for w0 in range(0, W, CHUNK):
+        w1 = min(w0 + CHUNK, W)
+        s0, s1 = int(starts[w0]), int(ends[w1 - 1])
+        # each sample's step at the bow of its own time (a bow held per window would move the rest point in steps, one
+        # a period, all at the same phase: they pumped the swing, the note spoke 14 ms early of 254); the radius per
+        # window (a tolerance, not a rate)
+        t = (np.arange(s0, s1) + 0.5) / sc.sample_rate
+        d, qs = physics.rest_linearisation(sc.fb_at(t) / sc.omega, sc.vb_at(t), sc.a)
+        r = np.repeat([physics.rest_radius(float(x), float(sc.a)) for x in bows[w0:w1, 1]],
+                      (ends[w0:w1] - starts[w0:w1]).astype(np.int64))
+        ok = np.abs(d) < physics.MAX_REST_DAMPING
+        per = np.zeros((s1 - s0, 8))
+        lib.rest_coefficients(np.where(ok, d, 0.0), qs, np.full(s1 - s0, sc.dtau), per)
+        per[:, 7] = np.where(ok, r, -1.0)  # an overdamped bow: the state is outside at once
+        k, q, p = lib.rest_run(q, p, per, s1 - s0, oq[s0:], op[s0:])
+        h = s0 + k
+        if k < s1 - s0:
+            break
+    return h, oq[:h], op[:h], q, p

@@ -1,0 +1,138 @@
+"""A note's first samples near its bow's rest point: the exact linearised flow (core.rest_run), the operator from
+where the state leaves the radius; offline and live alike."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from bowsynth import Scene, physics
+from bowsynth import compiled as core
+from bowsynth.analysis.metrics import listener_errors
+from bowsynth.api import render
+from bowsynth.engines.operator import onset
+
+# a slow bow of the held-out soft set (benchmarks/listener.py --region soft): the operator alone spoke 26.9 ms late of
+# the truth's 449 ms (the limit: max(5 ms, 2 %) = 9 ms); with the flow at rest 2.8 ms early
+SLOW = dict(f0=103.2, beta=0.0389, vb=0.239)
+
+
+def slow_scene(duration=2.0, **kw):
+    s = {**SLOW, **kw}
+    return Scene(f0=s["f0"], fb=s["beta"] * 2 * math.pi * s["f0"], vb=s["vb"], duration=duration)
+
+
+def truth(sc):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return render(sc, engine="fdm", oversample=100)
+
+
+def test_rest_run_is_the_exact_linear_flow_and_stops_at_its_radius():
+    b, vb, a = SLOW["beta"], SLOW["vb"], 100.0
+    d, qs, r = physics.rest_flow(b, vb, a, 0.0, 0.0)
+    dtau = physics.dtau(SLOW["f0"], 44100)
+    c = np.zeros((1, 8))
+    core.load().rest_coefficients(np.array([d]), np.array([qs]), np.array([dtau]), c)
+    c[0, 7] = r
+    n = 200_000
+    oq, op = np.zeros(n), np.zeros(n)
+    h, qh, ph = core.load().rest_run(0.0, 0.0, c, n, oq, op)
+    assert 0 < h < n
+    q, p = physics.linear_flow(0.0, 0.0, np.arange(h + 1) * dtau, (d, qs))
+    assert np.max(np.abs(oq[:h] - q[:h])) < 1e-12 and np.max(np.abs(op[:h] - p[:h])) < 1e-12
+    dev = np.hypot(q - qs, p)
+    assert dev[h - 1] <= r < dev[h] and abs(qh - q[h]) < 1e-12 and abs(ph - p[h]) < 1e-12
+    # a state outside (or not a number) plays no sample
+    assert core.load().rest_run(qs + 1.01 * r, 0.0, c, 10, oq, op)[0] == 0
+    assert core.load().rest_run(float("nan"), 0.0, c, 10, oq, op)[0] == 0
+    with pytest.raises(ValueError, match="rest_run"):
+        core.load().rest_run(0.0, 0.0, np.zeros((2, 8)), 10, oq, op)  # neither one row nor one per sample
+
+
+def test_the_radius_keeps_the_frictions_slope_within_its_tolerance():
+    for vb in (0.12, 0.2, 0.29):
+        r = physics.rest_radius(vb, 100.0)
+        d0 = physics.dphi(-vb, 100.0)
+        u = np.linspace(0, r, 200)
+        inside = np.maximum(abs(physics.dphi(-vb + u, 100.0) / d0 - 1), abs(physics.dphi(-vb - u, 100.0) / d0 - 1))
+        assert inside.max() <= physics.REST_TOL
+        outside = max(abs(physics.dphi(-vb + 1.01 * r, 100.0) / d0 - 1), abs(physics.dphi(-vb - 1.01 * r, 100.0) / d0 - 1))
+        assert outside > physics.REST_TOL
+    assert physics.rest_radius(physics.vb_stop(100.0), 100.0) == 0.0  # phi' = 0 there: no linear flow to trust
+    assert physics.rest_flow(0.3, 0.15, 100.0, 0.0, 0.0) is None  # a firm bow's rest point: far from rest
+
+
+def test_a_slow_note_speaks_when_the_truth_does(monkeypatch):
+    sc = slow_scene()
+    ref = truth(sc)
+    r = render(sc, engine="operator")
+    assert r.info.rest_flow and 0.05 < r.info.rest_flow < 0.4 and r.method.engine == "operator"
+    h = int(round(r.info.rest_flow * sc.sample_rate))
+    d, qs, _ = physics.rest_flow(SLOW["beta"], SLOW["vb"], sc.a, 0.0, 0.0)
+    q, _ = physics.linear_flow(0.0, 0.0, np.arange(h) * sc.dtau, (d, qs))
+    assert np.max(np.abs(r.q[:h] - q)) <= 1e-6 * np.max(np.abs(q))  # float32 of the exact flow
+    e = listener_errors(r.p, ref.p, sc.sample_rate)
+    assert abs(e["onset_err_ms"]) <= max(5.0, 0.02 * e["onset_ref_ms"]), e
+    # the operator alone misses it
+    monkeypatch.setattr(onset, "uses_rest_flow", lambda m: False)
+    alone = render(sc, engine="operator")
+    assert alone.info.rest_flow is None
+    e = listener_errors(alone.p, ref.p, sc.sample_rate)
+    assert abs(e["onset_err_ms"]) > max(5.0, 0.02 * e["onset_ref_ms"]), e
+
+
+def test_a_bow_that_moves_during_the_flow_at_rest_is_followed_window_by_window():
+    """v_B falls from 0.239 to 0.2 over the first 0.3 s: the flow takes each window's bow (the bows the operator
+    would play), the hand-over and the rest of the note are the operator's, and the note speaks with the truth."""
+    sc = slow_scene(duration=1.5).replace(vb=[(0.0, 0.239), (0.3, 0.2)])
+    r = render(sc, engine="operator")
+    assert r.info.rest_flow and np.all(np.isfinite(r.p))
+    h = int(round(r.info.rest_flow * sc.sample_rate))
+    c = r.controls
+    assert c["vb"][0] == pytest.approx(0.239, abs=1e-3) and c["vb"][h - 1] < 0.239 and len(c["vb"]) == sc.n_samples
+    e = listener_errors(r.p, truth(sc).p, sc.sample_rate)
+    assert abs(e["onset_err_ms"]) <= max(5.0, 0.02 * e["onset_ref_ms"]), e
+
+
+def test_point_models_and_a_start_away_from_rest_are_left_to_the_operator():
+    fb10 = render(Scene(fb=10, duration=0.3), engine="operator", model="paper-fb10")
+    assert fb10.info.rest_flow is None and fb10.info.model_path.endswith("paper-fb10.safetensors")
+    moving = render(slow_scene(duration=0.3).replace(q0=0.2, p0=0.1), engine="operator")
+    assert moving.info.rest_flow is None
+
+
+def test_a_note_that_never_leaves_is_the_flow_throughout():
+    """A short note that ends before it grows out of the radius: no rollout at all, every sample the flow's."""
+    sc = slow_scene(duration=0.05)
+    r = render(sc, engine="operator")
+    assert r.info.rest_flow == pytest.approx(0.05, abs=1 / sc.sample_rate) and len(r.q) == sc.n_samples
+    d, qs, _ = physics.rest_flow(SLOW["beta"], SLOW["vb"], sc.a, 0.0, 0.0)
+    q, _ = physics.linear_flow(0.0, 0.0, np.arange(sc.n_samples) * sc.dtau, (d, qs))
+    assert np.max(np.abs(r.q - q)) <= 1e-6 * np.max(np.abs(q))
+
+
+@pytest.mark.parametrize("block", [512, 97])
+def test_live_notes_start_with_the_same_flow_and_equal_the_offline_render(tmp_path, block):
+    """The softest velocities (neutral controllers, so that live and offline tune alike): the live voice plays its
+    first samples by the flow at rest (REST mode: 22 samples at velocity 1, 8 at velocity 4), hands over to the
+    operator, or (the second note, released 5 samples in) goes from the flow's state straight to the FDM's bow
+    stop; the samples are the offline render's."""
+    from test_stream import offline, play
+
+    from bowsynth.engines.operator import voices as V
+    from bowsynth.live import Stream
+
+    ev = [(100, b"\x90\x3c\x01"), (3000, b"\x90\x43\x04"), (3005, b"\x80\x43\x00"), (20000, b"\x80\x3c\x00")]
+    s = Stream(block=512, voices=4, model="soft-range")
+    n = 26000
+    first = play(s, [e for e in ev if e[0] < 3003], 3003, block)  # to the second note's third sample
+    modes = sorted(int(x) for x in s.mode)
+    assert modes.count(V.REST) == 1 and modes.count(V.OPERATOR) == 1, modes  # the first note handed over already
+    out = np.concatenate([first, play(s, [(f - 3003, d) for f, d in ev if f >= 3003], n - 3003, block)])
+    ref = offline(tmp_path, ev, n, "operator", s.amp, s.dc_r)
+    assert s.counts["notes"] == 2 and s.counts["fdm_notes"] == 0
+    assert np.max(np.abs(out - ref)) <= 2e-5 * np.max(np.abs(ref))
