@@ -18,7 +18,7 @@ from ...scene import Scene
 from .rollout import scene_bows
 from .windows import window_bounds
 
-CHUNK = 256  # windows whose rows are built at a time when the bow moves (most notes leave the radius in the first)
+CHUNK = 32  # windows whose rows are built at a time when the bow moves (a note leaves the radius within ~0.2-2 s)
 
 
 def uses_rest_flow(m) -> bool:
@@ -35,9 +35,11 @@ def rest_onset(sc: Scene, m, spw: float):
     apply (a point model, a start away from the rest point, an overdamped bow)."""
     if not uses_rest_flow(m) or sc.pitch_varies:
         return None
-    bows = scene_bows(sc, spw)
-    if physics.rest_flow(float(bows[0, 0]), float(bows[0, 1]), sc.a, sc.q0, sc.p0) is None:
+    t = 0.5 * window_bounds(spw, min(sc.n_samples, int(2 * spw) + 2))[1][0] / sc.sample_rate  # the first window's middle
+    # (scene_bows' bow there) decides, before the bows of every window are built: most notes start far from rest
+    if physics.rest_flow(float(sc.fb_at(t)) / sc.omega, float(sc.vb_at(t)), sc.a, sc.q0, sc.p0) is None:
         return None
+    bows = scene_bows(sc, spw)
     n = sc.n_samples
     oq, op = np.empty(n), np.empty(n)
     lib = core.load()
