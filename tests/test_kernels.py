@@ -192,14 +192,14 @@ def test_numpy_loop_stops_a_failing_voice_like_the_compiled_ones(tiny_model):
 
 def test_trunk_features_interpolated_for_many_pitches_match_the_network():
     from bowsynth.engines.operator import npnet
-    from bowsynth.engines.operator.basis import TRUNK_GRID, _operator
+    from bowsynth.engines.operator.basis import DIRECT_POINTS, _operator
     from bowsynth.engines.operator.choose import SHIPPED_DIR
 
     for name in ("paper-fb10", "paper-fb100", "paper-fb1000"):
         op = _operator(load_model(SHIPPED_DIR / f"{name}.safetensors"))
         f0 = 100 * 2 ** (np.arange(40) / 40)
         offsets = [np.arange(442 * 100 // int(f) + 2) * (2 * np.pi * f / 44100) / op.window for f in f0]
-        assert sum(map(len, offsets)) > TRUNK_GRID  # the interpolated path
+        assert sum(map(len, offsets)) > DIRECT_POINTS  # the interpolated path
         for s, f in zip(offsets, op.trunk_features(offsets)):
             direct = npnet.trunk_features(op._w, op.cfg, s)
             assert np.abs(f - direct).max() < 1e-7 * np.abs(direct).max()  # float32 rounding is 6e-8
@@ -250,3 +250,44 @@ def test_the_linear_parts_are_the_exact_flows(tiny_rest_model):
         np.testing.assert_allclose(lin[1].numpy(), np.tile([qs, 0.0], (13, 1)), atol=1e-15)  # rest stays at rest
     finally:
         m.net.float()
+
+
+def test_the_trunk_grid_is_kept_on_disk_and_a_bad_copy_is_recomputed(tmp_path, monkeypatch):
+    """The grid a score's bases and the live voices interpolate: computed once, then read by the next process; a
+    truncated, edited, non-finite or FIFO copy is never trusted (recomputed and replaced); no cache, no file."""
+    import os
+
+    from bowsynth.engines.operator import npnet
+    from bowsynth.engines.operator.basis import TRUNK_H, TRUNK_POINTS, trunk_grid
+    from bowsynth.engines.operator.choose import SHIPPED_DIR
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    path = SHIPPED_DIR / "paper-fb100.safetensors"
+    g = trunk_grid(load_model(path))
+    files = list(tmp_path.glob("trunk-*.npy"))
+    assert len(files) == 1 and g.shape == (TRUNK_POINTS, 2, load_model(path).cfg.k)
+    s = np.array([-TRUNK_H, 0.0, 0.5, 1.9])
+    direct = npnet.trunk_features(load_model(path).weights, load_model(path).cfg, s)
+    assert np.abs(g[[0, 1]] - direct[:2]).max() < 1e-12 * np.abs(direct).max() and not g.flags.writeable
+    # the next process's model reads the file: the same array, not a new evaluation (16 rows checked)
+    real = npnet.trunk_features
+    monkeypatch.setattr(npnet, "trunk_features", lambda w, c, s: real(w, c, s) if len(s) <= 16 else pytest.fail(
+        "evaluated again"))
+    assert np.array_equal(trunk_grid(load_model(path)), g)
+    monkeypatch.undo()
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    f = files[0]
+    good = f.read_bytes()
+    bad = g.copy()
+    bad[5, 0, 0] = np.nan
+    np.save(tmp_path / "nan.npy", bad)
+    for damage in (good[:len(good) // 2], good[:200] + b"\0" * (len(good) - 200), (tmp_path / "nan.npy").read_bytes()):
+        f.write_bytes(damage)
+        again = trunk_grid(load_model(path))
+        assert np.array_equal(again, g) and f.read_bytes() == good
+    f.unlink()
+    os.mkfifo(f)  # a FIFO is not read (it would block): recomputed, and the FIFO replaced by the file
+    assert np.array_equal(trunk_grid(load_model(path)), g) and f.read_bytes() == good
+    f.unlink()
+    monkeypatch.setenv("BOWSYNTH_CACHE", "off")
+    assert np.array_equal(trunk_grid(load_model(path)), g) and not f.exists()

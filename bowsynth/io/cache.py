@@ -1,4 +1,5 @@
-"""A small on-disk cache of measured numbers (the sounding ratios of `pitch`), kept between processes.
+"""A small on-disk cache of measured numbers (the sounding ratios of `pitch`) and computed arrays (a model's trunk on
+its grid), kept between processes.
 
 Why: `render --pitch A4` solves for the f0 that sounds at A4 by running the FDM from rest a few times; that costs a
 fraction of a second per process (the runs; numba's import and load added ~0.8 s before the compiled core), every time the same note is asked for. The
@@ -17,6 +18,8 @@ import json
 import os
 import secrets
 from pathlib import Path
+
+import numpy as np
 
 CACHE_ENV = "BOWSYNTH_CACHE"
 MAX_ENTRIES = 20_000  # a table this size is ~2 MB of JSON; older entries go first
@@ -103,3 +106,54 @@ class DiskTable:
                 tmp.unlink()
             except OSError:
                 pass
+
+
+MAX_ARRAY_BYTES = 64 << 20  # an array cached here is a few MB (a model's trunk grid: 8 MB at 64 features)
+
+
+def read_array(name: str, shape: tuple, dtype=np.float64):
+    """The array cached under `name` (a .npy file in the cache directory) if it is a regular file holding exactly
+    that shape and dtype, all finite; else None (never an error: a cache is only ever a shortcut)."""
+    d = cache_dir()
+    if d is None:
+        return None
+    import stat
+
+    try:
+        fd = os.open(d / f"{name}.npy", os.O_RDONLY | os.O_NONBLOCK)
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_ARRAY_BYTES:
+            return None
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            a = np.load(fh, allow_pickle=False)
+    except (OSError, ValueError, EOFError):
+        return None
+    finally:
+        os.close(fd)
+    if a.shape != tuple(shape) or a.dtype != np.dtype(dtype) or not np.all(np.isfinite(a)):
+        return None
+    return a
+
+
+def write_array(name: str, a) -> None:
+    """Cache `a` under `name`, written to a temporary file and moved in place (nothing torn; a failure is ignored)."""
+    d = cache_dir()
+    if d is None:
+        return
+    path = d / f"{name}.npy"
+    tmp = d / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            np.save(fh, np.ascontiguousarray(a), allow_pickle=False)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    finally:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass

@@ -12,11 +12,10 @@ import numpy as np
 from ... import physics
 from ... import compiled as core
 from . import voices as V
-from .basis import _operator
-from .npnet import PARAM_SPAN, trunk_features
+from .basis import TRUNK_H, TRUNK_POINTS, _operator, trunk_grid
+from .npnet import PARAM_SPAN
 from .onset import uses_rest_flow
 
-TRUNK_POINTS = 8192  # the trunk grid: spacing ~2.4e-4 of a window, interpolation error ~1e-9 (basis.TRUNK_GRID)
 CURVE_POINTS = 4096  # breakpoints a slot's pitch curve may hold (render_curve)
 
 
@@ -47,10 +46,9 @@ class VoiceBank:
         # the longest window a slot may need, at the lowest pitch it may play
         self.n_max = int(math.ceil(op.window / physics.dtau(lowest_f0, self.sample_rate))) + 2
         cfg = op.cfg
-        h_grid = 2.0 / (TRUNK_POINTS - 3)  # window fractions up to n_hi / spw < 1 + 1 / spw <= 2
+        h_grid = TRUNK_H
         # (2, k, G): each feature's values along s contiguous (trunk_basis reads them sample after sample)
-        self.grid = np.ascontiguousarray(np.transpose(trunk_features(m.weights, cfg, (np.arange(TRUNK_POINTS) - 1.0)
-                                                                     * h_grid), (1, 2, 0)))
+        self.grid = np.ascontiguousarray(np.transpose(trunk_grid(m), (1, 2, 0)))
         lin_kind = 2 if not cfg.linear_flow else (0 if op.lin is None else 1)
         lin_d, lin_qs = op.lin if op.lin is not None else (0.0, 0.0)
         box = np.array([d.q_lo, d.q_hi, d.p_lo, d.p_hi])

@@ -33,6 +33,7 @@ class NumpyOperator:
         self.center, self.halfrange = d64("center"), d64("halfrange")
         self.corr_scale, self.window, self.bias = d64("corr_scale"), float(w["window"]), d64("bias")
         self.lin = tuple(float(v) for v in w["lin"]) if cfg.rest_linear else None  # (d, q_s), see NetConfig
+        self._model = model  # for its trunk grid (trunk_grid)
 
     def window_inputs(self, par: np.ndarray) -> tuple[np.ndarray, ...]:
         """Bows (B, W, 2) (beta, v_B) per window -> the loops' pin (B, W, n_par), gain (B, W) and the state's
@@ -49,22 +50,23 @@ class NumpyOperator:
         return f(pin, -1), f(npnet.gain(self._w, self.cfg, flat[:, 0])), f(c, 2), f(h, 2)
 
     def trunk_features(self, s_list: list) -> list:
-        """The trunk features (M, 2, k) at each array of window fractions in s_list, float64.
+        """The trunk features (M, 2, k) at each array of window fractions (0..2) in s_list, float64.
 
-        Up to TRUNK_GRID points in all, evaluated directly; beyond, by cubic interpolation from TRUNK_GRID points
-        evaluated once (a score at 100 pitches needs ~33,000 points: evaluating them took ~10x longer). The trunk is
-        smooth in s (Fourier features of scale sigma_trunk): measured interpolation error below 1e-9 of the features'
-        size, far below float32 rounding (tests/test_kernels.py checks it).
+        Up to DIRECT_POINTS points in all (a note or two), evaluated directly; beyond, by cubic interpolation from the
+        model's trunk grid (trunk_grid: evaluated once, kept on disk). A score at 21 pitches needs ~3,800 points: the
+        width-128 trunk took 90 ms of its process at each run, the grid's interpolation ~5 ms. The trunk is smooth in
+        s (Fourier features of scale sigma_trunk): measured interpolation error below 1e-9 of the features' size, far
+        below float32 rounding (tests/test_kernels.py checks it).
         """
-        if sum(len(a) for a in s_list) <= TRUNK_GRID:
+        if sum(len(a) for a in s_list) <= DIRECT_POINTS:
             f = npnet.trunk_features(self._w, self.cfg, np.concatenate(s_list))
             return np.split(f, np.cumsum([len(a) for a in s_list])[:-1])
-        h = max(a.max() for a in s_list) / (TRUNK_GRID - 3)
-        grid = npnet.trunk_features(self._w, self.cfg, (np.arange(TRUNK_GRID) - 1) * h).reshape(TRUNK_GRID, -1)
+        grid = trunk_grid(self._model).reshape(TRUNK_POINTS, -1)
+        h = TRUNK_H
         out = []
         for s in s_list:  # cubic Lagrange interpolation on the uniform grid (nodes i - 1 .. i + 2)
             u = s / h + 1
-            i = np.clip(np.floor(u).astype(np.int64), 1, TRUNK_GRID - 3)
+            i = np.clip(np.floor(u).astype(np.int64), 1, TRUNK_POINTS - 3)
             t = u - i
             w = np.stack([-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2,
                           -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6], axis=1)
@@ -151,4 +153,34 @@ def _bases(model: OperatorModel, dtaus: np.ndarray):
     return stack
 
 
-TRUNK_GRID = 4096
+DIRECT_POINTS = 1024  # trunk points evaluated directly (a note at 43 Hz); more come from the grid
+# The trunk grid, shared by the offline bases and the live voices (bank.VoiceBank): window fractions s = (i - 1) h,
+# up to n_hi / spw < 1 + 1 / spw <= 2, spacing h ~2.4e-4 of a window (cubic interpolation error ~1e-9)
+TRUNK_POINTS = 8192
+TRUNK_H = 2.0 / (TRUNK_POINTS - 3)
+TRUNK_CACHE_VERSION = 1  # raise when npnet.trunk_features changes what a model's weights compute
+
+
+def trunk_grid(model: OperatorModel) -> np.ndarray:
+    """The model's trunk features at s = (i - 1) TRUNK_H, i < TRUNK_POINTS: (TRUNK_POINTS, 2, k) float64. Once per
+    process and model, and kept on disk by the model's id (`io.cache`: 8 MB at 64 features; evaluating it takes
+    ~0.2 s at width 128), so that a score or a live start does not evaluate the network at every sample offset."""
+    g = model.__dict__.get("_trunk_grid")
+    if g is not None:
+        return g
+    from ...io.cache import read_array, write_array
+
+    k = model.cfg.k
+    name = f"trunk-{TRUNK_CACHE_VERSION}-{TRUNK_POINTS}-{model.id.replace('/', '_')}"
+    g = read_array(name, (TRUNK_POINTS, 2, k))
+    if g is not None:  # a copy edited or damaged on disk is not trusted: 16 rows checked against the network (~1 ms)
+        i = np.linspace(0, TRUNK_POINTS - 1, 16).astype(np.int64)
+        want = npnet.trunk_features(model.weights, model.cfg, (i - 1.0) * TRUNK_H)
+        if not np.abs(g[i] - want).max() <= 1e-9 * np.abs(want).max():
+            g = None
+    if g is None:
+        g = npnet.trunk_features(model.weights, model.cfg, (np.arange(TRUNK_POINTS) - 1.0) * TRUNK_H)
+        write_array(name, g)
+    g.setflags(write=False)
+    model.__dict__["_trunk_grid"] = g
+    return g
