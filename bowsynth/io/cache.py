@@ -92,20 +92,27 @@ class DiskTable:
         while len(data) > MAX_ENTRIES:
             data.pop(next(iter(data)))
         path = self._path()
-        if path is None:
-            return
-        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+        if path is not None:
+            text = json.dumps({"version": self.version, "entries": data}, separators=(",", ":"))
+            _replace(path, lambda fh: fh.write(text.encode()))
+
+
+def _replace(path: Path, write) -> None:
+    """write(binary file) into a temporary file beside `path`, then move it in place: two processes writing at once
+    leave one whole file; a failure leaves the old one (or none) and is ignored."""
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            write(fh)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    finally:
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(json.dumps({"version": self.version, "entries": data}, separators=(",", ":")))
-            os.replace(tmp, path)
+            tmp.unlink()
         except OSError:
             pass
-        finally:
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
 
 
 MAX_ARRAY_BYTES = 64 << 20  # an array cached here is a few MB (a model's trunk grid: 8 MB at 64 features)
@@ -143,17 +150,4 @@ def write_array(name: str, a) -> None:
     d = cache_dir()
     if d is None:
         return
-    path = d / f"{name}.npy"
-    tmp = d / f".{path.name}.{secrets.token_hex(4)}.tmp"
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as fh:
-            np.save(fh, np.ascontiguousarray(a), allow_pickle=False)
-        os.replace(tmp, path)
-    except OSError:
-        pass
-    finally:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
+    _replace(d / f"{name}.npy", lambda fh: np.save(fh, np.ascontiguousarray(a), allow_pickle=False))
