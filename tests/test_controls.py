@@ -118,13 +118,13 @@ def test_cli_refuses_bad_gestures_in_one_line(flag, needle, tmp_path, monkeypatc
 
 def test_operator_refuses_a_gesture_it_cannot_follow(tmp_path, monkeypatch, capsys):
     """A crescendo past every model's range: one line naming the value, the time it leaves and the train command;
-    nothing written. The shipped soft range model follows one inside its box."""
+    nothing written. A shipped soft range model follows one inside its box (since session 14 velocity-soft's)."""
     out = tmp_path / "x.wav"
     code, _, err = run_main(["render", "--fb", "50@0,3000@0.2", str(out)], capsys, monkeypatch)
     assert code == 1 and "--method fdm" in err and err.count("\n") == 1
     assert "F_B = " in err and "t = " in err and "bowsynth train --fb 50:3000" in err and not out.exists()
     code, so, err = run_main(["render", "--fb", "50@0,200@0.2", "-d", "0.3", str(out)], capsys, monkeypatch)
-    assert code == 0 and "method operator" in so + err and "soft-range" in so + err
+    assert code == 0 and "method operator" in so + err and "velocity-soft" in so + err and "range_fb" in so + err
 
 
 def test_after_shifts_a_curve_to_start_at_t0():

@@ -87,9 +87,11 @@ class Tuning:
 
     @staticmethod
     def default_model(models, a: float):
-        """The validated model that covers the most velocities at neutral controllers (ties: lowest validation
-        NMSE), so that one model plays the keyboard; the other velocities play the FDM."""
-        best, score = None, (-1, 0.0)
+        """The validated model that covers the most velocities at neutral controllers, so that one model plays the
+        keyboard; the other velocities play the FDM. Ties: the larger box of bows (a note whose CC2 / CC11 moved its
+        bow stays on the operator: `velocity-soft` covers velocities 1-109 as `soft-range` does, but not v_B below
+        0.155), then the lowest validation NMSE."""
+        best, score = None, (-1, 0.0, 0.0)
         betas = np.array([M.bow_beta(v) for v in range(1, 128)])
         vbs = np.array([M.bow_vb(v) for v in range(1, 128)])
         for m in models:
@@ -98,7 +100,7 @@ class Tuning:
             # a stick-slip bow plays no note live (Stream._plays): it would hand its velocity to the FDM
             soft = np.array([not needs_whole_windows(m.domain, b) for b in betas])
             n = int(np.sum(m.domain.box_contains(betas, vbs) & soft))
-            s = (n, -float((m.meta.validation or {}).get("nmse", math.inf)))
+            s = (n, m.domain.bow_extent, -float((m.meta.validation or {}).get("nmse", math.inf)))
             if n and s > score:
                 best, score = m, s
         if best is None:

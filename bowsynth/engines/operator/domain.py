@@ -127,6 +127,19 @@ class Domain:
         inside its box, or below it in beta, beta_plays)?"""
         return self.beta_plays(beta) & self.vb_in(vb)
 
+    def edge_depth(self, beta_range, vb_range) -> float:
+        """How deep inside its box a scene's bows lie: the least distance of their span's ends from the box's edges,
+        as a share of the box's span (log F_B / w, v_B); 0 at an edge (or below the box, plays_below), inf for a point
+        model. A range model is weakest at its edges (choose.EDGE)."""
+        if self.box is None:
+            return math.inf
+        b0, b1, v0, v1 = self.box
+        lb = math.log(max(b1, 1e-12) / max(b0, 1e-12)) or 1.0
+        db = min(math.log(max(beta_range[0], 1e-12) / max(b0, 1e-12)), math.log(max(b1, 1e-12) / max(beta_range[1],
+                                                                                                    1e-12))) / lb
+        dv = min(vb_range[0] - v0, v1 - vb_range[1]) / ((v1 - v0) or 1.0)
+        return max(0.0, min(db, dv))
+
     def describe_bows(self) -> str:
         if self.box is None:
             return f"F_B / w {self.beta:.4g}, v_B {self.vb:g}"
