@@ -510,3 +510,17 @@ def test_a_voice_that_leaves_the_picked_models_states_is_played_by_the_next_cove
     with pytest.raises(DomainError, match="left the model's trained states"):
         render_operator(sc, model=models / "tile.safetensors")
     assert render_operator(sc, model=models / "tile.safetensors", fallback="fdm").method.fdm_fallback
+
+
+def test_the_live_instrument_keeps_the_largest_box_among_those_covering_the_most_velocities():
+    """velocity-soft covers MIDI velocities 1-109 as soft-range does, with a lower validation NMSE; the live default
+    is still soft-range, whose box keeps a note whose CC2 / CC11 moved its bow on the operator."""
+    from bowsynth.live.tables import Tuning
+
+    shipped = [m for m in available_models() if m.path.parent == SHIPPED_DIR]
+    names = {m.path.stem: m for m in shipped}
+    soft, vel = names["soft-range"], names["velocity-soft"]
+    assert vel.meta.validation["nmse"] < soft.meta.validation["nmse"] and vel.domain.bow_extent < soft.domain.bow_extent
+    for order in (shipped, shipped[::-1]):
+        assert Tuning.default_model(order, 100.0) is soft
+    assert Tuning.default_model([vel], 100.0) is vel
