@@ -60,7 +60,8 @@ def test_the_radius_keeps_the_frictions_slope_within_its_tolerance():
         u = np.linspace(0, r, 200)
         inside = np.maximum(abs(physics.dphi(-vb + u, 100.0) / d0 - 1), abs(physics.dphi(-vb - u, 100.0) / d0 - 1))
         assert inside.max() <= physics.REST_TOL
-        outside = max(abs(physics.dphi(-vb + 1.01 * r, 100.0) / d0 - 1), abs(physics.dphi(-vb - 1.01 * r, 100.0) / d0 - 1))
+        outside = max(abs(physics.dphi(-vb + 1.01 * r, 100.0) / d0 - 1),
+                      abs(physics.dphi(-vb - 1.01 * r, 100.0) / d0 - 1))
         assert outside > physics.REST_TOL
     assert physics.rest_radius(physics.vb_stop(100.0), 100.0) == 0.0  # phi' = 0 there: no linear flow to trust
     assert physics.rest_flow(0.3, 0.15, 100.0, 0.0, 0.0) is None  # a firm bow's rest point: far from rest

@@ -311,7 +311,8 @@ struct VoicesPy {
         V = bowsynth::Voices{nv, k, n_max, npar, G, bl, cp, mode.data(), pos.data(), end.data(), why.data(),
                              x.data(), spw.data(), n_lo.data(), Bq.data(), Bp.data(), endb.data(), endlin.data(),
                              center.data(), half.data(), pin.data(), gain.data(), win.data(), wstart.data(),
-                             wlen.data(), qbuf.data(), pbuf.data(), op_end.data(), rest.data(), orig.data(), N, grid.data(), h_grid,
+                             wlen.data(), qbuf.data(), pbuf.data(), op_end.data(), rest.data(), orig.data(), N,
+                             grid.data(), h_grid,
                              corr.data(), bias.data(), window, lin_kind, lin_d, lin_qs, sr, fst.data(), fint.data(),
                              vb_t.data(), vb_v.data(), nvb.data(), fb_t.data(), fb_v.data(), su.data(), se.data(),
                              pm.data(), pp.data(), pt.data(), pv.data(), npt.data(), wfrac.data(), bdtau.data(),
@@ -513,7 +514,8 @@ NB_MODULE(_core, mod) {
     mod.def("ramp", &bowsynth::voices_ramp, "a"_a, "b"_a, "t0"_a, "length"_a, "s"_a,
             "a until t0, then linear to b over length, then b (a live pitch control's ramp).");
     for (auto [name, value] : {std::pair{"FREE", bowsynth::FREE}, {"OPERATOR", bowsynth::OPERATOR},
-                               {"FDM", bowsynth::FDM}, {"REST", bowsynth::REST}, {"REST_COLS", bowsynth::REST_COLS}, {"HELD", bowsynth::HELD}, {"CURVE", bowsynth::CURVE},
+                               {"FDM", bowsynth::FDM}, {"REST", bowsynth::REST}, {"REST_COLS", bowsynth::REST_COLS},
+                               {"HELD", bowsynth::HELD}, {"CURVE", bowsynth::CURVE},
                                {"LIVE", bowsynth::LIVE}, {"WHY_OK", bowsynth::WHY_OK},
                                {"WHY_FALLBACK", bowsynth::WHY_FALLBACK}, {"P_COLS", bowsynth::P_COLS}})
         mod.attr(name) = value;

@@ -220,6 +220,12 @@ def _model_name(m: OperatorModel) -> str:
     return m.path.stem if m.path else m.meta.name
 
 
+def _handover_note(voice: str, m: OperatorModel, why: str, r: Render) -> str:
+    """The note of a voice that left model m's trained states (why: what and when) and that r's model played."""
+    by = Path(r.info.model_path).stem if r.info.model_path else r.info.model_id
+    return f"note: {voice}{_model_name(m)}: {why}; played by {by} instead"
+
+
 def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none", _single: bool = False,
                           _models: list[OperatorModel] | None = None, _labels: list[int] | None = None) -> list[Render]:
     """Many voices in one batched rollout. Voices sharing a model roll together, at any mix of pitches, sample
@@ -246,8 +252,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 if nxt is None:
                     break
                 r2 = render_curve(sc, nxt)
-                r2.info.notes = [f"note: {'' if _single else f'voice {labels[i]}: '}{_model_name(m)}: the rollout "
-                                 f"left the model's trained states; played by {_model_name(nxt)} instead"] + r2.info.notes
+                r2.info.notes = [_handover_note("" if _single else f"voice {labels[i]}: ", m, FAILURES[FAIL_DOMAIN],
+                                                r2)] + r2.info.notes
                 m, r = nxt, r2
             out[i] = r
             continue
@@ -341,10 +347,9 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                                              _models=rest, _labels=[labels[idx[r]] for r in again])
                 for r, rr in zip(again, redo):
                     stop = voices[r][2]
-                    why = (f"note: {'' if _single else f'voice {labels[idx[r]]}: '}{_model_name(m)}: {FAILURES[stop[1]]} "
-                           f"at t = {stop[0] / scenes[idx[r]].sample_rate:.4f} s; played by "
-                           f"{Path(rr.info.model_path).stem if rr.info.model_path else rr.info.model_id} instead")
-                    rr.info.notes = [why] + rr.info.notes
+                    why = f"{FAILURES[stop[1]]} at t = {stop[0] / scenes[idx[r]].sample_rate:.4f} s"
+                    rr.info.notes = [_handover_note("" if _single else f"voice {labels[idx[r]]}: ", m, why, rr)
+                                     ] + rr.info.notes
                     out[idx[r]] = rr
         notes = {i: _finish(scenes[i], qv, pv, stop, fallback, voice="" if _single else f"voice {labels[i]}: ")
                  + checked for row, (i, (qv, pv, stop)) in enumerate(zip(idx, voices)) if row not in again}

@@ -35,9 +35,11 @@ def rest_onset(sc: Scene, m, spw: float):
     apply (a point model, a start away from the rest point, an overdamped bow)."""
     if not uses_rest_flow(m) or sc.pitch_varies:
         return None
-    t = 0.5 * window_bounds(spw, min(sc.n_samples, int(2 * spw) + 2))[1][0] / sc.sample_rate  # the first window's middle
-    # (scene_bows' bow there) decides, before the bows of every window are built: most notes start far from rest
-    if physics.rest_flow(float(sc.fb_at(t)) / sc.omega, float(sc.vb_at(t)), sc.a, sc.q0, sc.p0) is None:
+    # the first window's middle (scene_bows' bow there) decides, before the bows of every window are built: most
+    # notes start far from rest
+    t = 0.5 * window_bounds(spw, min(sc.n_samples, int(2 * spw) + 2))[1][0] / sc.sample_rate
+    flow = physics.rest_flow(float(sc.fb_at(t)) / sc.omega, float(sc.vb_at(t)), sc.a, sc.q0, sc.p0)
+    if flow is None:
         return None
     bows = scene_bows(sc, spw)
     n = sc.n_samples
@@ -45,7 +47,7 @@ def rest_onset(sc: Scene, m, spw: float):
     lib = core.load()
     q, p = float(sc.q0), float(sc.p0)
     if np.ptp(bows[:, 0]) == 0 and np.ptp(bows[:, 1]) == 0:  # one bow throughout: one row, as a live note's
-        d, qs, r = physics.rest_flow(float(bows[0, 0]), float(bows[0, 1]), sc.a, q, p)
+        d, qs, r = flow
         c = np.zeros((1, 8))
         lib.rest_coefficients(np.array([d]), np.array([qs]), np.array([sc.dtau]), c)
         c[0, 7] = r

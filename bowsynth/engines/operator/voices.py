@@ -7,8 +7,8 @@ The loop is the compiled core's (src/core/voices.cpp, `_core.Voices`): a window 
 render does not: a voice's window partition continues across blocks (window w of a note starts at the sample nearest
 w T from the note's start, exactly as offline, so the live samples are the offline samples), the window's samples
 wait in the voice's buffer until the blocks reach them, and a voice changes engine (the flow at the bow's rest point
--> operator sustain -> FDM release) at a sample of its own. Here: the codes the Python side writes into a slot (the core has the same; a test checks
-they agree) and the core's small helpers.
+-> operator sustain -> FDM release) at a sample of its own. Here: the codes the Python side writes into a slot (the
+core has the same; a test checks they agree) and the core's small helpers.
 """
 
 from __future__ import annotations
