@@ -14,6 +14,7 @@ directory, then replace the old one (two processes writing at once: the last one
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import secrets
@@ -42,20 +43,28 @@ def cache_dir() -> Path | None:
 MAX_TABLE_BYTES = 4 * MAX_ENTRIES * 100  # a table is ~100 bytes an entry; more is not ours
 
 
-def _read_table(path: Path) -> str | None:
-    """The table's text, or None for anything that is not a regular file of a sane size: a FIFO would block the
-    read forever, a device or a huge file is not a table."""
+@contextlib.contextmanager
+def _regular(path: Path, max_bytes: int):
+    """The file open for binary reading, or None for anything that is not a regular file of at most max_bytes: a
+    FIFO would block the read forever, a device or a huge file is not ours. OSError where it cannot be opened."""
     import stat
 
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     try:
         st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_TABLE_BYTES:
-            return None
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            return fh.read(MAX_TABLE_BYTES + 1).decode("utf-8")
+        if not stat.S_ISREG(st.st_mode) or st.st_size > max_bytes:
+            yield None
+        else:
+            with os.fdopen(fd, "rb", closefd=False) as fh:
+                yield fh
     finally:
         os.close(fd)
+
+
+def _read_table(path: Path) -> str | None:
+    """The table's text, or None for anything that is not a regular file of a sane size."""
+    with _regular(path, MAX_TABLE_BYTES) as fh:
+        return None if fh is None else fh.read(MAX_TABLE_BYTES + 1).decode("utf-8")
 
 
 class DiskTable:
@@ -124,22 +133,13 @@ def read_array(name: str, shape: tuple, dtype=np.float64):
     d = cache_dir()
     if d is None:
         return None
-    import stat
-
     try:
-        fd = os.open(d / f"{name}.npy", os.O_RDONLY | os.O_NONBLOCK)
-    except OSError:
-        return None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_ARRAY_BYTES:
-            return None
-        with os.fdopen(fd, "rb", closefd=False) as fh:
+        with _regular(d / f"{name}.npy", MAX_ARRAY_BYTES) as fh:
+            if fh is None:
+                return None
             a = np.load(fh, allow_pickle=False)
     except (OSError, ValueError, EOFError):
         return None
-    finally:
-        os.close(fd)
     if a.shape != tuple(shape) or a.dtype != np.dtype(dtype) or not np.all(np.isfinite(a)):
         return None
     return a
