@@ -187,7 +187,6 @@ void voices_trunk_basis(Voices& V, int64_t v, double dtau, int64_t n_lo, int64_t
     double *endb = V.endb + v * 4 * k, *endlin = V.endlin + v * 12;
     int64_t* idx = V.idx;
     double* wts = V.wts;
-    const double wd = std::sqrt(std::max(1.0 - 0.25 * V.lin_d * V.lin_d, 1e-30));
     for (int64_t j = 0; j <= n_hi; ++j) {
         const double s = j * dtau / V.window;
         const double u = s / V.h_grid + 1.0;
@@ -221,14 +220,15 @@ void voices_trunk_basis(Voices& V, int64_t v, double dtau, int64_t n_lo, int64_t
             m12 = std::sin(tau);
             m21 = -m12;
             m22 = m11;
-        } else if (V.lin_kind == 1) {
-            const double e = std::exp(-0.5 * V.lin_d * tau), cw = std::cos(wd * tau), sn = std::sin(wd * tau) / wd;
-            m11 = e * (cw + 0.5 * V.lin_d * sn);
-            m12 = e * sn;
-            m21 = -e * sn;
-            m22 = e * (cw - 0.5 * V.lin_d * sn);
-            kq = V.lin_qs * (1.0 - m11);
-            kp = -V.lin_qs * m21;
+        } else if (V.lin_kind == 1) {  // the flow linearised at rest over tau: the rest flow's own step (rest.cpp)
+            double c[7];
+            rest_coefficients(V.lin_d, V.lin_qs, tau, c);
+            m11 = c[0];
+            m12 = c[1];
+            m21 = c[2];
+            m22 = c[3];
+            kq = c[4];
+            kp = c[5];
         }
         const double bq = V.bias[0] * V.corr_scale[0] * s + kq;
         const double bp = V.bias[1] * V.corr_scale[1] * s + kp;
