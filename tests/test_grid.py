@@ -143,7 +143,7 @@ def test_a_voice_stopped_on_the_grid_is_finished_by_the_fdm_from_an_output_sampl
     d = m.domain
     sc = Scene(f0=440.0, fb=d.beta * 2 * math.pi * 440.0, vb=d.vb, a=d.a, duration=0.5)
     whole = render_operator(sc, model=m)
-    monkeypatch.setattr(engine, "_box_exit", lambda m, g, q, p: 10000)
+    monkeypatch.setattr(engine, "_box_exit", lambda m, g, q, p, window=None: 10000)
     with pytest.raises(DomainError, match="left the model's trained states"):
         render_operator(sc, model=m)
     r = render_operator(sc, model=m, fallback="fdm")

@@ -33,11 +33,13 @@ def parse_choice(enum, value, flag: str):
         raise UsageError(f"{flag} must be {' or '.join(e.value for e in enum)}, got {value!r}") from None
 
 
-def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1):
+def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1, sounding=None):
     """Render a Scene (or a list of Scenes) with the FDM or the operator.
 
     model: operator model (path, OperatorModel, or None to pick the covering one); fallback: 'fdm' finishes an
     operator voice that leaves its model's domain with the FDM; oversample: FDM only, a multiple of the sample rate.
+    sounding: operator only, the frequency (Hz) each note sounds at where known (a number, or a list for a list of
+    scenes): its windows are locked to that period (operator.windows.locked_window).
     """
     engine = parse_choice(Engine, engine, "--method")
     fallback = parse_choice(Fallback, fallback, "--fallback")
@@ -50,7 +52,7 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
         return out if many else out[0]
     from .operator.engine import render_operator
 
-    return render_operator(scenes if many else scene, model=model, fallback=fallback.value)
+    return render_operator(scenes if many else scene, model=model, fallback=fallback.value, sounding=sounding)
 
 
 __all__ = ["Engine", "Fallback", "Render", "parse_choice", "render"]

@@ -74,14 +74,17 @@ class NumpyOperator:
             out.append(f.reshape(len(s), 2, -1))
         return out
 
-    def samples_per_window(self, dtau: float) -> float:
-        spw = self.window / dtau
+    def samples_per_window(self, dtau: float, window: float | None = None) -> float:
+        """Samples per window at spacing dtau: the trained window T, or a shorter `window` (in tau; see
+        windows.locked_window)."""
+        spw = (self.window if window is None else window) / dtau
         if abs(spw - round(spw)) < 1e-9 * spw:  # a whole number of samples, up to rounding: every window alike
             spw = float(round(spw))
         return spw
 
-    def window_basis(self, dtau: float, tf: np.ndarray | None = None):
-        """The output side of the windows of a render whose samples are dtau apart in tau.
+    def window_basis(self, dtau: float, tf: np.ndarray | None = None, window: float | None = None):
+        """The output side of the windows of a render whose samples are dtau apart in tau, each window T long (or
+        `window` <= T: the trunk is then read at s < 1 only).
 
         A window holds n_lo = floor(T / dtau) or n_hi = ceil(T / dtau) samples (windows.window_end: window w starts
         at the sample nearest w T; at a pitch where T / dtau is not a whole number, windows of n_lo samples alone
@@ -94,7 +97,7 @@ class NumpyOperator:
         The trunk is evaluated in numpy, float64 (once per render and pitch); tf: its features at the offsets
         j dtau / T, j <= n_hi, if already computed (trunk_features).
         """
-        spw = self.samples_per_window(dtau)
+        spw = self.samples_per_window(dtau, window)
         n_lo, n_hi = math.floor(spw), math.ceil(spw)
         tau = np.arange(n_hi + 1) * dtau
         s = tau / self.window
@@ -122,21 +125,21 @@ def _operator(model: OperatorModel) -> NumpyOperator:
     return op
 
 
-def _bases(model: OperatorModel, dtaus: np.ndarray):
-    """The window bases (NumpyOperator.window_basis) of the distinct sample spacings `dtaus`, stacked and padded to
-    the longest window: spw (P,), n_lo (P,), Bq, Bp (P, k + 3, n_max), endb (P, 2, 2, k), endlin (P, 2, 6).
-    Cached per model: the last stack, and each spacing's basis."""
-    key = tuple(float(d) for d in dtaus)
+def _bases(model: OperatorModel, keys):
+    """The window bases (NumpyOperator.window_basis) of the distinct (sample spacing, window) pairs `keys` (the
+    window in tau, or None for the trained T), stacked and padded to the longest window: spw (P,), n_lo (P,), Bq, Bp
+    (P, k + 3, n_max), endb (P, 2, 2, k), endlin (P, 2, 6). Cached per model: the last stack, and each pair's basis."""
+    key = tuple((float(d), None if w is None else float(w)) for d, w in keys)
     last = model.__dict__.get("_stack")
     if last is not None and last[0] == key:
         return last[1]
     op = _operator(model)
     cache = model.__dict__.setdefault("_basis_cache", {})
-    new = [d for d in key if d not in cache]
+    new = [dw for dw in key if dw not in cache]
     if new:  # one trunk evaluation for every new pitch
-        offsets = [np.arange(math.ceil(op.samples_per_window(d)) + 1) * d / op.window for d in new]
-        for d, tf in zip(new, op.trunk_features(offsets)):
-            cache[d] = op.window_basis(d, tf)
+        offsets = [np.arange(math.ceil(op.samples_per_window(d, w)) + 1) * d / op.window for d, w in new]
+        for (d, w), tf in zip(new, op.trunk_features(offsets)):
+            cache[(d, w)] = op.window_basis(d, tf, w)
     parts = [cache[d] for d in key]
     if min(p[1] for p in parts) < 1:
         raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")

@@ -31,7 +31,7 @@ from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_wind
 from .modelfile import OperatorModel
 from .onset import rest_onset
 from .rollout import applied_controls, rollout_states, scene_bows
-from .windows import FAIL_BOW, FAIL_DOMAIN, FAILURES, window_bounds
+from .windows import FAIL_BOW, FAIL_DOMAIN, FAILURES, locked_window, window_bounds
 
 
 def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fallback: str = "none"):
@@ -89,9 +89,9 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
 BOX_SLACK = 0.1
 
 
-def _box_exit(m: OperatorModel, sc: Scene, q, p) -> int | None:
+def _box_exit(m: OperatorModel, sc: Scene, q, p, window: float | None = None) -> int | None:
     """The first sample of the window whose samples leave the model's box of trained states (by BOX_SLACK of its
-    span), or None."""
+    span), or None. window: the voice's window in tau (None: the model's T)."""
     d = m.domain
     sq, sp = BOX_SLACK * (d.q_hi - d.q_lo), BOX_SLACK * (d.p_hi - d.p_lo)
     with np.errstate(invalid="ignore"):
@@ -99,7 +99,7 @@ def _box_exit(m: OperatorModel, sc: Scene, q, p) -> int | None:
     j = np.flatnonzero(out)
     if not j.size:
         return None
-    starts, _ = window_bounds(_operator(m).samples_per_window(sc.dtau), sc.n_samples)
+    starts, _ = window_bounds(_operator(m).samples_per_window(sc.dtau, window), sc.n_samples)
     return int(starts[np.searchsorted(starts, j[0], side="right") - 1])
 
 
@@ -149,7 +149,7 @@ def length_buckets(lengths: list[int]) -> list[np.ndarray]:
     return out
 
 
-def render_operator(scene, model=None, fallback: str = "none"):
+def render_operator(scene, model=None, fallback: str = "none", sounding=None):
     """Render one scene (or a list of scenes, batched in one rollout) with a trained operator.
 
     model: an OperatorModel, a path, or None to pick the best validated model that covers the scene (see
@@ -158,20 +158,22 @@ def render_operator(scene, model=None, fallback: str = "none"):
     every model's range, with the FDM (and says so in info.notes); 'none' raises DomainError. Every render first
     checks the model's physics (check_physics) and raises ModelFileError if the model does not do what its metadata
     claims. The arrays of an operator render are float32, the network's precision.
+    sounding: the frequency (Hz) each voice's note sounds at (one for a scene, a list for a list, None where not
+    known): its windows are then locked to that period (windows.locked_window); None: windows of the trained T.
     """
     if fallback not in ("none", "fdm"):
         raise UsageError(f"fallback must be none or fdm, got {fallback!r}")
     if isinstance(scene, (list, tuple)):
-        return render_operator_batch(list(scene), model=model, fallback=fallback)
-    return render_operator_batch([scene], model=model, fallback=fallback, _single=True)[0]
+        return render_operator_batch(list(scene), model=model, fallback=fallback, sounding=sounding)
+    return render_operator_batch([scene], model=model, fallback=fallback, _single=True, sounding=[sounding])[0]
 
 
-def _applied(sc: Scene, grid, op, bows, leave) -> dict:
+def _applied(sc: Scene, grid, op, bows, leave, window=None) -> dict:
     """The controls a voice's render applied, per output sample (Render.controls, computed when read): the bow of
     each window on the voice's grid, and the scene's curves where the FDM played the rest."""
     g, ratio = grid
     ns = sc.n_samples
-    ctrl = applied_controls(g, op.samples_per_window(g.dtau), bows)
+    ctrl = applied_controls(g, op.samples_per_window(g.dtau, window), bows)
     if ratio != 1:
         j = to_grid(ns, ratio, g.n_samples)
         ctrl = {k: v[j] for k, v in ctrl.items()}
@@ -182,10 +184,10 @@ def _applied(sc: Scene, grid, op, bows, leave) -> dict:
     return ctrl
 
 
-def _applied_after_rest(sc: Scene, m: OperatorModel, h: int, rest) -> dict:
+def _applied_after_rest(sc: Scene, m: OperatorModel, h: int, rest, window=None) -> dict:
     """_applied for a voice whose first h samples the flow at rest played (with the bows of the note's windows) and
     the operator the rest (`rest`: its _applied, or None where the flow played the whole note)."""
-    spw = _operator(m).samples_per_window(sc.dtau)
+    spw = _operator(m).samples_per_window(sc.dtau, window)
     ctrl = applied_controls(sc, spw, scene_bows(sc, spw))
     if rest is not None:
         after = rest()
@@ -194,13 +196,14 @@ def _applied_after_rest(sc: Scene, m: OperatorModel, h: int, rest) -> dict:
     return ctrl
 
 
-def _voice_bows(m: OperatorModel, scenes: list[Scene]):
+def _voice_bows(m: OperatorModel, scenes: list[Scene], windows: list):
     """Per voice: the bows of its windows (padded to a common length) and where the bow first leaves the model's
-    range ((sample, what) or None: only a --fallback fdm render gets here with one)."""
+    range ((sample, what) or None: only a --fallback fdm render gets here with one). windows: each voice's window
+    in tau (None: the model's T)."""
     op = _operator(m)
     rows, leave = [], []
-    for sc in scenes:
-        spw = op.samples_per_window(sc.dtau)
+    for sc, win in zip(scenes, windows):
+        spw = op.samples_per_window(sc.dtau, win)
         bows = scene_bows(sc, spw)
         out = None
         if m.domain.is_range:
@@ -226,8 +229,19 @@ def _handover_note(voice: str, m: OperatorModel, why: str, r: Render) -> str:
     return f"note: {voice}{_model_name(m)}: {why}; played by {by} instead"
 
 
+def voice_window(m: OperatorModel, scene: Scene, sounding: float | None) -> float | None:
+    """The window (tau) a voice of this scene rolls with: locked to the period it sounds at where the caller knows
+    it (windows.locked_window: a held bow's; a score's note until its bow stop); else None, the model's trained T."""
+    if sounding is None or scene.pitch_varies or not sounding > 0:
+        return None
+    T = _operator(m).window
+    w = locked_window(T, scene.f0, sounding)
+    return None if w >= T else w
+
+
 def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none", _single: bool = False,
-                          _models: list[OperatorModel] | None = None, _labels: list[int] | None = None) -> list[Render]:
+                          _models: list[OperatorModel] | None = None, _labels: list[int] | None = None,
+                          sounding=None) -> list[Render]:
     """Many voices in one batched rollout. Voices sharing a model roll together, at any mix of pitches, sample
     rates and bow curves. A voice whose picked model (no `model` given) leaves its trained states is played again by
     the next model that covers it (a tile's box of bows is wider than the states it learnt at its edges); one with no
@@ -238,6 +252,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     model = None if model is None else as_model(model)
     models = (available_models() if _models is None else _models) if model is None else None
     labels = list(range(1, len(scenes) + 1)) if _labels is None else _labels
+    sounding = [None] * len(scenes) if sounding is None else list(sounding)
     groups: dict = {}
     out: list = [None] * len(scenes)
     for i, sc in enumerate(scenes):
@@ -266,10 +281,11 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         # a note's first samples near its bow's rest point: the exact flow there (onset.py); the operator rolls out
         # the rest of the note from where it leaves (None: the whole note stayed there)
         pre, base = {}, {}
+        win = {i: voice_window(m, scenes[i], sounding[i]) for i in idx}
         for i in idx:
             sc = scenes[i]
             ro = None if needs_whole_windows(m.domain, sc.beta_range[1]) else rest_onset(
-                sc, m, op.samples_per_window(sc.dtau))
+                sc, m, op.samples_per_window(sc.dtau, win[i]))
             if ro is None:
                 continue
             h, qr, pr, qh, ph = ro
@@ -282,29 +298,31 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         t_rest = time.perf_counter() - t0
         idx_all, idx = idx, [i for i in idx if base.get(i, scenes[i]) is not None]
         rs = [base.get(i, scenes[i]) for i in idx]  # what the operator plays of each voice
+        wins = [win[i] for i in idx]
         # each voice on the grid its model needs (grid.py: whole windows for stick-slip models), and back
-        grids = [whole_window_scene(sc, op.samples_per_window(sc.dtau))
-                 if needs_whole_windows(m.domain, sc.beta_range[1]) else (sc, Fraction(1)) for sc in rs]
+        grids = [whole_window_scene(sc, op.samples_per_window(sc.dtau, w))
+                 if needs_whole_windows(m.domain, sc.beta_range[1]) else (sc, Fraction(1)) for sc, w in zip(rs, wins)]
         group = [g for g, _ in grids]
         x0 = np.array([[sc.q0, sc.p0] for sc in group]).reshape(-1, 2)
         dtau = np.array([sc.dtau for sc in group])
-        par, bows, leave = _voice_bows(m, group) if group else (None, [], [])
+        wtau = np.array([op.window if w is None else w for w in wins])
+        par, bows, leave = _voice_bows(m, group, wins) if group else (None, [], [])
         loop = "core"
         # warm-up: converts the weights and computes the trunk features at these sample offsets, so that `seconds`
         # measures the rollout itself (start-up: info.setup_seconds)
         if group:
-            rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1])
+            rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1], window=wtau)
         t0 = time.perf_counter() - t_rest
         q, p, fail = [None] * len(group), [None] * len(group), [None] * len(group)
         for rows in length_buckets([g.n_samples for g in group]):
             qb, pb, fb = rollout_states(m, x0[rows], max(group[r].n_samples for r in rows), dtau[rows], loop=loop,
-                                        params=par[rows])
+                                        params=par[rows], window=wtau[rows])
             for k, r in enumerate(rows):
                 q[r], p[r], fail[r] = qb[k], pb[k], fb[k]
         voices = []  # per voice: q, p on the output grid, its stop [sample, code(, what)] there
         for row, (g, ratio) in enumerate(grids):
             stop = list(fail[row])
-            bx = _box_exit(m, g, q[row][:g.n_samples], p[row][:g.n_samples])
+            bx = _box_exit(m, g, q[row][:g.n_samples], p[row][:g.n_samples], wins[row])
             if bx is not None and (stop[0] < 0 or bx < stop[0]):
                 stop = [bx, FAIL_DOMAIN]
             lv = leave[row]
@@ -322,7 +340,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 qv[stop[0]:] = np.nan
                 pv[stop[0]:] = np.nan
             voices.append((qv, pv, stop))
-        ctrl_of = {i: functools.partial(_applied, rs[row], grids[row], op, bows[row], leave[row])
+        ctrl_of = {i: functools.partial(_applied, rs[row], grids[row], op, bows[row], leave[row], wins[row])
                    for row, i in enumerate(idx)}
         played = dict(zip(idx, voices))
         voices = []
@@ -335,7 +353,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             stop = [stop[0] + h if stop[0] >= 0 else stop[0], *stop[1:]]
             voices.append((np.concatenate([qr.astype(np.float32), qv]), np.concatenate([pr.astype(np.float32), pv]),
                            stop))
-            ctrl_of[i] = functools.partial(_applied_after_rest, scenes[i], m, h, ctrl_of.get(i))
+            ctrl_of[i] = functools.partial(_applied_after_rest, scenes[i], m, h, ctrl_of.get(i), win[i])
         idx = idx_all
         again: list[int] = []
         if model is None:  # a voice that left the picked model's states: the next covering model plays it
@@ -344,7 +362,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                      if stop[0] >= 0 and stop[1] != FAIL_BOW and covering_model(scenes[i], rest) is not None]
             if again:
                 redo = render_operator_batch([scenes[idx[r]] for r in again], fallback=fallback, _single=_single,
-                                             _models=rest, _labels=[labels[idx[r]] for r in again])
+                                             _models=rest, _labels=[labels[idx[r]] for r in again],
+                                             sounding=[sounding[idx[r]] for r in again])
                 for r, rr in zip(again, redo):
                     stop = voices[r][2]
                     why = f"{FAILURES[stop[1]]} at t = {stop[0] / scenes[idx[r]].sample_rate:.4f} s"

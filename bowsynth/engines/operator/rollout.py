@@ -150,7 +150,7 @@ def _window_bows(model: OperatorModel, B: int, W: int, params) -> np.ndarray:
 
 
 def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, check_domain: bool = True,
-                   loop: str = "auto", params=None):
+                   loop: str = "auto", params=None, window=None):
     """Roll the operator from states x0 (B, 2) for n_samples samples spaced dtau in tau (one spacing for all voices,
     or one per voice: voices at different pitches roll in one batch).
 
@@ -163,12 +163,20 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     voice stops there (its later samples are NaN); the other voices go on.
     params: a range model's bows (beta, v_B): one (2,), per voice (B, 2) or per voice and window (B, W, 2) (see
     scene_bows); None plays the model's own (centre) bow. They are not checked against the model's box here.
+    window: each voice's window in tau (one for all, or one per voice; None: the model's trained T), at most T: a
+    voice locked to its sounding period (windows.locked_window).
     """
     x = np.array(x0, dtype=float).reshape(-1, 2)
     B = len(x)
     dt = np.broadcast_to(np.asarray(dtau, dtype=float), (B,))
-    uniq, vidx = np.unique(dt, return_inverse=True)
-    spw, n_lo, Bq, Bp, endb, endlin = _bases(model, uniq)
+    T = _operator(model).window
+    win = np.broadcast_to(np.asarray(T if window is None else window, dtype=float), (B,))
+    if np.any(win > T * (1 + 1e-12)) or not np.all(win > 0):
+        raise ValueError(f"a window must be > 0 and at most the model's {T:.6g} in tau")
+    pairs = sorted(set(zip(dt.tolist(), win.tolist())))  # the distinct (spacing, window): one basis each
+    at = {pw: i for i, pw in enumerate(pairs)}
+    vidx = np.array([at[pw] for pw in zip(dt.tolist(), win.tolist())], dtype=np.int64)
+    spw, n_lo, Bq, Bp, endb, endlin = _bases(model, [(d, None if w == T else w) for d, w in pairs])
     vidx = np.ascontiguousarray(vidx, dtype=np.int64)
     op = _operator(model)
     q = np.empty((B, n_samples), np.float32)
