@@ -226,12 +226,13 @@ def test_notes_outside_every_model_are_reported_before_rendering(tmp_path, capsy
     assert code == 0 and out.exists() and "rendered by the FDM" in so, err
 
 
-def test_compare_on_a_mix_goes_note_by_note(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("windows,nmse_max", [("free", 1e-3), (None, 3e-3)], ids=["free", "locked-default"])
+def test_compare_on_a_mix_goes_note_by_note(tmp_path, capsys, monkeypatch, windows, nmse_max):
     path = tmp_path / "p.mid"
     piece(path)
     out, stems = tmp_path / "mix.wav", tmp_path / "stems"
-    code, _, err = run_main(["score", "--score", str(path), "--mix", str(out), "--stems", str(stems)], capsys,
-                            monkeypatch)
+    code, _, err = run_main(["score", "--score", str(path), "--mix", str(out), "--stems", str(stems)]
+                            + (["--windows", windows] if windows else []), capsys, monkeypatch)
     assert code == 0, err
     code, so, err = run_main(["compare", str(out), "--json"], capsys, monkeypatch)
     assert code == 0, err
@@ -239,8 +240,10 @@ def test_compare_on_a_mix_goes_note_by_note(tmp_path, capsys, monkeypatch):
     assert len(rows) == 4
     for r in rows:
         truth = r["metrics"]["file vs FDM x100 (truth)"]
-        # the shipped operator against the truth, over each note's sustain
-        assert truth["nmse"] < 1e-3 and abs(truth["cents"]) < 0.2
+        # the shipped operator against the truth, over each note's sustain (measured: free windows 6e-5 to 9e-5 and
+        # within 0.007 cents; locked, the score's default, 3e-4 to 1.0e-3 and within 0.036 cents: their error lands on
+        # the harmonics, docs/BENCHMARKS.md)
+        assert truth["nmse"] < nmse_max and abs(truth["cents"]) < 0.2
     # without stems a mix says why it cannot be compared
     code, _, err = run_main(["score", "--score", str(path), "--mix", str(tmp_path / "m2.wav")], capsys, monkeypatch)
     code, _, err = run_main(["compare", str(tmp_path / "m2.wav")], capsys, monkeypatch)

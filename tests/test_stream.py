@@ -53,9 +53,10 @@ def offline(tmp_path, events, n, method, amp, dc_r):
 
         ratio_for = lambda sc: ratio_for_engine(sc, "operator", MODEL)[0]  # noqa: E731
     notes = load_midi_score(path, ratio_for=ratio_for)
-    # the live engine plays each bow stop with the FDM from the hold (its voice loop has no operator bow stop yet)
+    # the live engine plays each bow stop with the FDM from the hold (its voice loop has no operator bow stop yet),
+    # and its voices in free windows (docs/live.md)
     x, _ = mix_notes(notes, render_notes(notes, method=method, model=MODEL if method == "operator" else None,
-                                         releases="fdm"))
+                                         releases="fdm", windows="free"))
     ref = np.zeros(n)
     ref[:min(n, len(x))] = amp * x[:n]
     y = np.zeros(n, np.float32)

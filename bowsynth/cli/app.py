@@ -71,6 +71,14 @@ DcOpt = typer.Option("remove", "--dc", help="remove (default): high-pass the wri
                                             "offset is not sound); keep: write it as rendered.")
 
 
+WINDOWS_HELP = ("Operator: free: windows of the trained length (the network's error spreads into faint lines between "
+                "and below the harmonics, about 60 dB down); locked: a held bow's windows at fixed phases of the note "
+                "it sounds, so the error lands on its harmonics instead (truer chords and mixes; ~1.7-2x the work; "
+                "docs/BENCHMARKS.md).")
+WindowsOpt = typer.Option("free", "--windows", help=WINDOWS_HELP + " Default: free.")
+ScoreWindowsOpt = typer.Option("locked", "--windows", help=WINDOWS_HELP + " Default for a score: locked.")
+
+
 GainOpt = typer.Option(None, "--gain", help="Fixed gain in dB instead of peak normalisation: samples = signal (m or "
                                             "m/s; a mix: the sum of the notes' q = w u, or of p) x 10^(DB/20); "
                                             "refused if it would clip.")

@@ -23,6 +23,7 @@ from .app import (
     Q0Opt,
     RateOpt,
     VbOpt,
+    WindowsOpt,
     app,
     console_for,
     fmt_num,
@@ -47,6 +48,7 @@ def render(
                                                                "them). Default: the model covering the scene."),
     signal: str = typer.Option("u", "--signal", help="Signal to write: u (displacement, as the paper) or p (velocity)."),
     fallback: str = typer.Option("none", "--fallback", help="If the operator leaves its domain: none (stop) or fdm."),
+    windows: str = WindowsOpt,
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
@@ -54,6 +56,7 @@ def render(
     from .. import api
     from ..engines import Engine, Fallback, parse_choice
     from ..io.audio import check_audio_output, check_dc, check_gain_db, check_meta_fits, render_meta, write_wav
+    from ..music.engine_tuning import check_windows
 
     method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
 
@@ -63,9 +66,11 @@ def render(
         raise UsageError(f"--oversample must be >= 1, got {oversample}")
     check_dc(dc)
     check_gain_db(gain)
+    check_windows(windows)
     scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4)
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
+    sounding = None  # where the note sounds, for the operator's locked windows (else the model's own, measured)
     if pitch is not None:  # tuned again with the sounding ratio of the engine that plays (its own pitch)
         from ..music.notes import note_name
 
@@ -73,11 +78,13 @@ def render(
         if ratio is not None:
             scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4, ratio=ratio)
         hz = pitch_hz(pitch, a4)
+        sounding = None if scene.varying else hz
         held = "" if not scene.varying else ", at the values the bow holds"
         how = f"tuned for {by}" if ratio is not None else f"tuned with the FDM's ratio: {by}"
         tell(quiet, f"pitch {hz:.2f} Hz ({note_name(hz, a4 or 440.0)}): f0 {scene.f0:.4f} Hz ({how}{held})",
              console_for(output))
-    r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force)
+    r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force,
+                   windows=windows, sounding=sounding)
     write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
     model_note = f", model {r.info.model_id}" if r.info.model_id else ""
     if r.info.model_path:

@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from ..errors import UsageError
-from .app import DcOpt, DurOpt, ForceOpt, GainOpt, app, console_for, tell
+from .app import DcOpt, DurOpt, ForceOpt, GainOpt, ScoreWindowsOpt, app, console_for, tell
 
 
 @app.command()
@@ -30,6 +30,7 @@ def score(
     releases: str = typer.Option("auto", "--releases", help="Who plays the bow stops: auto (a model that covers the bow stop, else the FDM) or fdm (the FDM from each hold, as the live engine plays them: to compare with a `play` recording)."),
     fallback: str = typer.Option("none", "--fallback", help="A note no model covers, or that leaves its model's domain: "
                                                             "none (stop before rendering) or fdm (render it with the FDM)."),
+    windows: str = ScoreWindowsOpt,
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
@@ -58,6 +59,9 @@ def score(
 
     method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
     check_releases(releases)  # before the score is read and tuned
+    from ..music.engine_tuning import check_windows
+
+    check_windows(windows)
     check_dc(dc)
     check_gain_db(gain)
     if stems is not None and not mix:
@@ -105,7 +109,8 @@ def score(
 
         check_mix([n.start for n in notes], [n.scene for n in notes], force)
     t0 = time.perf_counter()
-    renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file, releases=releases)
+    renders = render_notes(notes, method=method, model=model, fallback=fallback, source=score_file, releases=releases,
+                           windows=windows)
     secs = time.perf_counter() - t0
     say = console_for(output)
     # a remark that holds for many notes (a model's physics check, say) is said once, with how many notes it concerns

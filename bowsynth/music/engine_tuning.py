@@ -5,7 +5,7 @@ there whichever engine plays it. The truth's ratio and the solve for f0 are in `
 from __future__ import annotations
 
 from .. import physics
-from ..errors import DomainError
+from ..errors import DomainError, UsageError
 from ..scene import Scene
 from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
 
@@ -84,3 +84,47 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
         except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
             return sounding_ratio(beta, vb, a).r
     return ratio, f"model {m.id}"
+
+
+def operator_sounding(scene: Scene, model=None, models=None) -> float | None:
+    """The frequency (Hz) the operator model that plays `scene` (given, or the covering one among `models`) sounds at
+    with the scene's held bow: f0 times the model's own ratio (operator_ratio, cached). The windows of its voice are
+    locked to that period (engines.operator.windows.locked_window). None where it is not one number: a moving bow or
+    pitch, no covering model, or a bow the model does not sound at."""
+    if scene.varying:
+        return None
+    ratio, _ = ratio_for_engine(scene, "operator", model, models=models)
+    if ratio is None:
+        return None
+    try:
+        return scene.f0 * ratio(scene.beta, scene.vb, scene.a, scene.f0)
+    except SilentNoteError:
+        return None
+
+
+WINDOWS = ("locked", "free")  # how an operator voice's windows lie against its note (api.render's `windows`)
+
+
+def check_windows(windows: str) -> str:
+    if windows not in WINDOWS:
+        raise UsageError(f"--windows must be {' or '.join(WINDOWS)}, got {windows!r}")
+    return windows
+
+
+def sounding_for(scene, windows: str = "free", model=None, sounding=None):
+    """What `engines.render(sounding=...)` takes for `api.render(windows=...)`: None for free windows; else per scene
+    the frequency its note sounds at (the one given, else its playing model's own: operator_sounding; None where
+    unknown, and that voice rolls in free windows). scene: one, or a list (sounding then a list too, or None)."""
+    check_windows(windows)
+    many = isinstance(scene, (list, tuple))
+    scenes = list(scene) if many else [scene]
+    given = list(sounding) if many and sounding is not None else [sounding] * len(scenes)
+    if windows == "free":
+        return None
+    pool = None
+    if model is None and any(g is None for g in given):
+        from ..engines.operator.choose import available_models
+
+        pool = available_models()  # the model directories looked at once for all the scenes
+    out = [g if g is not None else operator_sounding(sc, model, models=pool) for sc, g in zip(scenes, given)]
+    return out if many else out[0]

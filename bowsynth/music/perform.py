@@ -77,13 +77,14 @@ def check_releases(releases: str) -> str:
 
 
 def render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
-                 source=None, releases: str = "auto") -> list[Render]:
+                 source=None, releases: str = "auto", windows: str = "locked") -> list[Render]:
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
     of the sustains, each bow stop then by a model that covers it (the sustain's own, whole; or one handed the
     sustain's state at the hold), else by the FDM from there. releases 'fdm': every bow stop by the FDM from the hold,
     as the live engine plays them (its voice loop has no operator bow stop yet), so that a live recording can be
     compared sample for sample. Notes no model covers are refused before anything renders (fallback 'fdm': rendered
-    by the FDM instead, noted in info.notes)."""
+    by the FDM instead, noted in info.notes). windows 'locked': each note's windows locked to the pitch it is asked
+    to sound at (`api.render`'s windows; a note given by f0 to its model's own), 'free': the trained windows."""
     from ..engines import Engine, Fallback, parse_choice, render
 
     engine = parse_choice(Engine, method, "--method")
@@ -107,15 +108,21 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     pool = available_models() if model is None else None  # one look at the model directories for all the notes
     by_model = releases == "auto"
     whole = [i for i in op if by_model and notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
+    from .engine_tuning import sounding_for
+
+    def hints(idx, scenes):  # the pitch each note is asked at (its bow held until the stop): its voice's lock
+        return sounding_for(scenes, windows, model, [notes[i].pitch for i in idx])
+
     if whole:
-        for i, r in zip(whole, render([notes[i].scene for i in whole], engine="operator", model=model,
-                                      fallback=fallback)):
+        scenes = [notes[i].scene for i in whole]
+        for i, r in zip(whole, render(scenes, engine="operator", model=model, fallback=fallback,
+                                      sounding=hints(whole, scenes))):
             r.info.release = "operator"
             out[i] = r
     part = [i for i in op if i not in set(whole)]
     if part:
         sustains = [notes[i].rollout_scene() for i in part]
-        rs = render(sustains, engine="operator", model=model, fallback=fallback)
+        rs = render(sustains, engine="operator", model=model, fallback=fallback, sounding=hints(part, sustains))
         # the other releases: by a model that covers the bow stop (picked among the same models), else the FDM
         for i, r in zip(part, finish_releases([notes[i] for i in part], rs, models=pool if by_model else None)):
             out[i] = r
