@@ -2,6 +2,7 @@
 whole processes alternated with `bowsynth --help`, and how far the operator's mix sounds from the FDM's.
 
     PYTHONPATH=. .venv/bin/python benchmarks/chorale.py [--runs 3] [--keep DIR] [--model PATH] [--velocity 90]
+                                                        [--windows locked,free]
 
 The piece is written here (no corpus file ships with the repository) in the layout GUIDE section 9 describes for a
 chorale exported from a public corpus: MIDI type 1, a tempo track and four part tracks, every part on channel 1, one
@@ -24,7 +25,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+# the processes a user runs read their modules' bytecode: a shell that sets PYTHONDONTWRITEBYTECODE (this machine's
+# does) would have every process compile the edited modules again (~0.1 s of a chorale's process)
+ENV = {**{k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}, "PYTHONPATH": str(ROOT)}
 TPB = 480
 # (soprano, alto, tenor, bass) per beat, MIDI numbers; a held note repeats its number with "-" in the next beat
 PHRASES = [
@@ -87,6 +90,18 @@ def frame_lsd(x, ref, sr: int, floor_db: float = 80.0, n: int = 8192) -> float:
     return float(np.median(out))
 
 
+def mix_physical(path) -> np.ndarray:
+    """A mix's samples in its own units (the sum of the notes' q): the file's peak normalisation undone with the gain
+    in its metadata, so two mixes compare as rendered and not each at its own peak."""
+    import json
+
+    import soundfile as sf
+
+    with sf.SoundFile(str(path)) as f:
+        gain = float(json.loads(f.comment)["gain"])
+        return f.read(dtype="float64") / gain
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3)
@@ -95,35 +110,40 @@ def main() -> None:
                     "loud notes, played by velocity-loud)")
     ap.add_argument("--model", type=Path, default=None,
                     help="the operator plays with this model (`train --score` of the piece, say) instead of its pick")
+    ap.add_argument("--windows", default="locked", help="the operator's windows, one or more of locked, free "
+                    "(score --windows; each an operator process of its own, alternated with the others)")
     args = ap.parse_args()
+    modes = args.windows.split(",")
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(args.keep or tmp)
         d.mkdir(parents=True, exist_ok=True)
         n_notes = write_piece(d / "chorale.mid", args.velocity)
-        times = {"help": [], "operator": [], "fdm": []}
+        procs = [f"operator {w}" for w in modes] + ["fdm"]
+        times = {k: [] for k in ["help", *procs]}
         outs = {}
         for _ in range(args.runs):
             times["help"].append(run(["--help"], d)[0])
-            for method in ("operator", "fdm"):
+            for proc in procs:
+                method, _, w = proc.partition(" ")
                 pick = ["--model", str(args.model.resolve())] if args.model and method == "operator" else []
-                t, out = run(["score", "--score", "chorale.mid", "--method", method, "--mix", f"{method}.wav",
-                              "--force", *pick], d)
-                times[method].append(t)
-                outs[method] = out
-        from bowsynth.io.audio import read_wav
-
-        op, fd = read_wav(d / "operator.wav"), read_wav(d / "fdm.wav")
-        lsd = {f: frame_lsd(op.physical, fd.physical, 44100, f) for f in (80.0, 60.0, 40.0)}
+                t, out = run(["score", "--score", "chorale.mid", "--method", method, "--mix",
+                              f"{proc.replace(' ', '-')}.wav", "--force", *pick, *(["--windows", w] if w else [])], d)
+                times[proc].append(t)
+                outs[proc] = out
+        fd = mix_physical(d / "fdm.wav")
         med = {k: statistics.median(v) for k, v in times.items()}
         print(f"{n_notes} notes in the file; `score --mix`, medians of {args.runs} alternated runs (s)\n")
         print("| process | seconds | x --help | x the FDM's |\n|---|---|---|---|")
-        for k in ("help", "operator", "fdm"):
+        for k in ("help", *procs):
             print(f"| {k} | {med[k]:.2f} | {med[k] / med['help']:.2f} | {med[k] / med['fdm']:.2f} |")
-        print("\nmedian log-spectral distance per 8192-sample frame, operator mix against FDM mix, over the bins within "
-              + ", ".join(f"{f:.0f} dB of the peak: {v:.2f} dB" for f, v in lsd.items()))
-        for method in ("operator", "fdm"):
-            said = [ln for ln in outs[method].splitlines() if "wrote" in ln or "note" in ln.lower()][:3]
-            print(f"\n{method} said:\n" + "\n".join(f"    {ln}" for ln in said))
+        for w in modes:
+            op = mix_physical(d / f"operator-{w}.wav")
+            lsd = {f: frame_lsd(op, fd, 44100, f) for f in (80.0, 60.0, 40.0)}
+            print(f"\n{w} windows: median log-spectral distance per 8192-sample frame, operator mix against FDM mix, "
+                  "over the bins within " + ", ".join(f"{f:.0f} dB of the peak: {v:.2f} dB" for f, v in lsd.items()))
+        for proc in procs:
+            said = [ln for ln in outs[proc].splitlines() if "wrote" in ln or "note" in ln.lower()][:3]
+            print(f"\n{proc} said:\n" + "\n".join(f"    {ln}" for ln in said))
 
 
 if __name__ == "__main__":

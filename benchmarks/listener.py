@@ -2,6 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python benchmarks/listener.py [--model PATH] [--region soft|stick|all] [--n N] [--seed S]
                                                           [--seconds 2] [--json out.json] [--box B0:B1,V0:V1]
+                                                          [--windows locked|free]
 
 Random bows (F_B / w log-uniform, v_B uniform) at random pitches (f0 log-uniform 65-880 Hz), drawn with a seed no
 training uses, each rendered 2 s from rest by the operator (the model the renderer picks, or --model) and by the
@@ -49,6 +50,9 @@ def onset_ok(err_ms: float, ref_ms: float) -> bool:
     return math.isfinite(err_ms) and abs(err_ms) <= max(5.0, 0.02 * ref_ms)
 
 
+WINDOWS = "locked"  # the operator's windows (api.render's; --windows)
+
+
 def one(f0: float, beta: float, vb: float, seconds: float, model=None) -> dict:
     sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=seconds)
     with warnings.catch_warnings():
@@ -59,7 +63,7 @@ def one(f0: float, beta: float, vb: float, seconds: float, model=None) -> dict:
     row["fdm"]["nmse"] = nmse(fdm.p, truth.p)
     t0 = time.perf_counter()
     try:
-        op = render(sc, engine="operator", model=model)
+        op = render(sc, engine="operator", model=model, windows=WINDOWS)
     except BowsynthError as e:
         row["op"] = None
         row["why"] = str(e).splitlines()[0][:160]
@@ -112,7 +116,7 @@ def gesture(name: str, model=None) -> dict:
         fdm = render(sc, engine="fdm")
     row = {"gesture": name, "fdm": frame_errors(fdm.p, truth.p, sc.sample_rate)}
     try:
-        op = render(sc, engine="operator", model=model)
+        op = render(sc, engine="operator", model=model, windows=WINDOWS)
     except BowsynthError as e:
         row["op"], row["why"] = None, str(e).splitlines()[0][:200]
         return row
@@ -152,7 +156,11 @@ def main(argv=None):
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--gestures", action="store_true", help="the gestures instead of held bows")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--windows", default="locked", choices=["locked", "free"],
+                    help="the operator's windows (render --windows; gestures play free windows either way)")
     a = ap.parse_args(argv)
+    global WINDOWS
+    WINDOWS = a.windows
     model = None
     if a.model:
         from bowsynth.api import load_model, model_path
