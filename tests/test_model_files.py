@@ -295,6 +295,17 @@ def test_a_repeated_pitch_and_an_operator_score_load_no_torch(tmp_path, args):
         assert (tmp_path / "cache" / "sounding-ratio.json").is_file()
 
 
+def test_help_loads_no_numpy(tmp_path):
+    """`bowsynth --help` (and a mistyped command) imports the CLI's own modules and typer only: numpy was 0.13 s of a
+    0.45 s `--help` on this machine, pulled in by the `models` listing's formula at import."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-X", "importtime", "-m", "bowsynth", "--help"], capture_output=True,
+                       text=True, cwd=tmp_path, env=env, timeout=120)
+    assert r.returncode == 0 and "render" in r.stdout, r.stderr
+    loaded = {line.split("|")[-1].strip().split(".")[0] for line in r.stderr.splitlines() if "import time:" in line}
+    assert "bowsynth" in loaded and not loaded & {"numpy", "scipy", "torch", "soundfile"}, loaded
+
+
 def noisy_branch(tensors, scale=0.06, seed=1):
     """Perturb the branch's weights: an honest model made less accurate (its metadata still true)."""
     rng = np.random.default_rng(seed)

@@ -7,7 +7,6 @@ from typing import Optional
 
 import typer
 
-from .. import physics
 from .app import app, err, fmt_num, out
 
 
@@ -74,6 +73,8 @@ def models(
         fmt = "" if m.meta.format_version >= 2 else " (format 1: no digest; checked by its physics at render time)"
         if d.is_range:
             b0, b1, v0, v1 = d.box
+            from .. import physics  # numpy: not for every command's start (`--help` took 0.13 s longer)
+
             w = physics.omega(sc["f0"])
             what = (f"range model: F_B/w {b0:.4g}..{b1:.4g} (F_B {b0 * w:.4g}..{b1 * w:.4g} at f0 {sc['f0']:g}), "
                     f"vb {v0:g}..{v1:g}, a={d.a:g}, any pitch, follows gestures; window {d.window:.3g} tau; validation "
