@@ -45,7 +45,6 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample, sounding=sounding)
 
 
-
 def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1):
     """(ratio, what): the sounding ratio of the engine that will play the scene, for `make_scene(pitch=...,
     ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
