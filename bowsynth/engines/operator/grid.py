@@ -13,7 +13,11 @@ to the asked rate, both play every pitch tried, 65-880 Hz, within 0.01 dB (harmo
 The resampler is a polyphase filter, a Kaiser-windowed sinc of beta 12 (measured with scipy's resample_poly of the
 same design: within 3e-6 of a sine up to 10 kHz at the ratios these grids need, where its default beta 5 is 1.5e-3
 off); the ratio of the rates is rounded to a fraction of denominator at most MAX_DENOMINATOR, which moves the pitch
-by at most ~1e-6 (0.002 cents).
+by as much as it is off. A window just short of a whole number N of samples makes the ratio nearly N' / N, whose
+nearest such fractions lie up to 1/2000 away (0.4 cents, and the filter came up short of samples: paper-fb1000 at
+832.3 Hz, 52.985 samples a window, failed to render); so the grid takes the window of N to N + GRID_TRIES samples whose
+ratio a fraction holds best: within 1e-6 (0.002 cents) but where the window is within ~1e-4 of a sample of whole,
+and there within 1e-5 (0.02 cents).
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ MAX_DENOMINATOR = 2000
 KAISER_BETA = 12.0
 HALF_TAPS = 10  # the filter's half length in input samples (scipy's choice): output samples it reaches past an edge
 PAD = HALF_TAPS + 2  # output samples rendered past the end, and given up before a failure, for that reach
+RATIO_TOL = 1e-6  # a resampling fraction this close (relative) is taken at once: the pitch it moves (0.002 cents)
+GRID_TRIES = 8  # windows of N .. N + GRID_TRIES samples are tried for the fraction
 
 
 def needs_whole_windows(domain, beta_max: float | None = None) -> bool:
@@ -52,15 +58,25 @@ def whole_window_scene(scene: Scene, spw: float) -> tuple[Scene, Fraction]:
 
     The grid's rate is not a whole number of Hz, which a Scene built by a user may not have: this copy is for the
     engine's loops (which read sample_rate, n_samples, dtau and the curves) and is never rebuilt or validated."""
-    n = math.ceil(spw * (1 - 1e-7))
-    if abs(n - spw) <= 1e-7 * spw:
+    n0 = math.ceil(spw * (1 - 1e-7))
+    if abs(n0 - spw) <= 1e-7 * spw:
         return scene, Fraction(1)
+    best = None  # (error, n, ratio): the whole window whose rate ratio a fraction holds best (the module's docstring)
+    for n in range(n0, n0 + GRID_TRIES + 1):
+        ratio = Fraction(spw / n).limit_denominator(MAX_DENOMINATOR)
+        err = abs(float(ratio) * n / spw - 1)
+        if best is None or err < best[0]:
+            best = (err, n, ratio)
+        if err <= RATIO_TOL:
+            break
+    _, n, ratio = best
     rate = scene.sample_rate * n / spw
     inner = copy.copy(scene)
-    n_inner = math.ceil((scene.n_samples + PAD) * n / spw)
+    # the filter reads the grid at the fraction's rate: enough samples for that, whatever its small error
+    n_inner = max(math.ceil((scene.n_samples + PAD) * n / spw), math.ceil((scene.n_samples + PAD) / float(ratio)))
     object.__setattr__(inner, "sample_rate", rate)
     object.__setattr__(inner, "duration", n_inner / rate)
-    return inner, Fraction(spw / n).limit_denominator(MAX_DENOMINATOR)
+    return inner, ratio
 
 
 @lru_cache(maxsize=64)
