@@ -110,3 +110,5 @@ def test_windows_is_checked_before_anything_renders(tmp_path, capsys, monkeypatc
     code, _, err = run_main(["score", "--presets", "paper-fb100", "--mix", str(tmp_path / "m.wav"), "--windows", "x"],
                             capsys, monkeypatch)
     assert code == 2 and "--windows must be locked or free" in err
+    code, _, err = run_main(["play", "--windows", "both"], capsys, monkeypatch)  # before any JACK client opens
+    assert code == 2 and "--windows must be locked or free" in err and len(err.strip().splitlines()) == 1

@@ -42,7 +42,7 @@ def play(stream, events, n, block):
     return np.concatenate(out)
 
 
-def offline(tmp_path, events, n, method, amp, dc_r):
+def offline(tmp_path, events, n, method, amp, dc_r, windows="free"):
     path = tmp_path / "e.mid"
     write_midi(path, events)
     # tuned as `bowsynth score` tunes (the operator model's own ratio); the live FDM tunes with the truth's
@@ -54,9 +54,9 @@ def offline(tmp_path, events, n, method, amp, dc_r):
         ratio_for = lambda sc: ratio_for_engine(sc, "operator", MODEL)[0]  # noqa: E731
     notes = load_midi_score(path, ratio_for=ratio_for)
     # the live engine plays each bow stop with the FDM from the hold (its voice loop has no operator bow stop yet),
-    # and its voices in free windows (docs/live.md)
+    # and its voices in free windows unless told to lock them (docs/live.md)
     x, _ = mix_notes(notes, render_notes(notes, method=method, model=MODEL if method == "operator" else None,
-                                         releases="fdm", windows="free"))
+                                         releases="fdm", windows=windows))
     ref = np.zeros(n)
     ref[:min(n, len(x))] = amp * x[:n]
     y = np.zeros(n, np.float32)
@@ -82,6 +82,20 @@ def test_a_stream_is_the_offline_render_of_the_same_events(tmp_path, method, blo
     # the operator: float32 rounding (offline may run the numpy loop); the FDM: the same compiled loop, exactly
     tol = 2e-5 if method == "operator" else 1e-6
     assert np.max(np.abs(out - ref)) <= tol * np.max(np.abs(ref))
+
+
+@pytest.mark.parametrize("block", [512, 333])
+def test_a_stream_with_locked_windows_is_the_default_score_of_the_same_events(tmp_path, block):
+    """`play --windows locked`: each held note's windows locked to its pitch as `score` locks them (its default), the
+    same samples; and not the free render's (the two differ where the windows do)."""
+    s = Stream(block=512, voices=8, model=MODEL, windows="locked")
+    n = 32000
+    out = play(s, EVENTS, n, block)
+    ref = offline(tmp_path, EVENTS, n, "operator", s.amp, s.dc_r, windows="locked")
+    assert s.counts["notes"] == 5 and s.counts["fdm_notes"] == 0
+    assert np.max(np.abs(out - ref)) <= 2e-5 * np.max(np.abs(ref))
+    free = offline(tmp_path, EVENTS, n, "operator", s.amp, s.dc_r)
+    assert np.max(np.abs(out - free)) > 1e-3 * np.max(np.abs(ref))
 
 
 def test_a_note_struck_with_moved_controllers_plays_the_bow_score_gives_it(tmp_path):

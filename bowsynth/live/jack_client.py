@@ -47,7 +47,7 @@ def percentiles_ms(times: np.ndarray) -> tuple[float, float, float]:
 
 def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: int = 16, engine: str = "operator",
          model=None, a4: float = 440.0, amp: float | None = None, bend_range: float = 2.0, status=None,
-         status_every: float = 1.0) -> int:
+         status_every: float = 1.0, windows: str = "free") -> int:
     """Run the instrument until a signal (KeyboardInterrupt / Terminated propagate, after the summary) or until the
     server goes away (ServerGone). status: a function taking one line (the status line, then the summary)."""
     from .stream import AMP, Stream
@@ -63,7 +63,7 @@ def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: 
         rate, period = client.samplerate, client.blocksize
         say(f"bowsynth: preparing {voices} voice(s), {engine} at {rate} Hz, {period}-frame periods ...")
         stream = Stream(sample_rate=rate, block=max(period, 256), voices=voices, engine=engine, model=model, a4=a4,
-                        amp=AMP if amp is None else amp, bend_range=bend_range)
+                        amp=AMP if amp is None else amp, bend_range=bend_range, windows=windows)
         midi_in = client.midi_inports.register("midi_in")
         out = client.outports.register("out")
         chunk = stream.block

@@ -15,6 +15,7 @@ from . import voices as V
 from .basis import TRUNK_H, TRUNK_POINTS, _operator, trunk_grid
 from .npnet import PARAM_SPAN
 from .onset import uses_rest_flow
+from .windows import locked_window
 
 CURVE_POINTS = 4096  # breakpoints a slot's pitch curve may hold (render_curve)
 
@@ -121,11 +122,13 @@ class VoiceBank:
         self.voices.to_fdm(slot, 0.0, 0.0, 0)
         self.mode[slot] = V.FDM
 
-    def start_operator(self, slot: int, f0: float) -> bool:
+    def start_operator(self, slot: int, f0: float, sounding: float | None = None) -> bool:
         """The slot's note played by the operator from its state x (rest unless set), its bow inputs already in the
-        slot (bow_inputs); False when no window fits the pitch."""
+        slot (bow_inputs); False when no window fits the pitch. sounding: the frequency (Hz) a held pitch's note
+        sounds at, its windows then locked to that period (windows.locked_window, as offline); None: the trained T."""
         dtau = physics.dtau(f0, self.sample_rate)
-        spw = self.op.samples_per_window(dtau)
+        window = None if sounding is None else locked_window(self.op.window, f0, sounding)
+        spw = self.op.samples_per_window(dtau, window)
         n_lo, n_hi = math.floor(spw), math.ceil(spw)
         if n_lo < 1 or n_hi + 1 > self.n_max:
             return False
