@@ -21,12 +21,12 @@ class Interrupted(BowsynthError):
 
 
 def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1,
-           force: bool = False, windows: str = "free", sounding=None):
+           force: bool = False, windows: str = "free"):
     """Render a Scene (or a list of Scenes) with engine 'operator' or 'fdm'; see `bowsynth.engines.render`.
 
     windows (operator): 'free' (default) rolls each voice in windows of the trained length; 'locked' a held bow's
-    voice in windows locked to the period it sounds at (the `sounding` frequency in Hz where given, else the playing
-    model's own, measured once per model and bow and cached: `music.engine_tuning.operator_sounding`). Free windows
+    voice in windows locked to the period its playing model sounds at (the model's own, measured once per model and
+    bow and cached: `music.engine_tuning.operator_sounding`; never the truth's). Free windows
     spread the network's error into faint lines between and below the harmonics (60 dB down), locked ones put it on
     the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics truer free, a chord or a mix (whose
     voices fill each other's gaps) sounds closer to the physics locked (`score`'s default). See
@@ -38,10 +38,11 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     from .engines.limits import check_request
 
     check_request(scene, engine, oversample, force)
+    sounding = None
     if parse_choice(Engine, engine, "--method") is Engine.operator:
         from .music.engine_tuning import sounding_for
 
-        sounding = sounding_for(scene, windows, model, sounding)
+        sounding = sounding_for(scene, windows, model)
     return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample, sounding=sounding)
 
 

@@ -70,7 +70,6 @@ def render(
     scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4)
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
-    sounding = None  # where the note sounds, for the operator's locked windows (else the model's own, measured)
     if pitch is not None:  # tuned again with the sounding ratio of the engine that plays (its own pitch)
         from ..music.notes import note_name
 
@@ -78,13 +77,12 @@ def render(
         if ratio is not None:
             scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4, ratio=ratio)
         hz = pitch_hz(pitch, a4)
-        sounding = None if scene.varying else hz
         held = "" if not scene.varying else ", at the values the bow holds"
         how = f"tuned for {by}" if ratio is not None else f"tuned with the FDM's ratio: {by}"
         tell(quiet, f"pitch {hz:.2f} Hz ({note_name(hz, a4 or 440.0)}): f0 {scene.f0:.4f} Hz ({how}{held})",
              console_for(output))
     r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force,
-                   windows=windows, sounding=sounding)
+                   windows=windows)
     write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
     model_note = f", model {r.info.model_id}" if r.info.model_id else ""
     if r.info.model_path:

@@ -101,6 +101,12 @@ class Stream(VoiceBank):
             # (NumpyOperator.window_inputs: the offline rollout's own code)
             pin, gain, c, h = self.op.window_inputs(np.stack([t.v_beta, t.v_vb], 1)[None])
             self.v_pin, self.v_gain, self.v_center, self.v_half = pin[0], gain[0], c[0], h[0]
+            # locked windows: per velocity the model's own sounding ratio (the one its notes were tuned with; cached,
+            # measured by the tuning above), NaN where it cannot hold the bow: free windows there, never the truth's
+            self.v_lock = np.full(128, np.nan)
+            if self.windows == "locked":
+                self.v_lock[:] = [_own_ratio(model, float(t.v_beta[v]), float(t.v_vb[v]), self.a) if self.covered[v]
+                                  else np.nan for v in range(128)]
         self._allocate_midi(dc_hz)
         self._warm()
 
@@ -301,10 +307,10 @@ class Stream(VoiceBank):
                                                                         self.v_center[vel], self.v_half[vel])
                 else:
                     self.bow_inputs(slot, beta, vb)
-                # locked: a note whose pitch holds from its note-on sounds at its equal-tempered pitch (tuned so);
-                # one bent later keeps its windows, where offline its pitch curve plays free ones (docs/live.md)
-                held = self.windows == "locked" and pm[slot] == V.HELD
-                if self.start_operator(slot, f0, midi_to_hz(note, self.a4) if held else None):
+                # locked (a neutral note held at its pitch from its note-on): the model's own period, as `score`
+                # locks it; a note bent later keeps its windows, where offline its pitch curve plays free ones
+                lock = self.v_lock[vel] if neutral and pm[slot] == V.HELD else math.nan
+                if self.start_operator(slot, f0, f0 * lock if lock > 0 else None):
                     self.start_rest(slot, beta, vb, self.a, f0)
                     return
             self.counts["fdm_notes"] += 1
@@ -366,3 +372,15 @@ class Stream(VoiceBank):
     def callback_times(self) -> np.ndarray:
         """The durations (s) of the last process() calls."""
         return self.times[:min(self.n_times, TIMES)].copy()
+
+
+def _own_ratio(model, beta: float, vb: float, a: float) -> float:
+    """The model's own sounding ratio at this bow (music.engine_tuning.operator_ratio), NaN where it cannot hold it."""
+    from ..errors import DomainError
+    from ..music.engine_tuning import operator_ratio
+    from ..music.tuning import SilentNoteError
+
+    try:
+        return float(operator_ratio(model)(beta, vb, a, 100.0))
+    except (DomainError, SilentNoteError):
+        return math.nan

@@ -86,19 +86,26 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     return ratio, f"model {m.id}"
 
 
-def operator_sounding(scene: Scene, model=None, models=None) -> float | None:
+def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None = None) -> float | None:
     """The frequency (Hz) the operator model that plays `scene` (given, or the covering one among `models`) sounds at
-    with the scene's held bow: f0 times the model's own ratio (operator_ratio, cached). The windows of its voice are
-    locked to that period (engines.operator.windows.locked_window). None where it is not one number: a moving bow or
-    pitch, no covering model, or a bow the model does not sound at."""
-    if scene.varying:
+    with its held bow (held's, where the scene's bow moves only to stop: a score's note): f0 times the model's own
+    ratio (operator_ratio, cached). The windows of its voice are locked to that period
+    (engines.operator.windows.locked_window). None where there is no such number: a moving bow or pitch, no covering
+    model, or a bow the model cannot hold from rest for the measurement."""
+    held = scene if held is None else held
+    if held.varying or scene.pitch_varies:
         return None
-    ratio, _ = ratio_for_engine(scene, "operator", model, models=models)
-    if ratio is None:
-        return None
+    from ..engines.operator.choose import as_model, find_model
+
     try:
-        return scene.f0 * ratio(scene.beta, scene.vb, scene.a, scene.f0)
-    except SilentNoteError:
+        m = find_model(scene, models) if model is None else as_model(model)
+    except DomainError:
+        return None
+    if not m.covers(scene):
+        return None
+    try:  # the model's own pitch, never the truth's: a window clock at the truth's period pulls the note to it
+        return held.f0 * operator_ratio(m)(held.beta, held.vb, held.a, held.f0)
+    except (DomainError, SilentNoteError):  # it cannot hold the bow for the measurement: free windows
         return None
 
 
@@ -111,20 +118,21 @@ def check_windows(windows: str) -> str:
     return windows
 
 
-def sounding_for(scene, windows: str = "free", model=None, sounding=None):
+def sounding_for(scene, windows: str = "free", model=None, held=None):
     """What `engines.render(sounding=...)` takes for `api.render(windows=...)`: None for free windows; else per scene
-    the frequency its note sounds at (the one given, else its playing model's own: operator_sounding; None where
-    unknown, and that voice rolls in free windows). scene: one, or a list (sounding then a list too, or None)."""
+    the frequency its playing model sounds at (operator_sounding; None where unknown: that voice rolls in free
+    windows). scene: one, or a list; held: the scene (or list) whose held bow each note sounds with, where it is not
+    the scene itself (a score's note: its sustain, while the whole note with its bow stop renders)."""
     check_windows(windows)
-    many = isinstance(scene, (list, tuple))
-    scenes = list(scene) if many else [scene]
-    given = list(sounding) if many and sounding is not None else [sounding] * len(scenes)
     if windows == "free":
         return None
+    many = isinstance(scene, (list, tuple))
+    scenes = list(scene) if many else [scene]
+    helds = scenes if held is None else (list(held) if many else [held])
     pool = None
-    if model is None and any(g is None for g in given):
+    if model is None:
         from ..engines.operator.choose import available_models
 
         pool = available_models()  # the model directories looked at once for all the scenes
-    out = [g if g is not None else operator_sounding(sc, model, models=pool) for sc, g in zip(scenes, given)]
+    out = [operator_sounding(sc, model, models=pool, held=h) for sc, h in zip(scenes, helds)]
     return out if many else out[0]

@@ -83,8 +83,9 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     sustain's state at the hold), else by the FDM from there. releases 'fdm': every bow stop by the FDM from the hold,
     as the live engine plays them (its voice loop has no operator bow stop yet), so that a live recording can be
     compared sample for sample. Notes no model covers are refused before anything renders (fallback 'fdm': rendered
-    by the FDM instead, noted in info.notes). windows 'locked': each note's windows locked to the pitch it is asked
-    to sound at (`api.render`'s windows; a note given by f0 to its model's own), 'free': the trained windows."""
+    by the FDM instead, noted in info.notes). windows 'locked': each note's windows locked to the period its model
+    sounds at with the note's held bow (`api.render`'s windows: the pitch it was tuned to sound at, where tuned with
+    that model), 'free': the trained windows."""
     from ..engines import Engine, Fallback, parse_choice, render
 
     engine = parse_choice(Engine, method, "--method")
@@ -110,8 +111,8 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     whole = [i for i in op if by_model and notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
     from .engine_tuning import sounding_for
 
-    def hints(idx, scenes):  # the pitch each note is asked at (its bow held until the stop): its voice's lock
-        return sounding_for(scenes, windows, model, [notes[i].pitch for i in idx])
+    def hints(idx, scenes):  # each note's lock: its model's own period at the bow the note holds until its stop
+        return sounding_for(scenes, windows, model, held=[notes[i].rollout_scene() for i in idx])
 
     if whole:
         scenes = [notes[i].scene for i in whole]
