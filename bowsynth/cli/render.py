@@ -91,6 +91,8 @@ def render(
     setup_note = f" after {setup * 1e3:.0f} ms of start-up" if setup else ""
     say = console_for(output)
     if not quiet:
+        if r.info.windows:
+            model_note += f", windows locked to the note ({r.info.windows} a period)"
         say.print(f"wrote {'standard output' if str(output) == '-' else output}: {scene.duration:g} s at "
                   f"{scene.sample_rate} Hz, method {r.method}{model_note}; rendered in {r.seconds * 1e3:.1f} ms "
                   f"({r.realtime_factor:.0f}x real time){setup_note}", soft_wrap=True)

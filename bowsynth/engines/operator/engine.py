@@ -390,6 +390,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                                                                "cents_abs_max")}
             if i in pre:
                 info.rest_flow = pre[i][0] / sc.sample_rate
+            if win[i] is not None:  # locked: how many windows a sounding period
+                info.windows = round(2 * math.pi * sc.f0 / sounding[i] / win[i])
             ctrl = None
             if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
                 ctrl = LazyControls(ctrl_of[i])
