@@ -112,3 +112,12 @@ def test_windows_is_checked_before_anything_renders(tmp_path, capsys, monkeypatc
     assert code == 2 and "--windows must be locked or free" in err
     code, _, err = run_main(["play", "--windows", "both"], capsys, monkeypatch)  # before any JACK client opens
     assert code == 2 and "--windows must be locked or free" in err and len(err.strip().splitlines()) == 1
+
+
+def test_render_says_when_its_windows_were_locked(tmp_path, capsys, monkeypatch):
+    """paper-fb100's note sounds at 0.91 f0: two windows of 0.55 T a period, and the render line says so."""
+    code, out, err = run_main(["render", str(tmp_path / "l.wav"), "--fb", "100", "--vb", "0.2", "--windows", "locked"],
+                              capsys, monkeypatch)
+    assert code == 0 and "windows locked to the note (2 a period)" in out, out + err
+    code, out, err = run_main(["render", str(tmp_path / "f.wav"), "--fb", "100", "--vb", "0.2"], capsys, monkeypatch)
+    assert code == 0 and "windows locked" not in out, out + err
