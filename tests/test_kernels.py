@@ -33,12 +33,12 @@ def test_cos_sin_match_libm():
     assert np.abs(cs[:, 1] - np.sin(z)).max() < 1e-10
 
 
-def torch_rollout(model, x0, n_samples, dtau):
+def torch_rollout(model, x0, n_samples, dtau, window=None):
     """The reference: the float64 torch network applied window by window (window w starting at the sample nearest
-    w T), its end state seeding the next."""
+    w T, or w `window`: a locked window, windows.locked_window), its end state seeding the next."""
     net = model.net.double()
     try:
-        spw = float(net.window) / dtau
+        spw = (float(net.window) if window is None else window) / dtau
         x = torch.tensor(x0, dtype=torch.float64)
         out, start, w = [], 0, 0
         with torch.no_grad():

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-import torch
 from scipy import signal as sps
 
 from bowsynth import Scene
@@ -16,6 +15,7 @@ from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
 from bowsynth.engines.operator.windows import locked_window
 
 from conftest import run_main
+from test_kernels import torch_rollout
 
 
 @pytest.mark.parametrize("ratio", [1.0, 0.999, 0.93, 0.5, 0.4999, 0.33, 1.7])
@@ -27,25 +27,6 @@ def test_a_locked_window_is_the_sounding_period_over_the_fewest_windows_that_fit
     assert math.isclose(k * w, period, rel_tol=1e-12)
     assert w <= T * (1 + 1e-12)
     assert k == 1 or period / (k - 1) > T  # one window fewer would be longer than the trained one
-
-
-def torch_rollout(model, x0, n_samples, dtau, window):
-    """The float64 torch network window by window, window w ending at the sample nearest (w + 1) window / dtau."""
-    net = model.net.double()
-    try:
-        spw = window / dtau
-        x = torch.tensor(x0, dtype=torch.float64)
-        out, start, w = [], 0, 0
-        with torch.no_grad():
-            while start < n_samples:
-                n = int(math.floor((w + 1) * spw + 0.5)) - start
-                traj = net(x, torch.arange(n + 1, dtype=torch.float64) * dtau)
-                out.append(traj[:, :n])
-                x = traj[:, n]
-                start, w = start + n, w + 1
-        return torch.cat(out, dim=1).numpy()[:, :n_samples]
-    finally:
-        model.net.float()
 
 
 @pytest.mark.parametrize("loop", ["numpy", "core-voices", "core-batch", "core"])
