@@ -1,6 +1,7 @@
 """Benchmarks of the live instrument (issue 24; results in docs/BENCHMARKS.md, "Playing live").
 
-    python benchmarks/live.py callback [--seconds 5]     # Stream.process times at 1/16/64/256 voices, both engines
+    python benchmarks/live.py callback [--seconds 5] [--windows free|locked]   # Stream.process times at 1/16/64/256
+                                                                              # voices, both engines
     python benchmarks/live.py jack                       # melody + 32-note chord through jackd: xruns, NCC, lag, cents
     python benchmarks/live.py hold --voices 64 --seconds 60   # 64 held voices through jackd: xruns
     python benchmarks/live.py curves                     # vibrato and glissando against a x100 FDM, per 100 ms frame
@@ -28,16 +29,17 @@ RATE, PERIOD = 44100, 512
 MODEL = "soft-range"
 
 
-def callback(seconds: float) -> None:
+def callback(seconds: float, windows: str = "free") -> None:
     from bowsynth.live import Stream
 
     period_ms = 1e3 * PERIOD / RATE
+    print(f"operator windows: {windows}\n")
     print("| engine | voices | p50 ms | p99 ms | max ms | max / period | note-on blocks max ms |")
     print("|---|---|---|---|---|---|---|")
-    for engine in ("operator", "fdm"):
+    for engine in ("operator", "fdm") if windows == "free" else ("operator",):
         for nv in (1, 16, 64, 256):
             s = Stream(block=PERIOD, voices=nv, engine=engine, model=MODEL if engine == "operator" else None,
-                       busy_fraction=10.0)
+                       busy_fraction=10.0, windows=windows)
             notes = [40 + (5 * i) % 49 for i in range(nv)]  # E2 .. E6, spread (channel i % 16: no key twice)
             t_on = []
             for b in range(0, nv, 8):  # 8 note-ons a block (a chord of 8 keys)
@@ -200,9 +202,10 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=None)
     ap.add_argument("--voices", type=int, default=64)
     ap.add_argument("--model", default=MODEL)
+    ap.add_argument("--windows", default="free", choices=["free", "locked"], help="callback: the operator's windows")
     a = ap.parse_args()
     if a.what == "callback":
-        callback(a.seconds or 5.0)
+        callback(a.seconds or 5.0, a.windows)
     elif a.what == "jack":
         jack_melody()
     elif a.what == "hold":
