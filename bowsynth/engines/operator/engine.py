@@ -392,9 +392,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 info.rest_flow = pre[i][0] / sc.sample_rate
             if win[i] is not None:  # locked: how many windows a sounding period
                 info.windows = round(2 * math.pi * sc.f0 / sounding[i] / win[i])
-            ctrl = None
-            if sc.varying:  # else the scene's own constant controls (Render's lazy default) are what ran
-                ctrl = LazyControls(ctrl_of[i])
+            # constant controls: the scene's own (Render's lazy default) are what ran
+            ctrl = LazyControls(ctrl_of[i]) if sc.varying else None
             out[i] = Render(sc, t_all[sc.sample_rate][:ns], qv, pv,
                             method=Played("operator", fdm_fallback=len(notes[i]) > len(checked)), seconds=secs,
                             info=info, **({"controls": ctrl} if ctrl is not None else {}))
