@@ -133,9 +133,12 @@ def player(jackd):
         _stop(p.proc)
 
 
-def perform(server: str, events, seconds: float, target: str = "bowsynth", lead: float = 0.3):
+def perform(server: str, events, seconds: float, target: str = "bowsynth", lead: float = 0.3,
+            strict_from: float = 0.0):
     """Send events [(seconds, bytes)] to target:midi_in and record target:out for `seconds`. Returns the recording
-    and the frames (from its start) at which each event was delivered."""
+    and the frames (from its start) at which each event was delivered. Every event from `strict_from` seconds on must
+    leave on its frame (one the sender's Python callback could not write in time is sent at the next period's start:
+    a flood of thousands of notes a second may be, and what the flood test asserts does not hang on when)."""
     _quiet()
     n = int(seconds * RATE)
     rec = np.zeros(int(round(lead * RATE)) + n + 4 * PERIOD, np.float32)
@@ -143,7 +146,7 @@ def perform(server: str, events, seconds: float, target: str = "bowsynth", lead:
     recorder = jack.Client("recorder", no_start_server=True, servername=server)
     mout = sender.midi_outports.register("out")
     ain = recorder.inports.register("in")
-    state = {"start": None, "rec": 0, "late": 0}
+    state = {"start": None, "rec": 0, "late": []}
     sched = [(int(round((lead + t) * RATE)), bytes(d)) for t, d in events]
     sched.sort(key=lambda e: e[0])
     idx = [0]
@@ -159,7 +162,7 @@ def perform(server: str, events, seconds: float, target: str = "bowsynth", lead:
             f, d = sched[idx[0]]
             off = f - rel
             if off < 0:
-                state["late"] += 1
+                state["late"].append(f)
                 off = 0
             mout.write_midi_event(off, d)
             idx[0] += 1
@@ -178,8 +181,9 @@ def perform(server: str, events, seconds: float, target: str = "bowsynth", lead:
         time.sleep(lead + seconds + 0.3)
         sender.deactivate()
         recorder.deactivate()
-    assert state["late"] == 0, f"{state['late']} event(s) sent late"
     lead_n = int(round(lead * RATE))
+    late = [f for f in state["late"] if f >= lead_n + strict_from * RATE]
+    assert not late, f"{len(late)} event(s) sent late"
     return rec[lead_n:lead_n + n], [f - lead_n for f, _ in sched]
 
 
@@ -334,7 +338,7 @@ def test_garbage_bytes_and_a_flood_of_notes_are_dropped_and_counted_and_time_is_
     ev += [(0.05 + i / 10000, on(40 + i % 40, 30 + i % 90)) for i in range(3000)]
     ev += [(0.05 + i / 10000 + 0.0001, off(40 + i % 40)) for i in range(3000)]
     ev += [(0.6, bytes((0xB0, 123, 0))), (0.9, on(69)), (1.7, off(69))]
-    rec, frames = perform(jackd[0], ev, 2.1)
+    rec, frames = perform(jackd[0], ev, 2.1, strict_from=0.6)
     code, out = p.stop()
     assert code == 130
     s = _summary(out)
