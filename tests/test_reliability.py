@@ -131,6 +131,16 @@ def test_cli_never_tracebacks(args, tmp_path, monkeypatch, capsys):
         assert code in (1, 2) and err.strip().count("\n") <= 1 + err.count("warning:")
 
 
+@pytest.mark.parametrize("args", [["--quiet", "\x00"], ["--preset", "paper\x00fb10"], ["--f0", "\x00"]])
+def test_a_nul_byte_in_an_argument_is_one_usage_line(args, tmp_path, capsys, monkeypatch):
+    """Hypothesis found `render --quiet NUL out.wav` (NUL taken as the output) ending in typer's os.stat ValueError:
+    main() called in-process can be given what a process's argv cannot hold."""
+    code, out, err = run_main(["render", "--method", "fdm", "-d", "0.01", *args, str(tmp_path / "h.wav")], capsys,
+                              monkeypatch)
+    assert code == 2 and err.strip() == "error: an argument contains a NUL byte (\\x00): no option value or file name can"
+    assert not (tmp_path / "h.wav").exists()
+
+
 def test_kill_training_then_resume(tmp_path):
     """SIGKILL a training run after its first checkpoint; --resume continues from it to a finished model."""
     out = tmp_path / "k.safetensors"

@@ -9,7 +9,7 @@ import warnings
 
 from typer.exceptions import Abort, Exit, TyperException
 
-from ..errors import BowsynthError, Terminated, interrupt_exit_code
+from ..errors import BowsynthError, Terminated, UsageError, interrupt_exit_code
 from .app import app, err, run_state
 
 # each module registers its command on `app` when imported; the order here is the order of `--help`
@@ -62,6 +62,10 @@ def _run() -> None:
     warnings.filterwarnings("ignore", message=".*torch.jit.script.*")  # raised inside pytorch-optimizer
     warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"
     try:
+        # a process's argv cannot hold a NUL byte; main() called in-process can, and typer's path checks then raise
+        # ValueError from os.stat
+        if any("\x00" in a for a in sys.argv[1:]):
+            raise UsageError("an argument contains a NUL byte (\\x00): no option value or file name can")
         rv = app(standalone_mode=False)
     except BowsynthError as e:
         if debug:
