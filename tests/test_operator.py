@@ -58,12 +58,20 @@ def _window_error(model, sc):
                     for i, (q0, p0) in enumerate(x0)])
 
 
+def _loss(tr, batch, sc) -> float:
+    """The trainer's weighted loss on a batch, wherever its net is now: a run trains on its device (a GPU with device
+    auto) and ends with the net on the CPU, where models render."""
+    dev = next(tr.net.parameters()).device
+    b = {k: v.to(dev) if torch.is_tensor(v) else v for k, v in batch.items()}
+    return sum(tr.weights[k] * v for k, v in loss_terms(tr.net, b, sc, tr.weights).items()).item()
+
+
 def test_tiny_training_lowers_loss_and_window_error():
     sc = Scene(fb=100)
     tr = Trainer(sc, tiny_config(steps=400), "t")
     batch = tr.batch()
     def loss():
-        return sum(tr.weights[k] * v for k, v in loss_terms(tr.net, batch, sc, tr.weights).items()).item()
+        return _loss(tr, batch, sc)
 
     before, e_before = loss(), _window_error(tr.model(), sc)
     tr.run()
@@ -201,7 +209,7 @@ def test_soap_steps_lower_the_loss():
     sc = Scene(fb=100)
     tr = Trainer(sc, tiny_config(steps=60, optimizer="soap", lr=3e-3), "t")
     batch = tr.batch()
-    loss = lambda: sum(tr.weights[k] * v for k, v in loss_terms(tr.net, batch, sc, tr.weights).items()).item()  # noqa: E731
+    loss = lambda: _loss(tr, batch, sc)  # noqa: E731
     before = loss()
     tr.run()
     assert loss() < before
@@ -222,7 +230,7 @@ def test_selection_keeps_the_best_scored_weights(monkeypatch, tmp_path):
     step, best = snaps[2]
     assert tr.step == 12 and step < 12 and len(snaps) == 13  # every step, and the final weights
     for k, v in tr.net.state_dict().items():
-        assert torch.equal(v, best[k]), k
+        assert torch.equal(v.cpu(), best[k].cpu()), k  # the run ends with the net on the CPU, wherever it trained
     sel = tr.model().meta.training["selected"]
     assert (sel["step"], sel["scored"], sel["score_nmse_p"]) == (step, 13, 0.5)
     ck = tmp_path / "t.ckpt.safetensors"  # a checkpoint carries the best weights, for --resume
@@ -230,7 +238,7 @@ def test_selection_keeps_the_best_scored_weights(monkeypatch, tmp_path):
     tr2 = Trainer(sc, tiny_config(steps=12, select_every=1e-9, select_from=0.0), "t")
     tr2.load_checkpoint(ck)
     assert tr2.best["step"] == step and tr2.best["score"] == 0.5 and tr2.best["scored"] == 13
-    assert all(torch.equal(tr2.best["state"][k], v) for k, v in best.items())
+    assert all(torch.equal(tr2.best["state"][k].cpu(), v.cpu()) for k, v in best.items())
 
 
 def test_selection_scores_a_rollout_from_a_state_the_validation_and_the_window_starts_never_use(tiny_model):
