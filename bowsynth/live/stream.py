@@ -105,8 +105,11 @@ class Stream(VoiceBank):
             # measured by the tuning above), NaN where it cannot hold the bow: free windows there, never the truth's
             self.v_lock = np.full(128, np.nan)
             if self.windows == "locked":
-                self.v_lock[:] = [_own_ratio(model, float(t.v_beta[v]), float(t.v_vb[v]), self.a) if self.covered[v]
-                                  else np.nan for v in range(128)]
+                from ..music.engine_tuning import own_ratio
+
+                own = [own_ratio(model, float(t.v_beta[v]), float(t.v_vb[v]), self.a) if self.covered[v] else None
+                       for v in range(128)]
+                self.v_lock[:] = [np.nan if r is None else r for r in own]
         self._allocate_midi(dc_hz)
         self._warm()
 
@@ -373,14 +376,3 @@ class Stream(VoiceBank):
         """The durations (s) of the last process() calls."""
         return self.times[:min(self.n_times, TIMES)].copy()
 
-
-def _own_ratio(model, beta: float, vb: float, a: float) -> float:
-    """The model's own sounding ratio at this bow (music.engine_tuning.operator_ratio), NaN where it cannot hold it."""
-    from ..errors import DomainError
-    from ..music.engine_tuning import operator_ratio
-    from ..music.tuning import SilentNoteError
-
-    try:
-        return float(operator_ratio(model)(beta, vb, a, 100.0))
-    except (DomainError, SilentNoteError):
-        return math.nan

@@ -69,6 +69,21 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
 
         os_ = check_oversample(scene, oversample, warn=False)
         return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
+    m, why = _playing_model(scene, model, models)
+    if m is None:
+        return None, why
+
+    def ratio(beta, vb, a, f0):
+        try:
+            return operator_ratio(m)(beta, vb, a, f0)
+        except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
+            return sounding_ratio(beta, vb, a).r
+    return ratio, f"model {m.id}"
+
+
+def _playing_model(scene: Scene, model=None, models=None):
+    """(the operator model that plays the scene: the one given, else find_model's pick among `models`; None) or
+    (None, why) where that model does not cover it or none does."""
     from ..engines.operator.choose import as_model, find_model
 
     try:
@@ -77,13 +92,16 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
         return None, str(e).split(";")[0]
     if not m.covers(scene):
         return None, f"model {m.id} does not cover the scene"
+    return m, None
 
-    def ratio(beta, vb, a, f0):
-        try:
-            return operator_ratio(m)(beta, vb, a, f0)
-        except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
-            return sounding_ratio(beta, vb, a).r
-    return ratio, f"model {m.id}"
+
+def own_ratio(model, beta: float, vb: float, a: float, f0: float = RATIO_F0) -> float | None:
+    """The model's own sounding ratio at this bow (operator_ratio, cached), never the truth's; None where the model
+    cannot hold the bow from rest for the measurement."""
+    try:
+        return operator_ratio(model)(beta, vb, a, f0)
+    except (DomainError, SilentNoteError):
+        return None
 
 
 def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None = None) -> float | None:
@@ -95,18 +113,13 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
     held = scene if held is None else held
     if held.varying or scene.pitch_varies:
         return None
-    from ..engines.operator.choose import as_model, find_model
-
-    try:
-        m = find_model(scene, models) if model is None else as_model(model)
-    except DomainError:
+    m, _ = _playing_model(scene, model, models)
+    if m is None:
         return None
-    if not m.covers(scene):
-        return None
-    try:  # the model's own pitch, never the truth's: a window clock at the truth's period pulls the note to it
-        return held.f0 * operator_ratio(m)(held.beta, held.vb, held.a, held.f0)
-    except (DomainError, SilentNoteError):  # it cannot hold the bow for the measurement: free windows
-        return None
+    # the model's own pitch, never the truth's: a window clock at the truth's period pulls the note to it; where it
+    # cannot hold the bow for the measurement, free windows
+    r = own_ratio(m, held.beta, held.vb, held.a, held.f0)
+    return None if r is None else held.f0 * r
 
 
 WINDOWS = ("locked", "free")  # how an operator voice's windows lie against its note (api.render's `windows`)

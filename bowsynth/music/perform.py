@@ -111,19 +111,20 @@ def render_notes(notes: list[Note], method: str = "operator", model=None, fallba
     whole = [i for i in op if by_model and notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
     from .engine_tuning import sounding_for
 
-    def hints(idx, scenes):  # each note's lock: its model's own period at the bow the note holds until its stop
-        return sounding_for(scenes, windows, model, held=[notes[i].rollout_scene() for i in idx])
+    def hints(scenes, held=None):  # each note's lock: its model's own period at the bow it holds until its stop
+        return sounding_for(scenes, windows, model, held=held)
 
     if whole:
         scenes = [notes[i].scene for i in whole]
         for i, r in zip(whole, render(scenes, engine="operator", model=model, fallback=fallback,
-                                      sounding=hints(whole, scenes))):
+                                      sounding=hints(scenes, [notes[i].rollout_scene() for i in whole]))):
             r.info.release = "operator"
             out[i] = r
     part = [i for i in op if i not in set(whole)]
     if part:
         sustains = [notes[i].rollout_scene() for i in part]
-        rs = render(sustains, engine="operator", model=model, fallback=fallback, sounding=hints(part, sustains))
+        # the sustains are the held bows themselves
+        rs = render(sustains, engine="operator", model=model, fallback=fallback, sounding=hints(sustains))
         # the other releases: by a model that covers the bow stop (picked among the same models), else the FDM
         for i, r in zip(part, finish_releases([notes[i] for i in part], rs, models=pool if by_model else None)):
             out[i] = r
