@@ -328,26 +328,31 @@ inline void samples(const Rollout& R, double q0, double p0, const float* o, doub
     samples(R.k, R.Bq + P * k3 * R.n_max, R.Bp + P * k3 * R.n_max, R.n_max, q0, p0, o, g, m, x, qrow, prow);
 }
 
-// Four windows' samples at once (samples for each): rows [o_q, q0, p0, g] @ Bq, then [o_p, p0, -q0, g] @ Bp, into
-// Y (4, n_max) and copied to out + s0[r]. x: the windows' start states (4, 2); o: their corrections (4, 2k); g: gains.
-inline void samples4(const Rollout& R, const double* xs, const float* o, const double* g, int64_t P,
-                     const int64_t* cnt, float* X, float* Y, float* q_out, float* p_out, const int64_t* s0) {
+// Four windows' samples at once: for window slots idx[r] of the block, rows [o_q, q0, p0, g] @ Bq, then
+// [o_p, p0, -q0, g] @ Bp, over n columns into Y (4, n_max), and cnt[r] of them copied to out + s0[r] (none where
+// cnt[r] is 0: a slot repeated to fill the four). xs: start states (slots, 2); o: corrections (slots, 2k); g: gains.
+// Each row's sums do not depend on the other rows, and n is fixed per pitch, so a window's samples are the same
+// bits whichever windows share its product (a voice that stops early against one that goes on: tests/test_fallback).
+inline void samples4(const Rollout& R, const int64_t* idx, const double* xs, const float* o, const double* g,
+                     int64_t P, int64_t n, const int64_t* cnt, const int64_t* s0, float* X, float* Y, float* q_out,
+                     float* p_out) {
     const int64_t k = R.k, k3 = k + 3, ld = R.n_max;
     const float* Bq = R.Bq + P * k3 * ld;
     const float* Bp = R.Bp + P * k3 * ld;
-    const int64_t n = std::max({cnt[0], cnt[1], cnt[2], cnt[3]});
     for (int side = 0; side < 2; ++side) {
         for (int r = 0; r < 4; ++r) {
-            const float qf = static_cast<float>(xs[2 * r]), pf = static_cast<float>(xs[2 * r + 1]);
+            const int64_t i = idx[r];
+            const float qf = static_cast<float>(xs[2 * i]), pf = static_cast<float>(xs[2 * i + 1]);
             float* x = X + r * k3;
-            std::memcpy(x, o + r * 2 * k + side * k, k * sizeof(float));
+            std::memcpy(x, o + i * 2 * k + side * k, k * sizeof(float));
             x[k] = side ? pf : qf;
             x[k + 1] = side ? -qf : pf;
-            x[k + 2] = static_cast<float>(g[r]);
+            x[k + 2] = static_cast<float>(g[i]);
         }
         dense<4>(X, k3, k3, side ? Bp : Bq, ld, n, nullptr, Y, ld);
         float* out = side ? p_out : q_out;
-        for (int r = 0; r < 4; ++r) std::memcpy(out + s0[r], Y + r * ld, cnt[r] * sizeof(float));
+        for (int r = 0; r < 4; ++r)
+            if (cnt[r] > 0) std::memcpy(out + s0[r], Y + r * ld, cnt[r] * sizeof(float));
     }
 }
 
@@ -446,9 +451,9 @@ constexpr int64_t BLOCK = 64;  // windows per pass of roll_batch
 // (writing each window's samples inside the chain touched every pitch's basis per window: memory-bound).
 HOT void roll_batch(const Rollout& R) {
     const int64_t B = R.B, k = R.k, w = R.width, m = R.m;
-    float* H = scratch(ws_f, B * (2 * m + 3 * w + 4 * w + 2 * k + BLOCK * 2 * k) + 5 * (k + 3) + 4 * R.n_max);
+    float* H = scratch(ws_f, B * (2 * m + 3 * w + 4 * w + 2 * k + BLOCK * 2 * k) + 4 * (k + 3) + 4 * R.n_max);
     float *G = H + B * 2 * m, *U = G + B * 3 * w, *V = U + B * w, *h = V + B * w, *Z = h + B * w, *O = Z + B * w;
-    float *O_blk = O + B * 2 * k, *x3 = O_blk + B * BLOCK * 2 * k, *X4 = x3 + k + 3, *Y4 = X4 + 4 * (k + 3);
+    float *O_blk = O + B * 2 * k, *X4 = O_blk + B * BLOCK * 2 * k, *Y4 = X4 + 4 * (k + 3);
     double* x = scratch(ws_d, B * (2 + BLOCK * 3) + m);
     double *X_blk = x + 2 * B, *G_blk = X_blk + B * BLOCK * 2, *zd = G_blk + B * BLOCK;
     int64_t* start = scratch(ws_i, B * (2 + BLOCK));
@@ -510,25 +515,25 @@ HOT void roll_batch(const Rollout& R) {
         }
         for (int64_t b = 0; b < B; ++b) {
             const int64_t P = R.vidx[b];
-            int64_t i = 0;
-            // four windows at a time share each load of the pitch's basis (one window's samples loaded every basis
-            // value once from L2 per multiply-add); a voice's computed windows are a prefix of the block
-            for (; i + 4 <= nb && S_blk[b * BLOCK + i + 3] >= 0; i += 4) {
-                int64_t s0[4], cnt[4];
+            // four windows at a time share each load of the pitch's basis (with one window, every basis value was
+            // read from L2 once per multiply-add); a voice's computed windows are a prefix of the block, and a last
+            // group of fewer than four repeats its last window. Every window is computed at the pitch's longer length
+            const int64_t n_hi = std::min(R.n_lo[P] + 1, R.n_max);
+            for (int64_t i = 0; i < nb && S_blk[b * BLOCK + i] >= 0; i += 4) {
+                int64_t idx[4], s0[4], cnt[4];
                 for (int r = 0; r < 4; ++r) {
-                    s0[r] = S_blk[b * BLOCK + i + r];
-                    cnt[r] = std::min({window_end(win - nb + i + r, R.spw[P]) - s0[r], R.n_samples - s0[r], R.n_max});
+                    const int64_t j = b * BLOCK + i + r;
+                    if (i + r < nb && S_blk[j] >= 0) {
+                        idx[r] = j;
+                        s0[r] = S_blk[j];
+                        cnt[r] = std::min({window_end(win - nb + i + r, R.spw[P]) - s0[r], R.n_samples - s0[r], R.n_max});
+                    } else {
+                        idx[r] = idx[r - 1];
+                        s0[r] = cnt[r] = 0;
+                    }
                 }
-                samples4(R, X_blk + (b * BLOCK + i) * 2, O_blk + (b * BLOCK + i) * 2 * k, G_blk + b * BLOCK + i, P,
-                         cnt, X4, Y4, R.q_out + R.rows[b] * R.ld_out, R.p_out + R.rows[b] * R.ld_out, s0);
-            }
-            for (; i < nb; ++i) {
-                const int64_t s0 = S_blk[b * BLOCK + i];
-                if (s0 < 0) continue;
-                const int64_t cnt = std::min({window_end(win - nb + i, R.spw[P]) - s0, R.n_samples - s0, R.n_max});
-                samples(R, X_blk[(b * BLOCK + i) * 2], X_blk[(b * BLOCK + i) * 2 + 1], O_blk + (b * BLOCK + i) * 2 * k,
-                        G_blk[b * BLOCK + i], P, cnt, x3, R.q_out + R.rows[b] * R.ld_out + s0,
-                        R.p_out + R.rows[b] * R.ld_out + s0);
+                samples4(R, idx, X_blk, O_blk, G_blk, P, n_hi, cnt, s0, X4, Y4, R.q_out + R.rows[b] * R.ld_out,
+                         R.p_out + R.rows[b] * R.ld_out);
             }
         }
     }
