@@ -447,8 +447,9 @@ HOT int64_t live_window(const Net& N, double& q, double& p, const double* center
 constexpr int64_t BLOCK = 64;  // windows per pass of roll_batch
 
 // All voices one window at a time. Two passes per block of BLOCK windows: the chain (branch outputs and end states
-// of every voice), then the samples voice by voice, so that a pitch's basis (~240 KB) stays in cache over the block
-// (writing each window's samples inside the chain touched every pitch's basis per window: memory-bound).
+// of every voice), then the samples voice by voice, four windows to a product, so that a pitch's basis (~240 KB)
+// stays in cache over the block (writing each window's samples inside the chain touched every pitch's basis per
+// window: memory-bound).
 HOT void roll_batch(const Rollout& R) {
     const int64_t B = R.B, k = R.k, w = R.width, m = R.m;
     float* H = scratch(ws_f, B * (2 * m + 3 * w + 4 * w + 2 * k + BLOCK * 2 * k) + 4 * (k + 3) + 4 * R.n_max);
