@@ -305,20 +305,23 @@ inline bool check_window(const Rollout& R, int64_t b, int64_t start, int64_t n, 
     return true;
 }
 
-// A window's m samples: [o_q, q0, p0, g] @ Bq and [o_p, p0, -q0, g] @ Bp (the correction's k rows, then the
-// linear flow's two and the bias row; rows ld apart). x: scratch (k + 3).
+// A window's row for one side of its samples (side 0: q, 1: p): [o_q, q0, p0, g] for q, [o_p, p0, -q0, g] for p
+// (the correction's k values, then the linear flow's two and the bias), against its basis Bq or Bp. x: k + 3 floats.
+inline void basis_row(float* x, const float* o, int64_t k, int side, double q0, double p0, double g) {
+    const float qf = static_cast<float>(q0), pf = static_cast<float>(p0);
+    std::memcpy(x, o + side * k, k * sizeof(float));
+    x[k] = side ? pf : qf;
+    x[k + 1] = side ? -qf : pf;
+    x[k + 2] = static_cast<float>(g);
+}
+
+// A window's m samples: basis_row @ Bq and @ Bp (rows ld apart). x: scratch (k + 3).
 inline void samples(int64_t k, const float* Bq, const float* Bp, int64_t ld, double q0, double p0, const float* o,
                     double g, int64_t m, float* x, float* qrow, float* prow) {
     const int64_t k3 = k + 3;
-    const float qf = static_cast<float>(q0), pf = static_cast<float>(p0), gf = static_cast<float>(g);
-    std::memcpy(x, o, k * sizeof(float));
-    x[k] = qf;
-    x[k + 1] = pf;
-    x[k + 2] = gf;
+    basis_row(x, o, k, 0, q0, p0, g);
     dense<1>(x, k3, k3, Bq, ld, m, nullptr, qrow, m);
-    std::memcpy(x, o + k, k * sizeof(float));
-    x[k] = pf;
-    x[k + 1] = -qf;
+    basis_row(x, o, k, 1, q0, p0, g);
     dense<1>(x, k3, k3, Bp, ld, m, nullptr, prow, m);
 }
 
@@ -328,9 +331,9 @@ inline void samples(const Rollout& R, double q0, double p0, const float* o, doub
     samples(R.k, R.Bq + P * k3 * R.n_max, R.Bp + P * k3 * R.n_max, R.n_max, q0, p0, o, g, m, x, qrow, prow);
 }
 
-// Four windows' samples at once: for window slots idx[r] of the block, rows [o_q, q0, p0, g] @ Bq, then
-// [o_p, p0, -q0, g] @ Bp, over n columns into Y (4, n_max), and cnt[r] of them copied to out + s0[r] (none where
-// cnt[r] is 0: a slot repeated to fill the four). xs: start states (slots, 2); o: corrections (slots, 2k); g: gains.
+// Four windows' samples at once: for window slots idx[r] of the block, their basis_row @ Bq, then @ Bp, over n
+// columns into Y (4, n_max), and cnt[r] of them copied to out + s0[r] (none where cnt[r] is 0: a slot repeated to
+// fill the four). xs: start states (slots, 2); o: corrections (slots, 2k); g: gains.
 // Each row's sums do not depend on the other rows, and n is fixed per pitch, so a window's samples are the same
 // bits whichever windows share its product (a voice that stops early against one that goes on: tests/test_fallback).
 inline void samples4(const Rollout& R, const int64_t* idx, const double* xs, const float* o, const double* g,
@@ -340,15 +343,8 @@ inline void samples4(const Rollout& R, const int64_t* idx, const double* xs, con
     const float* Bq = R.Bq + P * k3 * ld;
     const float* Bp = R.Bp + P * k3 * ld;
     for (int side = 0; side < 2; ++side) {
-        for (int r = 0; r < 4; ++r) {
-            const int64_t i = idx[r];
-            const float qf = static_cast<float>(xs[2 * i]), pf = static_cast<float>(xs[2 * i + 1]);
-            float* x = X + r * k3;
-            std::memcpy(x, o + i * 2 * k + side * k, k * sizeof(float));
-            x[k] = side ? pf : qf;
-            x[k + 1] = side ? -qf : pf;
-            x[k + 2] = static_cast<float>(g[i]);
-        }
+        for (int r = 0; r < 4; ++r)
+            basis_row(X + r * k3, o + idx[r] * 2 * k, k, side, xs[2 * idx[r]], xs[2 * idx[r] + 1], g[idx[r]]);
         dense<4>(X, k3, k3, side ? Bp : Bq, ld, n, nullptr, Y, ld);
         float* out = side ? p_out : q_out;
         for (int r = 0; r < 4; ++r)
@@ -527,7 +523,8 @@ HOT void roll_batch(const Rollout& R) {
                     if (i + r < nb && S_blk[j] >= 0) {
                         idx[r] = j;
                         s0[r] = S_blk[j];
-                        cnt[r] = std::min({window_end(win - nb + i + r, R.spw[P]) - s0[r], R.n_samples - s0[r], R.n_max});
+                        const int64_t end = window_end(win - nb + i + r, R.spw[P]);
+                        cnt[r] = std::min({end - s0[r], R.n_samples - s0[r], R.n_max});
                     } else {
                         idx[r] = idx[r - 1];
                         s0[r] = cnt[r] = 0;
