@@ -238,8 +238,8 @@ def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: floa
 def model_status(scene: Scene, config, out, box=None) -> str | None:
     """Why the model file `out` is not what training `scene` (and `box`) with `config` makes, in a few words: missing,
     unreadable (with the loader's reason), or stale (it plays another scene or box, or was trained with another
-    budget, seed, batch or network); None when it is what the recipe asks for. What `train --update` (and so `make
-    models`) asks before training. Settings a recipe does not name are not compared: a model trained by an older
+    budget, seed, batch, window or network); None when it is what the recipe asks for. What `train --update` (and so
+    `make models`) asks before training. Settings a recipe does not name are not compared: a model trained by an older
     version of the trainer stays current until its recipe changes."""
     import dataclasses
 
@@ -261,9 +261,12 @@ def model_status(scene: Scene, config, out, box=None) -> str | None:
         return f"stale: it plays {m.meta.name}, the recipe asks for {name}"
     defaults = {f.name: f.default for f in dataclasses.fields(config) if f.default is not dataclasses.MISSING}
     trained = m.meta.training or {}
-    for key in ("minutes", "steps", "seed", "batch_states", "rest_linear"):
+    for key in ("minutes", "steps", "seed", "batch_states", "rest_linear", "window"):
         was, want = trained.get(key, defaults.get(key)), getattr(config, key)
-        if was != want:
+        # a window is stored as computed (2 pi f0 ms / 1000), so the recipe's may differ in its last bit
+        same = (was == want or isinstance(was, float) and isinstance(want, float)
+                and math.isclose(was, want, rel_tol=1e-12))
+        if not same:
             return f"stale: trained with {key} {was}, the recipe asks for {want}"
     for key in ("width", "depth"):
         was, want = (m.meta.net or {}).get(key), getattr(config.net, key)

@@ -1,6 +1,7 @@
 """The whole CLI path through typer's CliRunner: train, render, compare, and the one-line errors."""
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -253,16 +254,27 @@ def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monke
     assert code == 2 and "no such file" in err
 
 
-def test_train_batch_width_and_device_from_a_recipe_and_the_device_is_recorded(tmp_path, capsys, monkeypatch):
-    rec = tmp_path / "r.toml"
-    rec.write_text('fb = 100\nsteps = 2\nbatch = 64\nwidth = 8\ndevice = "cpu"\nout = "m.safetensors"\n')
-    code, out, err = run_main(["train", "--config", str(rec), "--n-data", "64", "-q"], capsys, monkeypatch)
-    assert code == 0, err
+def test_train_batch_width_window_and_device_from_a_recipe_and_the_device_is_recorded(tmp_path, capsys,
+                                                                                     monkeypatch):
+    from bowsynth.cli.train import recipe_status
     from bowsynth.engines.operator.modelfile import load_model
 
+    rec = tmp_path / "r.toml"
+    rec.write_text('fb = 100\nsteps = 2\nbatch = 64\nwidth = 8\ndevice = "cpu"\nwindow_ms = 2.5\n'
+                   'out = "m.safetensors"\n')
+    code, out, err = run_main(["train", "--config", str(rec), "--n-data", "64", "-q"], capsys, monkeypatch)
+    assert code == 0, err
     m = load_model(tmp_path / "m.safetensors")
     assert m.meta.training["batch_states"] == 64 and m.meta.net["width"] == 8
     assert m.meta.training["device"] == "cpu" and m.meta.training["device_used"].startswith("cpu: ")
+    # 2.5 ms at f0 100 is a quarter of the free period (the stick-slip tiles' windows)
+    assert m.meta.training["window"] == pytest.approx(math.pi / 2) and m.domain.window == pytest.approx(math.pi / 2)
+    assert recipe_status(rec) is None
+    rec.write_text(rec.read_text().replace("window_ms = 2.5", "window_ms = 5"))
+    assert "stale: trained with window 1.57" in recipe_status(rec)
+    rec.write_text(rec.read_text().replace("window_ms = 5", 'window_ms = "short"'))
+    code, out, err = run_main(["train", "--config", str(rec), "-q"], capsys, monkeypatch)
+    assert code == 2 and "window_ms must be int or float" in err, err
 
 
 @pytest.mark.parametrize("args, needle", [(["--device", "gpu"], "--device must be auto, cpu or cuda"),

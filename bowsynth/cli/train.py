@@ -50,13 +50,13 @@ def train(
     if config is not None:
         given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
                      rest_linear=rest_linear or None, out=out_path,
-                     batch=batch, width=width, device=device)
+                     batch=batch, width=width, device=device, window_ms=window_ms)
         r = load_recipe(config)
         merged = {k: (v if v is not None else r.get(k)) for k, v in given.items()}
         preset, f0, fb, vb, a = (merged[k] for k in ("preset", "f0", "fb", "vb", "a"))
         minutes, steps, seed, out_path = merged["minutes"], merged["steps"], merged["seed"], merged["out"]
         rest_linear = bool(merged["rest_linear"])
-        batch, width, device = merged["batch"], merged["width"], merged["device"]
+        batch, width, device, window_ms = merged["batch"], merged["width"], merged["device"], merged["window_ms"]
     scene, box = _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4)
     cfg = _train_config(scene, box, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs,
                         hybrid=hybrid, window_ms=window_ms, width=width, depth=depth, n_data=n_data,
@@ -133,7 +133,7 @@ def recipe_status(recipe: Path) -> str | None:
     scene, box = _scene_and_box(r.get("preset"), r.get("f0"), r.get("fb"), r.get("vb"), r.get("a"), None, None,
                                 None, None)
     cfg = _train_config(scene, box, **{k: r.get(k) for k in ("minutes", "steps", "seed", "width", "batch", "device",
-                                                             "rest_linear")})
+                                                             "rest_linear", "window_ms")})
     return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box)
 
 
