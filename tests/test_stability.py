@@ -54,11 +54,14 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
 # 1-3): 7 / 7 / 5 left, 4.33e-3, 0.236 cents; 30 s -0.121 cents.
 # soft-top (session 17, F_B / w 0.25-0.43 x v_B 0.09-0.165: its centre bow F_B / w 0.328, v_B 0.128; seeds 1-3):
 # 4 / 4 / 1 left, 5.11e-3, 0.325 cents; 30 s -0.090 cents.
+# stick-mid (session 18, a stick-slip tile on quarter-period windows, F_B / w 1.0-1.6 x v_B 0.15-0.25: its centre bow
+# F_B / w 1.265, v_B 0.200; seeds 1-3): 29 / 34 / 29 left, 2.18e-3, 0.80 cents; 30 s +0.51 cents.
 CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), "paper-fb1000": (12, 2.7e-2, 0.8),
                "soft-range": (36, 1.4e-2, 0.45), "scratch-g2": (12, 1.2e-2, 0.6),
                "velocity-loud": (44, 6.5e-2, 3.5), "loud-stops": (24, 2.4e-2, 3.7),
                "soft-corner": (2, 5.4e-3, 0.45), "velocity-soft": (28, 1.8e-2, 0.63),
-               "slow-soft": (28, 1.8e-2, 0.95), "soft-top": (16, 2.1e-2, 1.3)}
+               "slow-soft": (28, 1.8e-2, 0.95), "soft-top": (16, 2.1e-2, 1.3),
+               "stick-mid": (40, 9e-3, 3.2)}  # half its domain's random states (corners no render visits) leave it
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
