@@ -263,10 +263,7 @@ def model_status(scene: Scene, config, out, box=None) -> str | None:
     trained = m.meta.training or {}
     for key in ("minutes", "steps", "seed", "batch_states", "rest_linear", "window"):
         was, want = trained.get(key, defaults.get(key)), getattr(config, key)
-        # a window is stored as computed (2 pi f0 ms / 1000), so the recipe's may differ in its last bit
-        same = (was == want or isinstance(was, float) and isinstance(want, float)
-                and math.isclose(was, want, rel_tol=1e-12))
-        if not same:
+        if was != want:
             return f"stale: trained with {key} {was}, the recipe asks for {want}"
     for key in ("width", "depth"):
         was, want = (m.meta.net or {}).get(key), getattr(config.net, key)

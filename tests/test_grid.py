@@ -38,12 +38,22 @@ def test_stick_slip_bows_and_only_they_take_whole_windows():
     assert grid.needs_whole_windows(soft, 5.0)  # capped at the box's top
 
 
-@pytest.mark.parametrize("name", ["paper-fb1000", "scratch-g2"])
+# per model: harmonics (dB, median), |cents|, the p range's relative error. The stick-slip tiles' windows are a quarter
+# period (25.06 and 12.53 samples at 440 and 880 Hz), and their centre bows sound as at 100 Hz, where they were
+# trained: measured at 100 / 440 / 880 Hz, stick-mid +0.53 / +0.50 / +0.50 cents, harmonics 0.024-0.026 dB, the p
+# range 0.3-0.4 % wide; stick-low -0.35 / -0.45 / -0.47 cents, 0.010-0.012 dB, 0.2-0.4 %. paper-fb1000's own p range
+# is 2.9 % wide at 100 Hz, its trained pitch (BENCHMARKS.md, the stick capture).
+GRID_TOLERANCE = {"paper-fb1000": (0.05, 0.2, 0.04), "scratch-g2": (0.05, 0.2, 0.04),
+                  "stick-mid": (0.1, 1.0, 0.02), "stick-low": (0.1, 1.0, 0.02)}
+
+
+@pytest.mark.parametrize("name", list(GRID_TOLERANCE))
 @pytest.mark.parametrize("f0", [440.0, 880.0])
 def test_a_stick_slip_model_plays_a_pitch_whose_window_is_not_whole_samples(name, f0):
-    """Against the x100 FDM: the timbre within 0.05 dB (median), the pitch within 0.2 cent, the onset within 1 ms,
-    no hand-over to the FDM, and the cycle's size the truth's (on the output grid's windows the same notes left the
-    model's states: tests/test_fallback.py)."""
+    """Against the x100 FDM: the timbre, the pitch and the cycle's size the truth's (GRID_TOLERANCE), the onset within
+    1 ms, no hand-over to the FDM (on the output grid's windows the same notes left the model's states:
+    tests/test_fallback.py)."""
+    harm, cents_tol, ptp_rel = GRID_TOLERANCE[name]
     m = shipped(name)
     d = m.domain
     sc = Scene(f0=f0, fb=d.beta * 2 * math.pi * f0, vb=d.vb, a=d.a, duration=1.5)
@@ -53,31 +63,14 @@ def test_a_stick_slip_model_plays_a_pitch_whose_window_is_not_whole_samples(name
     assert r.info.notes == [] and not r.method.fdm_fallback
     assert len(r.p) == sc.n_samples and r.p.dtype == np.float32 and np.isfinite(r.p).all()
     e = listener_errors(r.p, truth.p, sc.sample_rate, steady_seconds=0.75)
-    assert e["harm_db_median"] < 0.05 and abs(e["cents"]) < 0.2 and abs(e["onset_err_ms"]) < 1.0, e
+    assert e["harm_db_median"] < harm and abs(e["cents"]) < cents_tol and abs(e["onset_err_ms"]) < 1.0, e
     tail = slice(-sc.sample_rate // 2, None)
-    # paper-fb1000's own p range is 2.9 % wide at 100 Hz, its trained pitch (BENCHMARKS.md, the stick capture)
-    assert np.ptp(r.p[tail]) == pytest.approx(np.ptp(truth.p[tail]), rel=0.04)
+    assert np.ptp(r.p[tail]) == pytest.approx(np.ptp(truth.p[tail]), rel=ptp_rel)
 
 
-@pytest.mark.parametrize("name", ["stick-mid", "stick-low"])
-@pytest.mark.parametrize("f0", [440.0, 880.0])
-def test_a_quarter_window_stick_slip_tile_plays_the_same_note_at_any_pitch(name, f0):
-    """The stick-slip tiles' windows are a quarter period (25.06 and 12.53 samples at 440 and 880 Hz: not whole): on
-    the whole-window grid a tile's centre bow sounds as at 100 Hz, where it was trained, with no hand-over to the FDM.
-    Measured at 100 / 440 / 880 Hz: stick-mid +0.53 / +0.50 / +0.50 cents, harmonics 0.024-0.026 dB, the p range
-    0.3-0.4 % wide; stick-low -0.35 / -0.45 / -0.47 cents, 0.010-0.012 dB, 0.2-0.4 %."""
-    m = shipped(name)
-    d = m.domain
-    assert _operator(m).window == pytest.approx(math.pi / 2)
-    sc = Scene(f0=f0, fb=d.beta * 2 * math.pi * f0, vb=d.vb, a=d.a, duration=1.5)
-    assert abs(_operator(m).samples_per_window(sc.dtau) % 1 - 0.5) < 0.45  # not whole
-    r = render_operator(sc, model=m)
-    truth = render_fdm(sc, oversample=100)
-    assert r.info.notes == [] and not r.method.fdm_fallback
-    e = listener_errors(r.p, truth.p, sc.sample_rate, steady_seconds=0.75)
-    assert e["harm_db_median"] < 0.1 and abs(e["cents"]) < 1.0 and abs(e["onset_err_ms"]) < 1.0, e
-    tail = slice(-sc.sample_rate // 2, None)
-    assert np.ptp(r.p[tail]) == pytest.approx(np.ptp(truth.p[tail]), rel=0.02)
+def test_the_stick_slip_tiles_take_quarter_period_windows():
+    for name in ("stick-mid", "stick-low"):
+        assert _operator(shipped(name)).window == pytest.approx(math.pi / 2)
 
 
 def test_a_pitch_curve_on_a_stick_slip_model_is_refused_with_the_way_out():
