@@ -87,8 +87,9 @@ FRAME = 0.1
 
 
 def frame_errors(x, ref, sample_rate: float, frame: float = FRAME) -> dict:
-    """Harmonic dB and pitch cents of x against ref per `frame`-second frame, over frames where ref sounds (RMS above
-    1 % of its loudest frame's) and the first 100 ms (the attack) excluded; each frame fitted at its own pitch."""
+    """Harmonic dB and pitch cents of x against ref per `frame`-second frame (all of it), over frames where ref
+    sounds (RMS above 1 % of its loudest frame's) and the first 100 ms (the attack) excluded; each frame fitted at its
+    own pitch."""
     n = int(frame * sample_rate)
     frames = [(i, i + n) for i in range(n, min(len(x), len(ref)) - n + 1, n)]
     rms = np.array([np.std(ref[a:b]) for a, b in frames])
@@ -96,7 +97,10 @@ def frame_errors(x, ref, sample_rate: float, frame: float = FRAME) -> dict:
     for (a, b), r in zip(frames, rms):
         if not r > 0.01 * rms.max():
             continue
-        e = listener_errors(x[a:b], ref[a:b], sample_rate, steady_seconds=frame / 2)
+        # the frame before it too, so that listener_errors' steady part (at most the last half) is the whole frame:
+        # stick-slip at high force sounds 2-4 periods a frame (42 Hz at f0 100, F_B / w 1.1): half a frame has too
+        # few for a pitch
+        e = listener_errors(x[a - n:b], ref[a - n:b], sample_rate, steady_seconds=frame)
         harm.append(e["harm_db_median"])
         cents.append(abs(e["cents"]))
     return {"frames": len(harm), "harm_db_median": float(np.median(harm)) if harm else float("nan"),

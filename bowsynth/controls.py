@@ -122,6 +122,15 @@ def after(value, t0: float):
     return as_control([(0.0, float(value.at(t0)))] + pts)
 
 
+def between(value, t0: float, t1: float):
+    """A control over [t0, t1] only, seen from t0 on (time t0 becomes 0) and held after t1: a stretch of a note
+    played on its own (a chain of models' turns, engines/operator/chain.py), whose range is that stretch's alone."""
+    if not isinstance(value, Curve):
+        return value
+    inner = [(t - t0, v) for t, v in value.points if t0 < t < t1]
+    return as_control([(0.0, float(value.at(t0)))] + inner + [(t1 - t0, float(value.at(t1)))])
+
+
 def parse_control(text: str, name: str):
     """A CLI value: a number (`100`) or a curve as VALUE@TIME pairs (`50@0,200@1.5`: 50 at 0 s rising to 200 at
     1.5 s)."""

@@ -73,6 +73,7 @@ class RenderInfo:
     release_model: str | None = None  # the model that played it, where another than the sustain's took over at the hold
     rest_flow: float | None = None  # seconds from the start played by the flow at the bow's rest point (onset.py)
     windows: int | None = None  # windows a sounding period where they were locked to it (windows.locked_window)
+    chain: list | None = None  # (start in s, model name) per model, where models played the voice in turn
 
 
 @dataclass

@@ -85,7 +85,9 @@ def render(
                    windows=windows)
     write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
     model_note = f", model {r.info.model_id}" if r.info.model_id else ""
-    if r.info.model_path:
+    if r.info.chain:  # models in turn: their names (the note below says when each took over)
+        model_note = f", models {' -> '.join(name for _, name in r.info.chain)}"
+    elif r.info.model_path:
         model_note += f" ({r.info.model_path})"
     setup = r.info.setup_seconds
     setup_note = f" after {setup * 1e3:.0f} ms of start-up" if setup else ""

@@ -125,7 +125,8 @@ def score(
     audio = sum(n.scene.duration for n in notes)
     voices = len({n.name for n in notes})
     used = sorted({f"{r.info.model_id} ({r.info.model_path})" for r in renders if r.info.model_path}
-                  | {r.info.release_model for r in renders if r.info.release_model})
+                  | {r.info.release_model for r in renders if r.info.release_model}
+                  | {" -> ".join(name for _, name in r.info.chain) for r in renders if r.info.chain})
     by = [r.info.release for r in renders if r.info.release]
     stops = (f"; bow stops: {by.count('operator')} by the operator, {by.count('fdm')} by the FDM"
              if method == "operator" and by else "")

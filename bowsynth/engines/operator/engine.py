@@ -30,7 +30,7 @@ from .choose import (
 from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
 from .modelfile import OperatorModel
 from .onset import rest_onset
-from .rollout import applied_controls, rollout_states, scene_bows
+from .rollout import applied_controls, length_buckets, rollout_states, scene_bows
 from .windows import FAIL_BOW, FAIL_DOMAIN, FAILURES, locked_window, window_bounds
 
 
@@ -130,23 +130,6 @@ def _physics_notes(m: OperatorModel) -> list[str]:
         raise ModelFileError(f"model {m.path or m.meta.name} does not do what it claims: {what}; its metadata does "
                              f"not describe its weights. Retrain it, or render with --method fdm")
     return [f"note: model {m.path or m.meta.name} is not validated ({m.failure}) and {what}: expect a poor render"]
-
-
-# Voices of one model roll together to the longest one's length; a score's notes differ up to 8x in length (the
-# chorale's sustains: 12.5 M samples rolled for 7.1 M wanted), so they roll in groups of similar length instead,
-# each group's longest at most this much longer than its shortest
-LENGTH_SLACK = 1.15
-
-
-def length_buckets(lengths: list[int]) -> list[np.ndarray]:
-    """The voices' indices in groups whose longest is at most LENGTH_SLACK times the shortest, shortest first."""
-    order = np.argsort(lengths, kind="stable")
-    out, start = [], 0
-    for k in range(1, len(order) + 1):
-        if k == len(order) or lengths[order[k]] > LENGTH_SLACK * lengths[order[start]]:
-            out.append(order[start:k])
-            start = k
-    return out
 
 
 def render_operator(scene, model=None, fallback: str = "none", sounding=None):
@@ -272,6 +255,13 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 m, r = nxt, r2
             out[i] = r
             continue
+        if model is None and sc.varying and covering_model(sc, models) is None:
+            from .chain import chain_plan, render_chain  # a bow crossing from one box into another
+            plan = chain_plan(sc, models)
+            if plan is not None:
+                out[i] = render_chain(sc, plan, lambda seg, m: render_operator_batch(
+                    [seg], model=m, fallback=fallback, _single=True)[0], voice="" if _single else f"voice {labels[i]}: ")
+                continue
         m = _resolve(sc, model, models, fallback)
         groups.setdefault(id(m), (m, []))[1].append(i)
     for m, idx in groups.values():

@@ -314,3 +314,18 @@ def _roll_numpy(x0, n_samples, spw, n_lo, vidx, Bq, Bp, endb, endlin, center, ha
             p_out[b, first:last] = Tp.ravel()[flat]
 
 
+# Voices of one model roll together to the longest one's length; a score's notes differ up to 8x in length (the
+# chorale's sustains: 12.5 M samples rolled for 7.1 M wanted), so they roll in groups of similar length instead,
+# each group's longest at most this much longer than its shortest
+LENGTH_SLACK = 1.15
+
+
+def length_buckets(lengths: list[int]) -> list[np.ndarray]:
+    """The voices' indices in groups whose longest is at most LENGTH_SLACK times the shortest, shortest first."""
+    order = np.argsort(lengths, kind="stable")
+    out, start = [], 0
+    for k in range(1, len(order) + 1):
+        if k == len(order) or lengths[order[k]] > LENGTH_SLACK * lengths[order[start]]:
+            out.append(order[start:k])
+            start = k
+    return out

@@ -1,0 +1,112 @@
+"""A bow that crosses from one model's box into another's (engines/operator/chain.py): the shipped tiles play it in
+turn, each from the state the one before left, handed over inside the boxes' overlaps; against the truth it sounds
+like one model would."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bowsynth import Scene, render_fdm, render_operator
+from bowsynth.analysis.metrics import listener_errors
+from bowsynth.controls import Curve, between
+from bowsynth.engines.operator.chain import EDGE, LOOKS_PER_PERIOD, MIN_SEGMENT, _depths, chain_plan
+from bowsynth.engines.operator.choose import available_models
+from bowsynth.errors import DomainError
+
+W = 2 * math.pi * 100
+
+
+def crescendo(top: float = 1.2, seconds: float = 2.0, vb=0.2) -> Scene:
+    """The listener benchmark's crescendo from the soft bow into stick-slip (F_B / w 0.1 -> top over 0.3-1.8 s)."""
+    return Scene(f0=100, fb=[(0.3, 0.1 * W), (1.8, top * W)], vb=vb, duration=seconds)
+
+
+def test_between_cuts_a_curve_to_its_stretch():
+    c = Curve(((0.0, 1.0), (1.0, 3.0), (2.0, 0.0)))
+    cut = between(c, 0.5, 1.5)
+    assert cut.points == ((0.0, 2.0), (0.5, 3.0), (1.0, 1.5))  # the values at the cuts, the breakpoint inside
+    assert cut.at(5.0) == pytest.approx(1.5)  # held after the stretch: its range is the stretch's own
+    assert between(c, 1.2, 1.8).lo == pytest.approx(0.6) and between(4.0, 1.0, 2.0) == 4.0
+
+
+def test_plan_hands_each_stretch_to_a_model_that_plays_its_bows():
+    sc = crescendo()
+    plan = chain_plan(sc, available_models())
+    assert plan is not None and len(plan) >= 3
+    starts = [s for s, _ in plan]
+    assert starts[0] == 0 and all(b > a for a, b in zip(starts, starts[1:]))
+    assert all(m1 is not m2 for (_, m1), (_, m2) in zip(plan, plan[1:]))
+    ends = starts[1:] + [sc.n_samples]
+    t = np.arange(sc.n_samples) / sc.sample_rate
+    beta, vb = sc.fb_at(t) / sc.omega, sc.vb_at(t)
+    look = int(sc.sample_rate / (sc.f0 * LOOKS_PER_PERIOD)) + 1
+    prev = None
+    for (s, m), e in zip(plan, ends):
+        assert m.failure is None and m.domain.box_contains(beta[s:e], vb[s:e]).all(), m.path.stem
+        if prev is not None:  # a hand-over away from the new box's edges, or where the old box ends
+            deep = _depths(m, beta[s:s + 1], vb[s:s + 1])[0] >= EDGE
+            ends_here = not prev.domain.box_contains(beta[min(s + look, sc.n_samples - 1)], vb[s])
+            assert deep or ends_here, (s, m.path.stem)
+        assert e - s >= MIN_SEGMENT * sc.sample_rate or e == sc.n_samples
+        prev = m
+    # the stick-slip end is a stick-slip tile's
+    assert plan[-1][1].domain.box[0] >= 0.6
+
+
+def test_no_chain_for_a_held_bow_or_a_bow_no_model_plays():
+    models = available_models()
+    assert chain_plan(Scene(f0=100, fb=0.3 * W, vb=0.2, duration=1.0), models) is None
+    beyond = crescendo(top=3.0)  # F_B / w 3 is in no box: no chain, the usual refusal naming the bow
+    assert chain_plan(beyond, models) is None
+    with pytest.raises(DomainError, match="no model covers"):
+        render_operator(beyond)
+
+
+def frame_errors(x, ref, sr, frame=0.1):
+    n = int(frame * sr)
+    out = []
+    for a in range(n, min(len(x), len(ref)) - n + 1, n):
+        e = listener_errors(x[a - n:a + n], ref[a - n:a + n], sr, steady_seconds=frame)
+        out.append((a / sr, e["harm_db_median"], abs(e["cents"])))
+    return np.array(out)
+
+
+def test_a_crescendo_into_stick_slip_plays_through_the_tiles_like_the_truth():
+    sc = crescendo()
+    r = render_operator(sc)
+    assert r.method == "operator" and not r.method.fdm_fallback
+    assert r.info.chain and len(r.info.chain) >= 3
+    assert "played by" in r.info.notes[0] and r.info.chain[-1][1] in r.info.notes[0]
+    assert np.isfinite(r.p).all() and r.p.dtype == np.float32
+    truth = render_fdm(sc, oversample=20)
+    err = frame_errors(r.p, truth.p, sc.sample_rate)
+    assert np.median(err[:, 1]) < 0.5 and np.median(err[:, 2]) < 3.0, err
+    assert err[:, 1].max() < 4.0, err  # no hand-over glitch a frame would hear
+    stick = err[err[:, 0] >= 1.2]  # in stick-slip, where only the tiles play
+    assert np.median(stick[:, 1]) < 0.3 and np.median(stick[:, 2]) < 3.0, stick
+    # the controls it applied are each stretch's model's: the crescendo, per window
+    assert np.allclose(r.controls["fb"][-10:], 1.2 * W, rtol=1e-3)
+
+
+def test_a_model_named_plays_alone_and_a_batch_voice_says_which():
+    sc = crescendo(seconds=1.2)
+    with pytest.raises(DomainError):
+        render_operator(sc, model="stick-mid")  # asked for by name: no chain behind the user's back
+    held = Scene(f0=100, fb=0.2 * W, vb=0.2, duration=0.5)
+    a, b = render_operator([held, sc])
+    assert a.info.chain is None and b.info.chain
+    assert b.info.notes[0].startswith("note: voice 2: no one model covers")
+
+
+def test_the_cli_says_which_models_played(tmp_path):
+    out = tmp_path / "c.wav"
+    fb = f"{0.1 * W:.3f}@0.3,{1.2 * W:.3f}@1.8"
+    p = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--fb", fb, "--vb", "0.2", "-d", "2", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert "played by" in p.stdout and "stick-mid" in p.stdout and out.stat().st_size > 0
