@@ -110,3 +110,20 @@ def test_the_cli_says_which_models_played(tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert "played by" in p.stdout and "stick-mid" in p.stdout and out.stat().st_size > 0
+
+
+def test_a_stretch_that_fails_says_where_and_fallback_fdm_finishes_the_note(monkeypatch):
+    from bowsynth.engines.operator import chain
+
+    sc = crescendo(seconds=1.2)
+    plan = chain_plan(sc, available_models())
+
+    def refuse(seg, m):  # a model that leaves its states in its stretch: the engine's error, in the stretch's times
+        raise DomainError("the rollout left the model's trained states at t = 0.0100 s")
+    with pytest.raises(DomainError, match=rf"{plan[0][1].path.stem}, in its stretch from t = 0.000 s: the rollout"):
+        chain.render_chain(sc, plan, refuse)
+    monkeypatch.setattr(chain, "render_chain", lambda *a, **k: refuse(None, None))
+    with pytest.raises(DomainError):
+        render_operator(sc)
+    r = render_operator(sc, fallback="fdm")  # the model that plays the opening longest, the FDM the rest
+    assert r.method.fdm_fallback and r.info.chain is None and np.isfinite(r.p).all()

@@ -110,11 +110,16 @@ def render_chain(scene: Scene, plan: list[tuple[int, OperatorModel]], play, voic
         if why:
             raise DomainError(f"{voice}model {_name(m)} cannot take the note over at t = {a / sr:.3f} s: "
                               f"{'; '.join(why)}; render with --method fdm")
-        r = play(seg, m)
+        # what the engine says of a stretch, it says with the stretch's own times: name the stretch
+        where = f"{_name(m)}, in its stretch from t = {t0:.3f} s: "
+        try:
+            r = play(seg, m)
+        except DomainError as err:
+            raise DomainError(f"{voice}{where}{err}") from None
         q[a:e], p[a:e] = r.q[:e - a], r.p[:e - a]
         q0, p0 = float(q[e - 1]), float(p[e - 1])
         parts.append((a, e, r))
-        notes += [x.replace("note: ", f"note: {voice}{_name(m)}: ", 1) for x in r.info.notes]
+        notes += [x.replace("note: ", f"note: {voice}{where}", 1) for x in r.info.notes]
         secs += r.seconds
         fdm |= r.method.fdm_fallback
 
