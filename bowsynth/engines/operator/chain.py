@@ -18,8 +18,9 @@ from .modelfile import OperatorModel
 # A model keeps the voice at least this long once it took it (unless its box ends): a bow that wavers where two
 # boxes are equally deep would otherwise hand over every few windows, and each hand-over starts new windows.
 MIN_SEGMENT = 0.05  # s
-# The bows are looked at this many times a free period: boxes overlap by 5-40 % of their spans (bowsynth/models), a
-# bow crosses an overlap in many such steps even in a fast gesture (the listener's crescendo: 0.1 % of F_B / w).
+# The bows are looked at this many times a free period (every 2.5 ms at f0 100). Boxes overlap by 0.01-0.05 in
+# F_B / w (bowsynth/models); the listener's crescendo (F_B / w 0.1 -> 1.2 in 1.5 s) moves 0.0018 a look, so it is
+# looked at several times inside each overlap.
 LOOKS_PER_PERIOD = 4
 
 
