@@ -127,3 +127,16 @@ def test_a_stretch_that_fails_says_where_and_fallback_fdm_finishes_the_note(monk
         render_operator(sc)
     r = render_operator(sc, fallback="fdm")  # the model that plays the opening longest, the FDM the rest
     assert r.method.fdm_fallback and r.info.chain is None and np.isfinite(r.p).all()
+
+
+def test_a_score_note_that_crosses_boxes_is_played_not_refused(tmp_path):
+    score = tmp_path / "into.toml"
+    score.write_text('[[voice]]\nname = "cresc"\nf0 = 100.0\nvb = 0.2\nduration = 2.0\n'
+                     f'fb = [[0.3, {0.1 * W:.3f}], [1.8, {1.2 * W:.3f}]]\n')
+    out = tmp_path / "into.wav"
+    p = subprocess.run([sys.executable, "-m", "bowsynth", "score", "--score", str(score), "--mix", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert "played by" in p.stdout and "-> stick-mid" in p.stdout and out.stat().st_size > 0
+    # its bow stop at F_B / w 1.2: no model covers it, the FDM plays it and the summary says so
+    assert "1 by the FDM" in p.stdout

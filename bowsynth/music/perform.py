@@ -32,6 +32,7 @@ def score_box(notes: list[Note]) -> dict:
 
 def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
     """The notes no operator model can play (their sustain), each with the reason."""
+    from ..engines.operator.chain import chain_plan
     from ..engines.operator.choose import available_models
     from ..engines.operator.engine import _resolve
 
@@ -48,6 +49,8 @@ def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
         try:
             _resolve(sc, model, models)
         except DomainError:
+            if model is None and chain_plan(sc, models) is not None:
+                continue  # models in turn play its bow (engines/operator/chain.py)
             (blo, bhi), (vlo, vhi) = sc.beta_range, sc.vb_range
             b = f"{blo:.4g}" if blo == bhi else f"{blo:.4g}..{bhi:.4g}"
             v = f"{vlo:g}" if vlo == vhi else f"{vlo:g}..{vhi:g}"
