@@ -10,6 +10,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from bowsynth import Scene, render_fdm, render_operator
 from bowsynth.analysis.metrics import listener_errors
@@ -140,3 +142,31 @@ def test_a_score_note_that_crosses_boxes_is_played_not_refused(tmp_path):
     assert "played by" in p.stdout and "-> stick-mid" in p.stdout and out.stat().st_size > 0
     # its bow stop at F_B / w 1.2: no model covers it, the FDM plays it and the summary says so
     assert "1 by the FDM" in p.stdout
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.floats(0.0, 2.0), st.floats(0.05, 1.9), st.floats(0.09, 0.26)), min_size=2, max_size=4),
+       st.floats(65.0, 880.0), st.floats(0.3, 2.0))
+def test_any_moving_bow_gets_a_plan_whose_stretches_its_models_play_or_none(points, f0, seconds):
+    """Random bow curves over the playing space: a plan's stretches start at 0, increase, and each model plays every
+    sample of its stretch; a render of it sounds (finite) or stops with one DomainError, never anything else."""
+    points = sorted({round(t, 3): (t, b, v) for t, b, v in points}.values())
+    if len(points) < 2:
+        return
+    w = 2 * math.pi * f0
+    sc = Scene(f0=f0, fb=[(t, b * w) for t, b, _ in points], vb=[(t, v) for t, _, v in points], duration=seconds)
+    plan = chain_plan(sc, available_models())
+    if plan is None:
+        return
+    starts = [s for s, _ in plan]
+    assert starts[0] == 0 and all(b > a for a, b in zip(starts, starts[1:]))
+    t = np.arange(sc.n_samples) / sc.sample_rate
+    beta, vb = sc.fb_at(t) / w, sc.vb_at(t)
+    for (s, m), e in zip(plan, starts[1:] + [sc.n_samples]):
+        assert m.domain.box_contains(beta[s:e], vb[s:e]).all()
+    try:
+        r = render_operator(sc)
+    except DomainError as e:
+        assert "\n" not in str(e)
+    else:
+        assert np.isfinite(r.p).all() and r.info.chain

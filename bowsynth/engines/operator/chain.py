@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from ...controls import between
+from ...controls import between, breakpoints
 from ...errors import DomainError
 from ...render import LazyControls, Played, Render, RenderInfo
 from ...scene import Scene
@@ -51,7 +51,10 @@ def chain_plan(scene: Scene, models: list[OperatorModel]) -> list[tuple[int, Ope
         return None
     n, sr = scene.n_samples, scene.sample_rate
     step = max(1, int(sr / (scene.f0 * LOOKS_PER_PERIOD)))
-    k = np.append(np.arange(0, n, step), n - 1)
+    # the curves' breakpoints too: between two looks a curve is then a straight line, inside a box where both ends are
+    # (sorted(set()), not np.unique: that imports numpy.ma, ms of a render's process)
+    bp = np.concatenate([breakpoints(scene.fb)[0], breakpoints(scene.vb)[0]]) * sr
+    k = np.array(sorted({*range(0, n, step), n - 1, *(min(max(int(round(b)), 0), n - 1) for b in bp)}))
     t = k / sr
     beta, vb = scene.fb_at(t) / scene.omega, scene.vb_at(t)
     depth = np.stack([_depths(m, beta, vb) for m in cands])  # (models, looks)
