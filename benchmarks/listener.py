@@ -82,6 +82,7 @@ GESTURES = {  # name: (f0, F_B / w curve, v_B curve, seconds), curves as (t, val
     "crescendo into stick-slip": (100.0, [(0.3, 0.1), (1.8, 1.2)], 0.2, 2.0),
     "bow stop to v_B 0": (150.0, 0.15, [(1.0, 0.2), (1.1, 0.0)], 1.6),
     "attack from F_B 0": (100.0, [(0.0, 0.0), (0.05, 0.2)], 0.2, 1.5),
+    "stick-slip bow stop": (100.0, 1.0, [(1.0, 0.2), (1.1, 0.0)], 1.6),  # session 19: a stick-slip note's release
 }
 FRAME = 0.1
 

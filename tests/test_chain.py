@@ -134,13 +134,13 @@ def test_a_stretch_that_fails_says_where_and_fallback_fdm_finishes_the_note(monk
 def test_a_score_note_that_crosses_boxes_is_played_not_refused(tmp_path):
     score = tmp_path / "into.toml"
     score.write_text('[[voice]]\nname = "cresc"\nf0 = 100.0\nvb = 0.2\nduration = 2.0\n'
-                     f'fb = [[0.3, {0.1 * W:.3f}], [1.8, {1.2 * W:.3f}]]\n')
+                     f'fb = [[0.3, {0.1 * W:.3f}], [1.8, {1.5 * W:.3f}]]\n')
     out = tmp_path / "into.wav"
     p = subprocess.run([sys.executable, "-m", "bowsynth", "score", "--score", str(score), "--mix", str(out)],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert "played by" in p.stdout and "-> stick-mid" in p.stdout and out.stat().st_size > 0
-    # its bow stop at F_B / w 1.2: no model covers it, the FDM plays it and the summary says so
+    # its bow stop at F_B / w 1.5: no model covers it (stick-stops ends at 1.3), the FDM plays it, the summary says so
     assert "1 by the FDM" in p.stdout
 
 
