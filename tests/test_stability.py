@@ -17,8 +17,10 @@ SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.ends
 
 
 # Within 1 cent after 30 s, but loud-stops (session 12), measured -1.03 cents at its centre bow (F_B / w 0.527, v_B
-# 0.129: a slow loud bow; it is shipped for the bow stops of loud notes, which last 50 ms)
-LONG_CENTS = {"loud-stops": 1.2}
+# 0.129: a slow loud bow; it is shipped for the bow stops of loud notes, which last 50 ms), and stick-stops (session
+# 19), measured +2.0 cents at its centre bow (F_B / w 0.898, v_B 0.125), sharp there at every pitch (tests/test_grid.py);
+# held bows there are stick-low's, it plays the bow stops and the slowest bows
+LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
@@ -62,6 +64,8 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
 # seeds 1-3): 34 / 36 / 33 left, 4.77e-3, 1.66 / 4.50 / 4.20 cents; 30 s +0.15 cents.
 # stick-high (session 19, the same on F_B / w 1.55-2.02 x v_B 0.075-0.285: its centre bow F_B / w 1.769, v_B 0.180;
 # seeds 1-3): 25 / 28 / 28 left, 5.35e-3, 1.47 cents; 30 s +0.10 cents.
+# stick-stops (session 19, the same on F_B / w 0.62-1.3 x v_B 0-0.25 with bow stops: its centre bow F_B / w 0.898, v_B
+# 0.125; seeds 1-3): 36 / 37 / 34 left, 3.75e-3, 2.2 cents (it is +2.0 cents sharp there); 30 s +2.0 cents.
 CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), "paper-fb1000": (12, 2.7e-2, 0.8),
                "soft-range": (36, 1.4e-2, 0.45), "scratch-g2": (12, 1.2e-2, 0.6),
                "velocity-loud": (44, 6.5e-2, 3.5), "loud-stops": (24, 2.4e-2, 3.7),
@@ -69,7 +73,7 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                "slow-soft": (28, 1.8e-2, 0.95), "soft-top": (16, 2.1e-2, 1.3),
                # stick-slip tiles: near half their domains' random states (corners no render visits) leave them
                "stick-mid": (40, 9e-3, 3.2), "stick-low": (36, 1.1e-2, 3.4), "stick-slow": (40, 6e-3, 2.5),
-               "stick-high": (34, 8e-3, 2.5)}
+               "stick-high": (34, 8e-3, 2.5), "stick-stops": (42, 6e-3, 3.0)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])

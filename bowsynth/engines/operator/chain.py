@@ -12,7 +12,7 @@ from ...controls import between, breakpoints
 from ...errors import DomainError
 from ...render import LazyControls, Played, Render, RenderInfo
 from ...scene import Scene
-from .choose import EDGE
+from .choose import EDGE, covering_model
 from .modelfile import OperatorModel
 
 # A model keeps the voice at least this long once it took it (unless its box ends): a bow that wavers where two
@@ -43,7 +43,7 @@ def chain_plan(scene: Scene, models: list[OperatorModel]) -> list[tuple[int, Ope
     its own edges, or
     where the current one's box ends while the next one's already covers the bow; the next is picked as
     choose.covering_model picks a model for a held bow."""
-    if scene.pitch_varies or not scene.varying:
+    if scene.pitch_varies or not scene.varying or covering_model(scene, models) is not None:
         return None
     cands = [m for m in models if m.failure is None and m.domain.is_range
              and math.isclose(m.domain.a, scene.a, rel_tol=1e-6)]
@@ -83,9 +83,11 @@ def chain_plan(scene: Scene, models: list[OperatorModel]) -> list[tuple[int, Ope
             else:
                 cur, since = nxt, int(k[j - 1])
                 plan.append([since, cur])
-        elif col[cur] < EDGE and k[j] - since >= min_len:  # near its edge: one that has the bow away from its own
-            nxt = pick(col, col >= EDGE)  # edges takes over (one only a little deeper is no better: session 19)
-            if nxt >= 0:
+        elif k[j] - since >= min_len:  # one that has the bow away from its own edges takes over (one only a little
+            # deeper is no better: session 19) where the current one nears its edge, or where it is a smaller box:
+            # the voice follows choose.covering_model's pick for a held bow
+            nxt = pick(col, col >= EDGE)
+            if nxt >= 0 and (col[cur] < EDGE or extent[nxt] < extent[cur]):
                 cur, since = nxt, int(k[j])
                 plan.append([since, cur])
     return [(int(s), cands[i]) for s, i in plan] if len(plan) > 1 else None
