@@ -38,7 +38,7 @@ test: $(STAMP) chromium jackd
 # missing, unreadable or stale against its recipe is trained (`train --update`); an interrupted run continues from
 # its checkpoint, so `make models` can be stopped and run again. A wide stick-slip range failed its validation and is
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops,
-# stick-mid, stick-low, stick-slow, stick-high and stick-stops stick-slip tiles on quarter-period windows (BENCHMARKS.md).
+# stick-mid, -low, -slow, -high and -stops: stick-slip tiles on quarter-period windows (BENCHMARKS.md).
 RECIPES := $(wildcard bowsynth/models/*.toml)
 models: $(STAMP)
 	for r in $(RECIPES); do $(BOW) train --config $$r --update || exit 1; done

@@ -18,8 +18,8 @@ SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.ends
 
 # Within 1 cent after 30 s, but loud-stops (session 12), measured -1.03 cents at its centre bow (F_B / w 0.527, v_B
 # 0.129: a slow loud bow; it is shipped for the bow stops of loud notes, which last 50 ms), and stick-stops (session
-# 19), measured +2.0 cents at its centre bow (F_B / w 0.898, v_B 0.125), sharp there at every pitch (tests/test_grid.py);
-# held bows there are stick-low's, it plays the bow stops and the slowest bows
+# 19), measured +2.0 cents at its centre bow (F_B / w 0.898, v_B 0.125), sharp there at every pitch
+# (tests/test_grid.py); held bows there are stick-low's, it plays the bow stops and the slowest bows
 LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3}
 
 
