@@ -306,9 +306,9 @@ def test_reporter_lines_are_never_cut_at_the_console_width():
 
 
 def test_voices_of_very_different_lengths_roll_in_groups_and_each_is_its_own_render():
-    """A score's notes differ in length: they roll in groups of similar length (engine.length_buckets), and each
+    """A score's notes differ in length: they roll in groups of similar length (rollout.length_buckets), and each
     voice is the same as its render alone."""
-    from bowsynth.engines.operator.engine import LENGTH_SLACK, length_buckets
+    from bowsynth.engines.operator.rollout import LENGTH_SLACK, length_buckets
 
     lengths = [100, 2000, 110, 114, 1000, 116, 2100, 100]
     groups = length_buckets(lengths)
