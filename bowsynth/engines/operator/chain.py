@@ -12,7 +12,7 @@ from ...controls import between, breakpoints
 from ...errors import DomainError
 from ...render import LazyControls, Played, Render, RenderInfo
 from ...scene import Scene
-from .choose import EDGE, covering_model
+from .choose import EDGE, covering_model, preference
 from .modelfile import OperatorModel
 
 # A model keeps the voice at least this long once it took it (unless its box ends): a bow that wavers where two
@@ -39,10 +39,9 @@ def _depths(m: OperatorModel, beta: np.ndarray, vb: np.ndarray) -> np.ndarray:
 def chain_plan(scene: Scene, models: list[OperatorModel]) -> list[tuple[int, OperatorModel]] | None:
     """The models that play a moving bow no one model covers, as (first sample, model) in order; None where the
     validated range models do not cover every bow of it (or one model does: then it is not a chain). The hand-over
-    to another model comes where the current one's bows near its edge (choose.EDGE) and another has them away from
-    its own edges, or
-    where the current one's box ends while the next one's already covers the bow; the next is picked as
-    choose.covering_model picks a model for a held bow."""
+    to another model comes where the current one's bows near its edge (choose.EDGE) or a smaller box has them away
+    from its own edges, or where the current one's box ends while the next one's already covers the bow; the next is
+    picked in choose.preference's order, as a held bow's model is."""
     if scene.pitch_varies or not scene.varying or covering_model(scene, models) is not None:
         return None
     cands = [m for m in models if m.failure is None and m.domain.is_range
@@ -63,10 +62,9 @@ def chain_plan(scene: Scene, models: list[OperatorModel]) -> list[tuple[int, Ope
     extent = [m.domain.bow_extent for m in cands]
 
     def pick(d: np.ndarray, ok: np.ndarray) -> int:
-        """choose.covering_model's order among the models ok: those with the bow away from their edges first, then
-        the most specialised (smallest box), then the deepest; -1 if none."""
+        """The first of the models ok in choose.preference's order, at depths d; -1 if none."""
         idx = np.flatnonzero(ok)
-        return -1 if not idx.size else int(min(idx, key=lambda i: (d[i] < EDGE, extent[i], -d[i])))
+        return -1 if not idx.size else int(min(idx, key=lambda i: preference(cands[i], float(d[i]))))
     plan: list[list] = [[0, pick(depth[:, 0], depth[:, 0] >= 0)]]
     cur, since, min_len = plan[0][1], 0, MIN_SEGMENT * sr
     for j in range(1, len(k)):

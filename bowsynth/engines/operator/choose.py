@@ -145,10 +145,15 @@ def covering_model(scene: Scene, models: list[OperatorModel] | None = None) -> O
     if not good:
         return None
     b, v = scene.beta_range, scene.vb_range
-    # the most specialised first (a point model, then the smallest box) among those that have the bows away from
-    # their edges (EDGE), then the lowest validation NMSE; min keeps the first of equals (./models before the shipped)
-    return min(good, key=lambda m: (m.domain.edge_depth(b, v) < EDGE, m.domain.bow_extent,
-                                    m.meta.validation["nmse"]))
+    return min(good, key=lambda m: preference(m, m.domain.edge_depth(b, v)))
+
+
+def preference(m: OperatorModel, depth: float) -> tuple:
+    """The order in which models that cover a bow are picked (lowest first), given how deep the bow lies in each one's
+    box (Domain.edge_depth): those that have it away from their edges (EDGE) first, then the most specialised (a
+    point model, then the smallest box), then the lowest validation NMSE. min() over it keeps the first of equals
+    (./models before the shipped)."""
+    return depth < EDGE, m.domain.bow_extent, m.meta.validation["nmse"]
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:

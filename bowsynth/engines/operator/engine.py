@@ -255,17 +255,18 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 m, r = nxt, r2
             out[i] = r
             continue
-        if model is None and sc.varying and covering_model(sc, models) is None:
+        if model is None and sc.varying:
             from .chain import chain_plan, render_chain  # a bow crossing from one box into another
-            plan = chain_plan(sc, models)
-            play = lambda seg, m: render_operator_batch([seg], model=m, fallback=fallback, _single=True)[0]  # noqa: E731
-            try:
-                if plan is not None:
+            plan = chain_plan(sc, models)  # None where one model covers it (or none can)
+            if plan is not None:
+                def play(seg, m):
+                    return render_operator_batch([seg], model=m, fallback=fallback, _single=True)[0]
+                try:
                     out[i] = render_chain(sc, plan, play, voice="" if _single else f"voice {labels[i]}: ")
                     continue
-            except DomainError:  # a model that cannot take the state it is handed: with --fallback fdm, the FDM ends it
-                if fallback != "fdm":
-                    raise
+                except DomainError:  # a model that cannot take the state it is handed: with --fallback fdm, the FDM
+                    if fallback != "fdm":  # ends the note
+                        raise
         m = _resolve(sc, model, models, fallback)
         groups.setdefault(id(m), (m, []))[1].append(i)
     for m, idx in groups.values():
