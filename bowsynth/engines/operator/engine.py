@@ -29,9 +29,9 @@ from .choose import (
 )
 from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
 from .modelfile import OperatorModel
-from .onset import rest_onset
+from .onset import mute_from, rest_onset
 from .rollout import applied_controls, length_buckets, rollout_states, scene_bows
-from .windows import FAIL_BOW, FAIL_DOMAIN, FAILURES, locked_window, window_bounds
+from .windows import FAIL_BOW, FAIL_DOMAIN, FAIL_MUTE, FAILURES, locked_window, window_bounds
 
 
 def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fallback: str = "none"):
@@ -351,6 +351,10 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                            stop))
             ctrl_of[i] = functools.partial(_applied_after_rest, scenes[i], m, h, ctrl_of.get(i), win[i])
         idx = idx_all
+        for row, i in enumerate(idx):  # a held note that sat at its rest point where the physics grows it
+            mute = None if voices[row][2][0] >= 0 else mute_from(scenes[i], voices[row][1])
+            if mute is not None:
+                voices[row] = (*voices[row][:2], [mute, FAIL_MUTE])
         again: list[int] = []
         if model is None:  # a voice that left the picked model's states: the next covering model plays it
             rest = [x for x in models if x is not m]

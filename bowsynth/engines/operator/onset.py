@@ -10,6 +10,8 @@ rest_run, the one the live voices run (voices.cpp, REST mode), so the offline an
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ... import compiled as core
@@ -76,3 +78,33 @@ def rest_onset(sc: Scene, m, spw: float):
         if k < s1 - s0:
             break
     return h, oq[:h], op[:h], q, p
+
+
+# A note must speak where the physics says it does. Session 19's `stick-high` played F_B / w 2, v_B 0.28 (the playing
+# space's corner) from rest as a note that never spoke: p spanned 0.02 where the truth's spans 2.46, inside the
+# trained states, so nothing stopped it. About the rest point a held bow above vb_stop grows any motion at
+# physics.onset_rate; from the note's initial offset it reaches the scale v_B - vb_stop by t_speak. Measured (session
+# 20, bench map's 160 bows at 110 and 440 Hz, 2 s from rest, the x8 FDM): the truth's p spans a quarter of that scale
+# before t_speak at every bow, and wherever 1.5 t_speak falls inside the note its last period spans at least 1.5x the
+# scale. So a held note whose p spans less than MUTE_FRACTION of the scale from MUTE_SAFETY t_speak to its end, at least
+# MUTE_PERIODS free periods (a stick-slip cycle at F_B / w 2 is three), did not speak.
+MUTE_FRACTION = 0.25
+MUTE_SAFETY = 1.5
+MUTE_PERIODS = 8
+
+
+def mute_from(sc: Scene, p) -> int | None:
+    """The sample from which a held note should have been sounding but was not (its p spans < MUTE_FRACTION of
+    v_B - vb_stop from there to its end), or None: it sounds, the bow moves, or the physics lets it be silent."""
+    if sc.varying or sc.pitch_varies:
+        return None
+    rate = physics.onset_rate(sc.beta, sc.vb, sc.a)
+    scale = sc.vb - physics.vb_stop(sc.a)
+    if not rate > 0 or not scale > 0:
+        return None
+    offset = max(float(np.hypot(sc.q0 - physics.rest_linearisation(sc.beta, sc.vb, sc.a)[1], sc.p0)), 1e-12)
+    at = math.ceil(MUTE_SAFETY * math.log(max(scale / offset, 1.0)) / rate / sc.dtau)
+    if sc.n_samples - at < MUTE_PERIODS * 2 * math.pi / sc.dtau:
+        return None
+    tail = np.asarray(p[at:], dtype=float)
+    return at if np.isfinite(tail).all() and np.ptp(tail) < MUTE_FRACTION * scale else None

@@ -10,9 +10,11 @@ import numpy as np
 
 FAIL_NONFINITE, FAIL_DOMAIN = 1, 2  # why a voice stopped (the compiled loops write the same codes)
 FAIL_BOW = 3  # the bow left the model's range (found before the rollout, from the scene's curves)
+FAIL_MUTE = 4  # a held note that did not speak where the physics grows it (onset.mute_from, after the rollout)
 FAILURES = {FAIL_NONFINITE: "the rollout turned non-finite",
             FAIL_DOMAIN: "the rollout left the model's trained states",
-            FAIL_BOW: "the bow left the model's range"}
+            FAIL_BOW: "the bow left the model's range",
+            FAIL_MUTE: "the note was still silent, though its bow drives the mass,"}
 
 
 def max_windows(n_samples: int, spw) -> int:
