@@ -223,9 +223,13 @@ def test_a_bow_at_the_edge_of_the_narrowest_box_goes_to_a_model_that_has_it_deep
     # a bow curve: its span's ends count
     sweep = Scene(fb=[(0.0, 0.12 * 2 * np.pi * 100), (0.1, 0.199 * 2 * np.pi * 100)], vb=0.15, duration=0.1)
     assert covering_model(sweep, [narrow, wide]) is wide
-    # at the edge of both (wide's top v_B is 0.3; narrow does not cover it): the only cover; both at an edge: narrow
+    # at the edge of both (wide's top v_B is 0.3; narrow does not cover it): the only cover; both at an edge: the one
+    # that has the bow deeper, whatever its size (tight: 0.34 % of its v_B span; a bigger box 3.5 %)
     tight = variant([0.1, 0.2, 0.005, 0.3])
     assert covering_model(at(0.14, 0.299), [tight, wide]) is tight
+    bigger = variant([0.02, 0.4, 0.0, 0.31])
+    assert bigger.domain.edge_depth((0.14, 0.14), (0.299, 0.299)) < EDGE
+    assert covering_model(at(0.14, 0.299), [tight, bigger]) is bigger
     mid = (0.02 * 0.4) ** 0.5  # the middle of its log F_B / w span, and of its v_B span
     assert wide.domain.edge_depth((mid, mid), (0.15, 0.15)) == pytest.approx(0.5)
     assert load_model(FB100).domain.edge_depth((0.159, 0.159), (0.2, 0.2)) == float("inf")
