@@ -450,7 +450,6 @@ def test_a_stick_slip_tile_is_told_from_a_mislabelled_file_over_a_longer_span():
     assert "velocity-loud" in r.info.model_path and any("not a mislabelled file" in n for n in r.info.notes)
 
 
-
 def test_a_quarter_window_tile_is_told_from_a_mislabelled_file_over_16_periods():
     """fast-bow's onset from rest sticks to the bow, whatever the force: over 16 of its quarter-period windows (4
     periods) a bow 10 % away fits about as well as its claim, which would call the file a lie and refuse it; over 16
@@ -469,6 +468,7 @@ def test_a_quarter_window_tile_is_told_from_a_mislabelled_file_over_16_periods()
     assert claim_fits_best(m, err)[0]
     r = render_operator(Scene(f0=220.0, fb=0.6 * 2 * np.pi * 220.0, vb=0.28, duration=0.3))
     assert "fast-bow" in r.info.model_path and any("not a mislabelled file" in n for n in r.info.notes)
+
 
 def test_only_a_box_that_starts_in_the_soft_bow_plays_the_bows_below_it():
     # soft-range (bottom F_B / w 0.01) plays an attack from F_B 0; velocity-loud (bottom 0.42, at the boundary)

@@ -49,7 +49,8 @@ def test_the_corner_note_is_refused_in_one_line_and_finished_by_the_fdm_on_reque
     r = render(sc, engine="operator", fallback="fdm")
     assert r.method.fdm_fallback and np.ptp(r.p[-4410:]) > 1.0  # the truth's stick-slip cycle spans ~2.5
     out = tmp_path / "corner.wav"
-    p = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--f0", "110", "--fb", f"{2 * 2 * math.pi * 110:.2f}",
-                        "--vb", "0.28", "-d", "1", str(out)], capture_output=True, text=True, timeout=300)
+    fb = f"{2 * 2 * math.pi * 110:.2f}"
+    cmd = ["render", "--f0", "110", "--fb", fb, "--vb", "0.28", "-d", "1", str(out)]
+    p = subprocess.run([sys.executable, "-m", "bowsynth", *cmd], capture_output=True, text=True, timeout=300)
     assert p.returncode != 0 and "still silent" in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not out.exists()

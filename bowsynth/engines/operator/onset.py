@@ -94,9 +94,9 @@ MUTE_SAFETY = 1.5
 MUTE_PERIODS = 8
 
 
-def mute_from(sc: Scene, p) -> int | None:
-    """The sample from which a held note should have been sounding but was not (its p spans < MUTE_FRACTION of
-    v_B - vb_stop from there to its end), or None: it sounds, the bow moves, or the physics lets it be silent."""
+def speak_time(sc: Scene) -> float | None:
+    """t_speak in tau: when the linearised growth about the rest point (physics.onset_rate) takes a held note from its
+    initial offset to the scale v_B - vb_stop; None where the bow moves or the physics lets the mass rest."""
     if sc.varying or sc.pitch_varies:
         return None
     rate = physics.onset_rate(sc.beta, sc.vb, sc.a)
@@ -104,8 +104,18 @@ def mute_from(sc: Scene, p) -> int | None:
     if not rate > 0 or not scale > 0:
         return None
     offset = max(float(np.hypot(sc.q0 - physics.rest_linearisation(sc.beta, sc.vb, sc.a)[1], sc.p0)), 1e-12)
-    at = math.ceil(MUTE_SAFETY * math.log(max(scale / offset, 1.0)) / rate / sc.dtau)
+    return math.log(max(scale / offset, 1.0)) / rate
+
+
+def mute_from(sc: Scene, p) -> int | None:
+    """The sample from which a held note should have been sounding but was not (its p spans < MUTE_FRACTION of
+    v_B - vb_stop from there to its end), or None: it sounds, the bow moves, or the physics lets it be silent."""
+    t_speak = speak_time(sc)
+    if t_speak is None:
+        return None
+    at = math.ceil(MUTE_SAFETY * t_speak / sc.dtau)
     if sc.n_samples - at < MUTE_PERIODS * 2 * math.pi / sc.dtau:
         return None
     tail = np.asarray(p[at:], dtype=float)
+    scale = sc.vb - physics.vb_stop(sc.a)
     return at if np.isfinite(tail).all() and np.ptp(tail) < MUTE_FRACTION * scale else None
