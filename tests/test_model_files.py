@@ -14,7 +14,7 @@ from conftest import run_main
 
 from bowsynth import ModelFileError, Scene
 from bowsynth.engines.operator import npnet
-from bowsynth.engines.operator.check import check_physics
+from bowsynth.engines.operator.check import PHYSICS_MAX_ERROR, check_physics
 from bowsynth.engines.operator.choose import SHIPPED_DIR, available_models
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import OperatorModel, digest, load_model
@@ -468,6 +468,36 @@ def test_a_quarter_window_tile_is_told_from_a_mislabelled_file_over_16_periods()
     assert claim_fits_best(m, err)[0]
     r = render_operator(Scene(f0=220.0, fb=0.6 * 2 * np.pi * 220.0, vb=0.28, duration=0.3))
     assert "fast-bow" in r.info.model_path and any("not a mislabelled file" in n for n in r.info.notes)
+
+
+def test_a_files_physics_verdict_is_kept_by_its_digest_and_an_edited_file_is_checked_afresh(tmp_path, monkeypatch):
+    """fast-bow's neighbours over 16 periods cost 0.13 s a process: the verdict is kept on disk by the file's digest,
+    so a later process (a new model object, the table read again) plays the note without checking; the same file
+    with its metadata edited and the digest forged is checked again."""
+    import shutil
+
+    import bowsynth.engines.operator.check as check
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(check, "_verdicts", None)
+    src = shutil.copy(SHIPPED_DIR / "fast-bow.safetensors", tmp_path / "fast.safetensors")
+    scene = Scene(f0=220.0, fb=0.6 * 2 * np.pi * 220.0, vb=0.28, duration=0.3)
+    first = render_operator(scene, model=load_model(src))
+    assert any("not a mislabelled file" in n for n in first.info.notes)
+    kept = json.loads((tmp_path / "cache" / "physics-check.json").read_text())["entries"]
+    key = load_model(src).meta.digest
+    assert kept[f"claim {key}"][0] is True and kept[f"error {key}"] > PHYSICS_MAX_ERROR
+
+    def no_check(*args, **kwargs):
+        raise AssertionError("checked again")
+    monkeypatch.setattr(check, "physics_error", no_check)
+    monkeypatch.setattr(check, "_verdicts", None)  # as a new process: the table read from disk
+    again = render_operator(scene, model=load_model(src))
+    assert again.info.notes == first.info.notes and np.array_equal(again.p, first.p)
+    forged = load_model(rewrite(src, tmp_path / "liar.safetensors", claim_double_force))
+    assert forged.meta.digest != key
+    with pytest.raises(AssertionError, match="checked again"):
+        check_physics(forged)
 
 
 def test_only_a_box_that_starts_in_the_soft_bow_plays_the_bows_below_it():

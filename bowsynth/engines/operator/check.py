@@ -112,9 +112,46 @@ def claim_fits_best(model: OperatorModel, err: float) -> tuple[bool, float, floa
     return False, best[1], best[2]
 
 
+# The verdicts are kept on disk by the file's digest (sha256 over its metadata and weights, verified when it is read):
+# a process that plays a quarter-window tile paid 0.13 s for its neighbours' 16 periods on every run (session 20: a
+# fast-bow note's whole process 0.737 s against a soft note's 0.615). An edited file has another digest (or fails to
+# load), so it is checked afresh; a file without a digest (format 1) is checked in every process.
+_verdicts = None
+
+
+def _table():
+    global _verdicts
+    if _verdicts is None:
+        from ...io.cache import DiskTable
+
+        _verdicts = DiskTable("physics-check", f"{CHECK_WINDOWS}/{CHECK_STEPS}/{CHECK_FLOOR!r}/{RK4_STIFF!r}/"
+                                               f"{LONG_CHECK_PERIODS}/{NEIGHBOURS!r}/{MISLABEL_MARGIN!r}")
+    return _verdicts
+
+
+def _kept(model: OperatorModel, what: str, compute):
+    """compute()'s value for this model: once per model object, and from the disk table where the model was read
+    from a file with a digest."""
+    if what in model.__dict__:
+        return model.__dict__[what]
+    key = f"{what} {model.meta.digest}" if model.from_file and getattr(model.meta, "digest", "") else None
+    hit = _table().get(key) if key else None
+    if hit is None:
+        hit = compute()
+        if key:
+            _table().put(key, hit)
+    model.__dict__[what] = hit
+    return hit
+
+
 def check_physics(model: OperatorModel) -> float:
-    """physics_error from the initial state of the model's training scene, once per model object."""
-    if "_physics_error" not in model.__dict__:
-        sc = model.meta.scene or {}
-        model.__dict__["_physics_error"] = physics_error(model, float(sc.get("q0", 0.0)), float(sc.get("p0", 0.0)))
-    return model.__dict__["_physics_error"]
+    """physics_error from the initial state of the model's training scene, once per model (and file: _kept)."""
+    sc = model.meta.scene or {}
+    err = _kept(model, "error", lambda: physics_error(model, float(sc.get("q0", 0.0)), float(sc.get("p0", 0.0))))
+    return float(err)
+
+
+def claim_verdict(model: OperatorModel, err: float) -> tuple[bool, float, float]:
+    """claim_fits_best, once per model (and file: _kept)."""
+    honest, b, v = _kept(model, "claim", lambda: list(claim_fits_best(model, err)))
+    return bool(honest), float(b), float(v)

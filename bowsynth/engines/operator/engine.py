@@ -15,7 +15,7 @@ from ...errors import DomainError, ModelFileError, UsageError
 from ...render import LazyControls, Played, Render, RenderInfo
 from ...scene import Scene
 from .basis import _operator
-from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_fits_best
+from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_verdict
 from .choose import (
     _bow_exit,
     as_model,
@@ -116,11 +116,8 @@ def _physics_notes(m: OperatorModel) -> list[str]:
     what = (f"its first {CHECK_WINDOWS} windows differ from the physics it claims (F_B / w = {d.beta:.4g}, "
             f"v_B = {d.vb:g}, a = {d.a:g}) by {err:.3g} (relative mean square; the limit is {PHYSICS_MAX_ERROR:g})")
     if m.failure is None and math.isfinite(err):
-        # the neighbours' checks cost 5 ms (0.13 s where 16 periods of quarter windows decide), the verdict is the
-        # model's own: once per model object, as check_physics
-        if "_claim" not in m.__dict__:
-            m.__dict__["_claim"] = claim_fits_best(m, err)
-        honest, b_alt, v_alt = m.__dict__["_claim"]
+        # the neighbours' checks cost 5 ms (0.13 s where 16 periods of quarter windows decide): kept by the file
+        honest, b_alt, v_alt = claim_verdict(m, err)
         if honest:  # an inaccuracy, not a lie: the claimed bow is still the one the weights play
             return [f"note: model {m.path or m.meta.name}: {what}, but its windows fit the claimed bow "
                     f"{MISLABEL_MARGIN:g}x better than bows 10 % away: an inaccurate onset, not a mislabelled file"]
