@@ -235,6 +235,40 @@ def test_a_bow_at_the_edge_of_the_narrowest_box_goes_to_a_model_that_has_it_deep
     assert load_model(FB100).domain.edge_depth((0.159, 0.159), (0.2, 0.2)) == float("inf")
 
 
+def test_a_pick_is_kept_per_bow_and_asked_afresh_when_a_model_is_revalidated_or_the_start_state_moves(monkeypatch):
+    """A score asks for each note's model several times with a new Scene each time: the pick is kept by what decides
+    it (the bows, the start state, the pitch's window), not by the Scene; a new validation or a start state outside
+    the trained states asks the models again."""
+    import copy
+    import dataclasses
+
+    from bowsynth.engines.operator.choose import covering_model
+
+    base = load_model(SHIPPED_DIR / "soft-range.safetensors")
+
+    def variant(box):
+        m = copy.copy(base)
+        m.__dict__.pop("_failure", None)
+        m.meta = copy.deepcopy(base.meta)
+        m.meta.domain = dataclasses.replace(base.domain, box=list(box))
+        return m
+
+    narrow, wide = variant([0.1, 0.2, 0.1, 0.2]), variant([0.02, 0.4, 0.0, 0.3])
+    w = 2 * np.pi * 100
+    assert covering_model(Scene(fb=0.14 * w, vb=0.15, duration=0.1), [narrow, wide]) is narrow
+
+    def asked(self, scene):
+        raise AssertionError("asked again")
+    monkeypatch.setattr(OperatorModel, "covers", asked)
+    assert covering_model(Scene(fb=0.14 * w, vb=0.15, duration=2.5), [narrow, wide]) is narrow  # kept
+    with pytest.raises(AssertionError, match="asked again"):
+        covering_model(Scene(fb=0.14 * w, vb=0.15, duration=0.1, q0=0.01), [narrow, wide])
+    monkeypatch.undo()
+    assert covering_model(Scene(fb=0.14 * w, vb=0.15, duration=0.1, q0=50.0, p0=50.0), [narrow, wide]) is None
+    narrow.meta.validation = {**narrow.meta.validation, "error": "1 of 9 grid points failed"}  # as the trainer does
+    assert covering_model(Scene(fb=0.14 * w, vb=0.15, duration=0.1), [narrow, wide]) is wide
+
+
 def test_model_lookup_is_cached_until_a_file_changes(tmp_path, monkeypatch):
     models = tmp_path / "models"
     models.mkdir()

@@ -165,8 +165,13 @@ class OperatorModel:
 
     @property
     def failure(self) -> str | None:
-        """Why this model is not picked by default (see validation_failure), or None."""
-        return validation_failure(self.meta)
+        """Why this model is not picked by default (see validation_failure), or None. Kept while its metadata and
+        their validation are the same objects (the trainer assigns a new validation; the lookup asks this of every
+        model for every note)."""
+        hit = self.__dict__.get("_failure")
+        if hit is None or hit[0] is not self.meta or hit[1] is not self.meta.validation:
+            hit = self.__dict__["_failure"] = (self.meta, self.meta.validation, validation_failure(self.meta))
+        return hit[2]
 
     def covers(self, scene: Scene) -> bool:
         return _covers(self, scene)
