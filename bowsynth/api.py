@@ -26,11 +26,13 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
 
     windows (operator): 'free' (default) rolls each voice in windows of the trained length; 'locked' a held bow's
     voice in windows locked to the period its playing model sounds at (the model's own, measured once per model and
-    bow and cached: `music.engine_tuning.operator_sounding`; never the truth's). Free windows
-    spread the network's error into faint lines between and below the harmonics (60 dB down), locked ones put it on
-    the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics truer free, a chord or a mix (whose
-    voices fill each other's gaps) sounds closer to the physics locked (`score`'s default). See
-    `engines.operator.windows.locked_window`.
+    bow and cached: `music.engine_tuning.operator_sounding`); 'physics' in windows that divide the physics' period at
+    its bow, which pulls the note onto the physical pitch where the model holds it (`engine_tuning.lock_ratio`).
+    Free windows spread the network's error into faint lines between and below the harmonics (60 dB down), locked
+    ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics truer free, a
+    chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked (`score`'s default); a
+    held note at a given f0 sounds the physical pitch with 'physics' (0.0005 cents median for stick-slip bows against
+    1.3 locked), after a pull-in a short note sounds. See `engines.operator.windows.locked_window`.
     A request estimated past minutes of FDM work or gigabytes of memory is refused with the estimate (a UsageError)
     unless force=True; see `bowsynth.engines.limits`."""
     from .engines import Engine, parse_choice
@@ -46,12 +48,12 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample, sounding=sounding)
 
 
-def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1):
-    """(ratio, what): the sounding ratio of the engine that will play the scene, for `make_scene(pitch=...,
-    ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
+def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, windows: str = "free"):
+    """(ratio, what): the sounding ratio of the engine that will play the scene in these windows (render's), for
+    `make_scene(pitch=..., ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
     from .music.engine_tuning import ratio_for_engine
 
-    return ratio_for_engine(scene, engine, model, oversample)
+    return ratio_for_engine(scene, engine, model, oversample, windows=windows)
 
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):

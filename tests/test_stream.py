@@ -45,13 +45,14 @@ def play(stream, events, n, block):
 def offline(tmp_path, events, n, method, amp, dc_r, windows="free"):
     path = tmp_path / "e.mid"
     write_midi(path, events)
-    # tuned as `bowsynth score` tunes (the operator model's own ratio); the live FDM tunes with the truth's
-    # (docs/live.md): the FDM's ratio depends on each pitch, too many to measure before playing
+    # tuned as `bowsynth score` tunes (the operator model's own ratio in free windows, the physics' in locked ones);
+    # the live FDM tunes with the truth's (docs/live.md): the FDM's ratio depends on each pitch, too many to measure
+    # before playing
     ratio_for = None
     if method == "operator":
         from bowsynth.music.engine_tuning import ratio_for_engine
 
-        ratio_for = lambda sc: ratio_for_engine(sc, "operator", MODEL)[0]  # noqa: E731
+        ratio_for = lambda sc: ratio_for_engine(sc, "operator", MODEL, windows=windows)[0]  # noqa: E731
     notes = load_midi_score(path, ratio_for=ratio_for)
     # the live engine plays each bow stop with the FDM from the hold (its voice loop has no operator bow stop yet),
     # and its voices in free windows unless told to lock them (docs/live.md)

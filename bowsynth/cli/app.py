@@ -72,8 +72,10 @@ DcOpt = typer.Option("remove", "--dc", help="remove (default): high-pass the wri
 
 
 WINDOWS_HELP = ("Operator: free: windows of the trained length (the network's error spreads into faint lines between "
-                "and below the harmonics, about 60 dB down); locked: a held bow's windows at fixed phases of the note "
-                "it sounds, so the error lands on its harmonics instead (truer chords and mixes; ~1.7-2x the work; "
+                "and below the harmonics, about 60 dB down); locked: a held bow's windows divide the period the "
+                "model sounds, so the error lands on its harmonics instead (truer chords and mixes; ~1.7-2x the "
+                "work); physics: they divide the physics' period at the bow, which pulls the note onto the physical "
+                "pitch over its first tens of periods where the model holds it (the truest pitch at a given f0; "
                 "docs/BENCHMARKS.md).")
 WindowsOpt = typer.Option("free", "--windows", help=WINDOWS_HELP + " Default: free.")
 ScoreWindowsOpt = typer.Option("locked", "--windows", help=WINDOWS_HELP + " Default for a score: locked.")

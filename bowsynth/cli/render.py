@@ -73,7 +73,7 @@ def render(
     if pitch is not None:  # tuned again with the sounding ratio of the engine that plays (its own pitch)
         from ..music.notes import note_name
 
-        ratio, by = api.tuning_for(scene, method, model, oversample)
+        ratio, by = api.tuning_for(scene, method, model, oversample, windows=windows)
         if ratio is not None:
             scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4, ratio=ratio)
         hz = pitch_hz(pitch, a4)

@@ -78,8 +78,9 @@ def score(
 
         # the model directories looked at once for every note (a lookup per note was a fifth of a chorale's time)
         pool = available_models() if model is None and str(getattr(method, "value", method)) != "fdm" else None
-        notes = load_score(score_file, a4=a4, ratio_for=lambda sc: ratio_for_engine(sc, method, model, models=pool)[0],
-                           bend_range=bend_range)
+        def ratio_for(sc):  # the engine's, in the windows it plays
+            return ratio_for_engine(sc, method, model, models=pool, windows=windows)[0]
+        notes = load_score(score_file, a4=a4, ratio_for=ratio_for, bend_range=bend_range)
     else:
         if a4 is not None:
             raise UsageError("--a4 retunes MIDI files; presets have their own f0")

@@ -85,7 +85,7 @@ class Stream(VoiceBank):
             if model is None:
                 model = Tuning.default_model(available_models(), self.a)
             model = as_model(model)
-            ratio_for = lambda sc: ratio_for_engine(sc, "operator", model)[0]  # noqa: E731  (score's tuning)
+            ratio_for = lambda sc: ratio_for_engine(sc, "operator", model, windows=self.windows)[0]  # noqa: E731
         self.tuning = t = Tuning(self.a, self.a4, sample_rate, ratio_for)
         # the longest window a note may need: the lowest MIDI note (12; r < 1 raises f0), bent down, at the bottom
         # of its vibrato
@@ -101,15 +101,18 @@ class Stream(VoiceBank):
             # (NumpyOperator.window_inputs: the offline rollout's own code)
             pin, gain, c, h = self.op.window_inputs(np.stack([t.v_beta, t.v_vb], 1)[None])
             self.v_pin, self.v_gain, self.v_center, self.v_half = pin[0], gain[0], c[0], h[0]
-            # locked windows: per velocity the model's own sounding ratio (the one its notes were tuned with; cached,
-            # measured by the tuning above), NaN where it cannot hold the bow: free windows there, never the truth's
+            # locked windows: per velocity the sounding ratio its notes were tuned with and are locked to (the
+            # model's own, or with --windows physics the physics' where the model holds it: engine_tuning, cached),
+            # NaN where it is not known: free windows there
             self.v_lock = np.full(128, np.nan)
-            if self.windows == "locked":
-                from ..music.engine_tuning import own_ratio
+            if self.windows != "free":
+                from ..music.engine_tuning import lock_ratio, own_ratio
 
-                own = [own_ratio(model, float(t.v_beta[v]), float(t.v_vb[v]), self.a) if self.covered[v] else None
-                       for v in range(128)]
-                self.v_lock[:] = [np.nan if r is None else r for r in own]
+                def lock(beta, vb):
+                    return lock_ratio(model, beta, vb, self.a) if self.windows == "physics" else own_ratio(
+                        model, beta, vb, self.a)
+                lock = [lock(float(t.v_beta[v]), float(t.v_vb[v])) if self.covered[v] else None for v in range(128)]
+                self.v_lock[:] = [np.nan if r is None else r for r in lock]
         self._allocate_midi(dc_hz)
         self._warm()
 

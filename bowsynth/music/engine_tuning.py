@@ -1,8 +1,11 @@
 """The sounding ratio of the engine that plays a note: the FDM at its rate and oversampling (its dispersion included),
-or an operator model (its own pitch, measured once per model and bow and cached), so a note asked at a pitch sounds
-there whichever engine plays it. The truth's ratio and the solve for f0 are in `tuning`."""
+or an operator model: in free windows and in windows locked to its note its own pitch (measured once per model and
+bow and cached), in windows locked to the physics' period that period where the model holds it (`lock_ratio`). So a
+note asked at a pitch sounds there whichever engine plays it. The truth's ratio and the solve for f0 are in `tuning`."""
 
 from __future__ import annotations
+
+import math
 
 from .. import physics
 from ..errors import DomainError, UsageError
@@ -35,11 +38,11 @@ RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain do
 RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
 
 
-def operator_ratio(model):
+def operator_ratio(model, locked: bool = False):
     """The sounding ratio of a trained operator, as `pitch.tune(ratio=...)` takes it: the model rolled out from rest
-    at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods. A model's
-    window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached on disk
-    with the model's id)."""
+    at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods; locked: in
+    windows locked to the physics' period (lock_ratio). A model's window chain depends on (beta, v_B) only, so one
+    measurement per model and bow serves every pitch (cached on disk with the model's id)."""
     from ..analysis.metrics import f0_estimate
     from ..engines.operator.choose import as_model
     from ..engines.operator.engine import render_operator
@@ -49,21 +52,59 @@ def operator_ratio(model):
     def ratio(beta: float, vb: float, a: float, f0: float) -> float:
         def measure():
             truth = sounding_ratio(beta, vb, a)
-            seconds = min((truth.settle_periods + RATIO_PERIODS / truth.r) / RATIO_F0, 60.0)
+            # a lock pulls the cycle in over tens to hundreds of periods (stick-slow at F_B / w 1.46, v_B 0.152: +0.2
+            # cents over the first 300, +0.0008 over the next): measured after as many again
+            periods = RATIO_PERIODS * (2 if locked else 1)
+            seconds = min((truth.settle_periods + periods / truth.r) / RATIO_F0, 60.0)
             sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=seconds)
-            r = render_operator(sc, model=m)
+            r = render_operator(sc, model=m, sounding=RATIO_F0 * truth.r if locked else None)
             tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
             return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
-        return engine_ratio(f"operator{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
+        return engine_ratio(f"operator{'-locked2x' if locked else ''}{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
     return ratio
 
 
-def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None):
+# Windows locked to the physics (--windows physics) divide the period of the physics' limit cycle at the held bow (the
+# truth's sounding ratio, `tuning.sounding_ratio`: the reference integration `--pitch` has always run, Richardson-
+# extrapolated, once per bow, 30-100 ms, cached on disk), where the model holds that period. Such a clock pulls the operator's cycle onto
+# it, as an oscillator is pulled within its locking range, and the network plays the wave within each period.
+# Measured (session 21, `benchmarks/listener.py --windows locked`, the 12 held-out stick-slip bows): pitch 0.0005 /
+# 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics 0.028 /
+# 1.12 dB against 0.030 / 0.81, onsets 12/12 both; the 12 soft bows 0.009 / 0.11 cents against 0.072 / 0.36. Not
+# every model holds it: velocity-loud's C3 at velocity 112 came out 0.92 cents off the physics' pitch, a barely
+# trained test model left its states. So the lock is measured once per model and bow (cached) and taken where the
+# model's pitch in it is within LOCK_HOLDS_CENTS of the physics'; elsewhere the windows lock to the model's own period
+# (--windows locked), the note tuned with that. The pull-in has a price: a short note sounds it. The chorale's mix
+# (`benchmarks/chorale.py`, notes of 0.4-1.6 s) came out 1.12 dB from the FDM's (60 dB floor) against 0.88 with its
+# windows locked to each model's own period, so a score keeps those (--windows locked, its default).
+LOCK_HOLDS_CENTS = 0.05
+
+
+def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
+    """The sounding ratio a held note's locked windows take with this model: the physics' where the model holds it,
+    else the model's own (own_ratio); None where neither is known (the physics settles on no period: a bow at or
+    below v_B = 1 / sqrt(2a); or the model cannot hold the bow from rest for the measurement)."""
+    try:
+        truth = sounding_ratio(beta, vb, a).r
+    except SilentNoteError:
+        return None
+    try:
+        held = operator_ratio(model, locked=True)(beta, vb, a, RATIO_F0)
+        if abs(1200.0 * math.log2(held / truth)) <= LOCK_HOLDS_CENTS:
+            return truth
+    except (DomainError, SilentNoteError):
+        pass
+    return own_ratio(model, beta, vb, a)
+
+
+def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None,
+                     windows: str = "free"):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
-    scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it, its own
-    pitch), so that the asked note sounds there whichever engine plays. (None, why) when no model covers the scene:
-    the note is then tuned with the truth's ratio (what compare scores against). models: those to choose among
-    (default: available_models(), looked up again on each call)."""
+    scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it: its own
+    pitch, or in windows locked to the physics the period it holds there), so that the asked note sounds there
+    whichever engine plays. (None, why) when no model covers the scene: the note is then tuned with the truth's ratio
+    (what compare scores against). models: those to choose among (default: available_models(), looked up again on
+    each call)."""
     if str(getattr(engine, "value", engine)) == "fdm":
         from ..engines.fdm import check_oversample
 
@@ -72,13 +113,15 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     m, why = _playing_model(scene, model, models)
     if m is None:
         return None, why
+    physics = check_windows(windows) == "physics" and not (scene.varying or scene.pitch_varies)  # else free windows
 
     def ratio(beta, vb, a, f0):
         try:
-            return operator_ratio(m)(beta, vb, a, f0)
+            r = lock_ratio(m, beta, vb, a) if physics else operator_ratio(m)(beta, vb, a, f0)
         except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
-            return sounding_ratio(beta, vb, a).r
-    return ratio, f"model {m.id}"
+            r = None
+        return sounding_ratio(beta, vb, a).r if r is None else r
+    return ratio, f"model {m.id}" + (" in windows locked to the physics' period" if physics else "")
 
 
 def _playing_model(scene: Scene, model=None, models=None):
@@ -104,36 +147,39 @@ def own_ratio(model, beta: float, vb: float, a: float, f0: float = RATIO_F0) -> 
         return None
 
 
-def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None = None) -> float | None:
-    """The frequency (Hz) the operator model that plays `scene` (given, or the covering one among `models`) sounds at
-    with its held bow (held's, where the scene's bow moves only to stop: a score's note): f0 times the model's own
-    ratio (operator_ratio, cached). The windows of its voice are locked to that period
-    (engines.operator.windows.locked_window). None where there is no such number: a moving bow or pitch, no covering
-    model, or a bow the model cannot hold from rest for the measurement."""
+def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None = None,
+                      windows: str = "locked") -> float | None:
+    """The frequency (Hz) a held note played by an operator model (given, or the covering one among `models`) is
+    locked to, at its held bow (held's, where the scene's bow moves only to stop: a score's note): f0 times the
+    model's own ratio (windows 'locked': own_ratio, cached) or, windows 'physics', lock_ratio's (the physics' where
+    the model holds it). The windows of its voice divide that period (engines.operator.windows.locked_window). None
+    where there is no such number: a moving bow or pitch, no covering model, or a bow the model cannot hold from rest
+    (or whose physics settles on no period)."""
     held = scene if held is None else held
     if held.varying or scene.pitch_varies:
         return None
     m, _ = _playing_model(scene, model, models)
     if m is None:
         return None
-    # the model's own pitch, never the truth's: a window clock at the truth's period pulls the note to it; where it
-    # cannot hold the bow for the measurement, free windows
-    r = own_ratio(m, held.beta, held.vb, held.a, held.f0)
+    if windows == "physics":
+        r = lock_ratio(m, held.beta, held.vb, held.a)
+    else:  # a window clock at the physics' period would pull the note there over its first periods: see lock_ratio
+        r = own_ratio(m, held.beta, held.vb, held.a, held.f0)
     return None if r is None else held.f0 * r
 
 
-WINDOWS = ("locked", "free")  # how an operator voice's windows lie against its note (api.render's `windows`)
+WINDOWS = ("locked", "free", "physics")  # how an operator voice's windows lie against its note (api.render's)
 
 
 def check_windows(windows: str) -> str:
     if windows not in WINDOWS:
-        raise UsageError(f"--windows must be {' or '.join(WINDOWS)}, got {windows!r}")
+        raise UsageError(f"--windows must be {', '.join(WINDOWS[:-1])} or {WINDOWS[-1]}, got {windows!r}")
     return windows
 
 
 def sounding_for(scene, windows: str = "free", model=None, held=None):
     """What `engines.render(sounding=...)` takes for `api.render(windows=...)`: None for free windows; else per scene
-    the frequency its playing model sounds at (operator_sounding; None where unknown: that voice rolls in free
+    the frequency its windows are locked to (operator_sounding; None where unknown: that voice rolls in free
     windows). scene: one, or a list; held: the scene (or list) whose held bow each note sounds with, where it is not
     the scene itself (a score's note: its sustain, while the whole note with its bow stop renders)."""
     check_windows(windows)
@@ -147,5 +193,5 @@ def sounding_for(scene, windows: str = "free", model=None, held=None):
         from ..engines.operator.choose import available_models
 
         pool = available_models()  # the model directories looked at once for all the scenes
-    out = [operator_sounding(sc, model, models=pool, held=h) for sc, h in zip(scenes, helds)]
+    out = [operator_sounding(sc, model, models=pool, held=h, windows=windows) for sc, h in zip(scenes, helds)]
     return out if many else out[0]

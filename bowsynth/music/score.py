@@ -136,7 +136,9 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
                 ratio = None
                 if ratio_for is not None:
                     probe_fb = _scale(beta, physics.omega(h)) if beta is not None else fb
-                    ratio = ratio_for(Scene(f0=h, fb=probe_fb, vb=vb, a=a, duration=hold, sample_rate=rate))
+                    # a moving pitch rolls in free windows: the probe's pitch is a curve too (held at h)
+                    ratio = ratio_for(Scene(f0=Curve(((0.0, h), (hold, h))), fb=probe_fb, vb=vb, a=a, duration=hold,
+                                            sample_rate=rate))
                 if beta is not None:
                     return P.tune(h, None, beta=P.held_value(beta, hold), ratio=ratio, **held).f0
                 return P.tune(h, P.held_value(fb, hold), ratio=ratio, **held).f0
