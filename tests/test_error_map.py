@@ -41,6 +41,17 @@ def test_a_played_cell_carries_the_listener_errors_of_the_operator_against_the_t
     assert abs(cell["fdm"]["cents"]) < 0.1
 
 
+def test_a_cell_in_physics_windows_plays_the_physical_pitch_where_free_windows_do_not():
+    """stick-slow at F_B / w 1.324, v_B 0.149 (110 Hz): its own pitch is 2.4 cents sharp of the physics (measured);
+    the map's cell in windows locked to the physics' period, which the model holds, is within a hundredth."""
+    free = E.map_cell(110.0, 1.324, 0.149, 2.0, model="stick-slow")
+    phys = E.map_cell(110.0, 1.324, 0.149, 2.0, model="stick-slow", windows="physics")
+    assert free["status"] == phys["status"] == "played"
+    assert abs(free["op"]["cents"]) > 0.5 and abs(phys["op"]["cents"]) < 0.01
+    res = {"cells": [phys], "seconds": 2.0, "windows": "physics", "f0": [110.0], "beta": [1.324], "vb": [0.149]}
+    assert "the operator in physics windows" in table(res)
+
+
 def test_cells_no_model_plays_and_silent_cells_are_named_not_scored():
     far = E.map_cell(100.0, 2.0, 0.29, 0.5)  # stick-slip at F_B / w 2, v_B 0.29: above stick-high, no model covers it
     assert far["status"] == "not played" and "no model covers" in far["why"] and "op" not in far
@@ -67,7 +78,7 @@ def test_bench_map_writes_the_grid_the_plot_and_json(tmp_path):
 
 
 @pytest.mark.parametrize("flags", [["--grid", "10by8"], ["--grid", "0x3"], ["--f0", "nan"], ["--f0", "5"],
-                                   ["--seconds", "inf"], ["--seconds", "0.01"]])
+                                   ["--seconds", "inf"], ["--seconds", "0.01"], ["--windows", "tight"]])
 def test_bench_map_refuses_bad_flags_in_one_line(flags, capsys, monkeypatch):
     from conftest import run_main
 

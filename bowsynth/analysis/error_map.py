@@ -22,6 +22,7 @@ import numpy as np
 from ..engines import render
 from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..errors import BowsynthError
+from ..music.engine_tuning import sounding_for
 from ..scene import Scene
 from .metrics import listener_errors, nmse
 
@@ -45,9 +46,9 @@ def _sounds(p, n: int) -> bool:
     return bool(np.std(tail) > SILENT)
 
 
-def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None) -> dict:
-    """One cell: the truth (x100 FDM), the audio-rate FDM and the operator (`model`, or the renderer's pick) at
-    (f0, F_B / w, v_B)."""
+def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None, windows: str = "free") -> dict:
+    """One cell: the truth (x100 FDM), the audio-rate FDM and the operator (`model`, or the renderer's pick; its
+    windows as `api.render`'s) at (f0, F_B / w, v_B)."""
     sc = Scene(f0=f0, fb=beta * 2.0 * math.pi * f0, vb=vb, duration=seconds)
     half = sc.n_samples // 2
     with warnings.catch_warnings():
@@ -62,7 +63,7 @@ def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            op = render(sc, engine="operator", model=model)
+            op = render(sc, engine="operator", model=model, sounding=sounding_for(sc, windows, model))
     except BowsynthError as e:
         cell.update(status="not played", why=str(e).splitlines()[0].split(";")[0][:200])
         return cell
@@ -77,7 +78,7 @@ def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None
 
 
 def error_map(f0s=(110.0, 440.0), n_beta: int = 10, n_vb: int = 8, seconds: float = 2.0, model=None,
-              progress=None) -> dict:
+              progress=None, windows: str = "free") -> dict:
     """Every cell of the grid at every pitch in f0s (see map_cell). progress(done, total), if given, after each."""
     betas, vbs = grid(n_beta, n_vb)
     total, cells = len(f0s) * len(betas) * len(vbs), []
@@ -85,11 +86,11 @@ def error_map(f0s=(110.0, 440.0), n_beta: int = 10, n_vb: int = 8, seconds: floa
     for f0 in f0s:
         for vb in vbs:
             for beta in betas:
-                cells.append(map_cell(float(f0), beta, vb, seconds, model))
+                cells.append(map_cell(float(f0), beta, vb, seconds, model, windows))
                 if progress:
                     progress(len(cells), total)
-    return {"f0": [float(f) for f in f0s], "beta": betas, "vb": vbs, "seconds": seconds, "cells": cells,
-            "wall_s": time.perf_counter() - t0}
+    return {"f0": [float(f) for f in f0s], "beta": betas, "vb": vbs, "seconds": seconds, "windows": windows,
+            "cells": cells, "wall_s": time.perf_counter() - t0}
 
 
 def summary(res: dict) -> dict:

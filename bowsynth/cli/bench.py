@@ -24,6 +24,7 @@ def bench(
     grid: str = typer.Option("10x8", "--grid", help="map: cells, F_B / w x v_B (F_B / w 0.02-2 log-spaced, v_B 0-0.28)."),
     seconds: float = typer.Option(2.0, "--seconds", help="map: each note's length from rest (s); errors over its second half."),
     model: Optional[str] = typer.Option(None, "--model", help="map: this model (a path, or a name in ./models or the shipped ones) plays every cell it covers, instead of the renderer's pick: a candidate before it ships."),
+    windows: str = typer.Option("free", "--windows", help="map: the operator's windows, as render's (free, locked or physics)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
@@ -35,6 +36,9 @@ def bench(
         raise UsageError(f"bench target must be fdm, equal, map or all, got {what!r}")
     if what == "map":
         map_args = _map_args(f0, grid, seconds)
+        from ..music.engine_tuning import check_windows
+
+        check_windows(windows)
         if model is not None:
             from ..engines.operator.choose import as_model
 
@@ -49,7 +53,7 @@ def bench(
         out.print(json.dumps(rows, indent=2) if json_out else B.fdm_table(rows), soft_wrap=True)
         return
     if what == "map":
-        _bench_map(map_args, out_prefix, json_out, force, model)
+        _bench_map(map_args, out_prefix, json_out, force, model, windows)
         return
     if what == "equal":
         res = B.run_equal(quick=quick, out_prefix=out_prefix)
@@ -94,7 +98,8 @@ def _map_args(f0: str, grid: str, seconds: float) -> tuple:
     return f0s, nb, nv, seconds
 
 
-def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: bool, model=None) -> None:
+def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: bool, model=None,
+               windows: str = "free") -> None:
     import json
 
     from ..analysis.error_map import error_map
@@ -108,7 +113,7 @@ def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: b
         if done == total or done % max(1, total // 10) == 0:
             err.print(f"bench map: {done}/{total} cells")
 
-    res = error_map(f0s, nb, nv, seconds, model=model, progress=progress)
+    res = error_map(f0s, nb, nv, seconds, model=model, progress=progress, windows=windows)
     md, js = R.table(res), json.dumps(jsonable(res), indent=2)
     _write(out_prefix, md, js, force)
     if out_prefix is not None:
