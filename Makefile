@@ -39,9 +39,11 @@ test: $(STAMP) chromium jackd
 # its checkpoint, so `make models` can be stopped and run again. A wide stick-slip range failed its validation and is
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops,
 # stick-mid, -low, -slow, -high and -stops: stick-slip tiles on quarter-period windows (BENCHMARKS.md).
+# A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch.
 RECIPES := $(wildcard bowsynth/models/*.toml)
+REFINED := $(shell grep -l '^from *=' $(RECIPES) 2>/dev/null)
 models: $(STAMP)
-	for r in $(RECIPES); do $(BOW) train --config $$r --update || exit 1; done
+	for r in $(filter-out $(REFINED),$(RECIPES)) $(REFINED); do $(BOW) train --config $$r --update || exit 1; done
 
 # The report tests open pages in Debian's chromium, driven by playwright (the test extra) with no browser download.
 chromium:

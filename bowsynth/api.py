@@ -237,12 +237,13 @@ def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: floa
                  sample_rate=sample_rate)
 
 
-def model_status(scene: Scene, config, out, box=None) -> str | None:
+def model_status(scene: Scene, config, out, box=None, init=None) -> str | None:
     """Why the model file `out` is not what training `scene` (and `box`) with `config` makes, in a few words: missing,
     unreadable (with the loader's reason), or stale (it plays another scene or box, or was trained with another
     budget, seed, batch, window or network); None when it is what the recipe asks for. What `train --update` (and so
     `make models`) asks before training. Settings a recipe does not name are not compared: a model trained by an older
-    version of the trainer stays current until its recipe changes."""
+    version of the trainer stays current until its recipe changes. init: the model a refinement starts from (a path or
+    a name, as `train --from`): the file must have been refined from that model as it is now."""
     import dataclasses
 
     from .engines.operator.modelfile import load_model
@@ -269,8 +270,20 @@ def model_status(scene: Scene, config, out, box=None) -> str | None:
             return f"stale: trained with {key} {was}, the recipe asks for {want}"
     for key in ("width", "depth"):
         was, want = (m.meta.net or {}).get(key), getattr(config.net, key)
-        if was != want:
+        if was != want and init is None:  # a refinement keeps its base's network
             return f"stale: its network has {key} {was}, the recipe asks for {want}"
+    was = trained.get("refined_from")
+    if init is not None:
+        from .engines.operator.choose import as_model
+
+        try:
+            base = as_model(init).id
+        except (ModelFileError, OSError, UsageError) as e:
+            return f"stale: its base {init} is unreadable ({str(e).splitlines()[0]})"
+        if was != base:
+            return f"stale: refined from {was}, the recipe's base is {base}"
+    elif was is not None:
+        return f"stale: refined from {was}, the recipe trains from scratch"
     return None
 
 

@@ -308,6 +308,32 @@ def test_refining_keeps_the_parent_function_then_trains_on_the_sub_box(range_mod
         assert not np.array_equal(m.net(x0, tau, bows).numpy(), parent.net(x0, tau, bows).numpy())
 
 
+def test_a_refinement_is_current_while_its_base_is_the_model_it_was_refined_from(range_model, tmp_path):
+    """A recipe's `from` (train --config R --update, `make models`): the refined file is up to date while the base is
+    the model it started from; a base replaced by another model, a base that is gone, or a recipe that no longer
+    names a base make it stale. The recipe resolves `from` against its own folder, else keeps it as a model's name."""
+    import shutil
+
+    from bowsynth import api
+    from bowsynth.training.recipe import load_recipe
+
+    base = shutil.copy(range_model, tmp_path / "base.safetensors")
+    sub = ParamBox(0.15, 0.2, 0.18, 0.22, 100.0)
+    sc = api.range_scene(sub)
+    cfg = tiny_config(steps=5, sampling="box", range_points=6, range_gestures=1, range_n_data=128)
+    out = api.train(sc, config=cfg, out=tmp_path / "r.safetensors", box=sub, init=base).path
+    assert api.model_status(sc, cfg, out, sub, init=base) is None
+    assert "the recipe trains from scratch" in api.model_status(sc, cfg, out, sub)
+    shutil.copy(out, base)  # another model where the base was
+    assert "stale: refined from" in api.model_status(sc, cfg, out, sub, init=base)
+    assert "unreadable" in api.model_status(sc, cfg, out, sub, init=tmp_path / "gone.safetensors")
+    rec = tmp_path / "r.toml"
+    rec.write_text('f0 = 100\nfb = "94:126"\nfrom = "base.safetensors"\n')
+    assert load_recipe(rec)["from"] == str(tmp_path / "base.safetensors")
+    rec.write_text('f0 = 100\nfb = "94:126"\nfrom = "stick-high"\n')
+    assert load_recipe(rec)["from"] == "stick-high"
+
+
 def test_refining_for_one_bow_makes_a_box_of_zero_width(range_model, capsys, monkeypatch, tmp_path):
     """`train --fb F --vb V --from RANGE`: a point refined from the range is a range model whose box is that bow;
     its validation rolls the one bow once (not nine times), and it covers that bow and no other."""

@@ -51,12 +51,14 @@ def train(
         given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
                      rest_linear=rest_linear or None, out=out_path,
                      batch=batch, width=width, device=device, window_ms=window_ms)
+        given["from"] = from_model
         r = load_recipe(config)
         merged = {k: (v if v is not None else r.get(k)) for k, v in given.items()}
         preset, f0, fb, vb, a = (merged[k] for k in ("preset", "f0", "fb", "vb", "a"))
         minutes, steps, seed, out_path = merged["minutes"], merged["steps"], merged["seed"], merged["out"]
         rest_linear = bool(merged["rest_linear"])
         batch, width, device, window_ms = merged["batch"], merged["width"], merged["device"], merged["window_ms"]
+        from_model = merged["from"]
     scene, box = _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4)
     cfg = _train_config(scene, box, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs,
                         hybrid=hybrid, window_ms=window_ms, width=width, depth=depth, n_data=n_data,
@@ -64,7 +66,7 @@ def train(
     if update:
         if config is None or out_path is None:
             raise UsageError("--update compares a model file with its recipe: give --config (a recipe with `out`)")
-        why = api.model_status(scene, cfg, out_path, box)
+        why = api.model_status(scene, cfg, out_path, box, init=from_model)
         if why is None:
             tell(quiet, f"{out_path} is up to date with {config}")
             return

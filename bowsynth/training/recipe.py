@@ -7,6 +7,9 @@ benchmarks and a user who wants the same model again read one source instead of 
     vb = "0:0.3"
     minutes = 40
     out = "soft-range.safetensors"   # relative to this file
+
+`from` names the range model a recipe refines (`train --from`): a file relative to the recipe's folder (another
+recipe's `out`), else a model's name. `make models` builds those recipes after the others.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from ..errors import UsageError
 # key: the types the value may have (TOML's); each is the `bowsynth train` flag of that name
 KEYS = {"preset": (str,), "f0": (int, float), "fb": (str, int, float), "vb": (str, int, float), "a": (int, float),
         "minutes": (int, float), "steps": (int,), "seed": (int,), "rest_linear": (bool,), "out": (str,),
-        "batch": (int,), "width": (int,), "device": (str,), "window_ms": (int, float)}
+        "batch": (int,), "width": (int,), "device": (str,), "window_ms": (int, float), "from": (str,)}
 
 
 def load_recipe(path) -> dict:
@@ -44,4 +47,6 @@ def load_recipe(path) -> dict:
         out[key] = str(value) if key in ("fb", "vb") else value
     if "out" in out:
         out["out"] = path.parent / out["out"]
+    if "from" in out and (path.parent / out["from"]).is_file():
+        out["from"] = str(path.parent / out["from"])
     return out
