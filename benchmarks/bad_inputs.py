@@ -68,7 +68,7 @@ CASES = [
     ("an error map's notes too short to hear", "bench map --seconds 0.01"),
     ("an error map's model that is not there", "bench map --model nosuch"),
     # round 3: playing live (no server named so runs here; the rest needs a server: LIVE_ROWS)
-    ("windows that are neither locked, free nor physics", "render --windows sideways x.wav"),
+    ("windows that are not locked, free, physics or auto", "render --windows sideways x.wav"),
     ("... for a score", "score --presets paper-fb100 --windows both --mix m.wav"),
     ("no JACK server running", "play --server nosuch"),
     ("no polyphony", "play --voices 0"),

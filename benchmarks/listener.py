@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python benchmarks/listener.py [--model PATH] [--region soft|stick|all] [--n N] [--seed S]
                                                           [--seconds 2] [--json out.json] [--box B0:B1,V0:V1]
-                                                          [--windows locked|free|physics]
+                                                          [--windows locked|free|physics|auto]
 
 Random bows (F_B / w log-uniform, v_B uniform) at random pitches (f0 log-uniform 65-880 Hz), drawn with a seed no
 training uses, each rendered 2 s from rest by the operator (the model the renderer picks, or --model) and by the
@@ -161,7 +161,7 @@ def main(argv=None):
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--gestures", action="store_true", help="the gestures instead of held bows")
     ap.add_argument("--json", default=None)
-    ap.add_argument("--windows", default="locked", choices=["locked", "free", "physics"],
+    ap.add_argument("--windows", default="locked", choices=["locked", "free", "physics", "auto"],
                     help="the operator's windows (render --windows; gestures play free windows either way)")
     a = ap.parse_args(argv)
     global WINDOWS

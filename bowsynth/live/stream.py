@@ -102,15 +102,15 @@ class Stream(VoiceBank):
             pin, gain, c, h = self.op.window_inputs(np.stack([t.v_beta, t.v_vb], 1)[None])
             self.v_pin, self.v_gain, self.v_center, self.v_half = pin[0], gain[0], c[0], h[0]
             # locked windows: per velocity the sounding ratio its notes were tuned with and are locked to (the
-            # model's own, or with --windows physics the physics' where the model holds it: engine_tuning, cached),
-            # NaN where it is not known: free windows there
+            # model's own, or with --windows physics / auto the physics' where the model holds it: engine_tuning,
+            # cached), NaN where it is not known or auto plays free windows: free windows there
             self.v_lock = np.full(128, np.nan)
             if self.windows != "free":
-                from ..music.engine_tuning import lock_ratio, own_ratio
+                from ..music.engine_tuning import auto_lock, lock_ratio, own_ratio
 
                 def lock(beta, vb):
-                    return lock_ratio(model, beta, vb, self.a) if self.windows == "physics" else own_ratio(
-                        model, beta, vb, self.a)
+                    how = {"physics": lock_ratio, "auto": auto_lock}.get(self.windows)
+                    return (how or own_ratio)(model, beta, vb, self.a)
                 lock = [lock(float(t.v_beta[v]), float(t.v_vb[v])) if self.covered[v] else None for v in range(128)]
                 self.v_lock[:] = [np.nan if r is None else r for r in lock]
         self._allocate_midi(dc_hz)

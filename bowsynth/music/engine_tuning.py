@@ -66,9 +66,9 @@ def operator_ratio(model, locked: bool = False):
 
 # Windows locked to the physics (--windows physics) divide the period of the physics' limit cycle at the held bow (the
 # truth's sounding ratio, `tuning.sounding_ratio`: the reference integration `--pitch` has always run, Richardson-
-# extrapolated, once per bow, 30-100 ms, cached on disk), where the model holds that period. Such a clock pulls the operator's cycle onto
-# it, as an oscillator is pulled within its locking range, and the network plays the wave within each period.
-# Measured (session 21, `benchmarks/listener.py --windows locked`, the 12 held-out stick-slip bows): pitch 0.0005 /
+# extrapolated, once per bow, 30-100 ms, cached on disk), where the model holds that period. Such a clock pulls the
+# operator's cycle onto it, as an oscillator is pulled within its locking range, and the network plays the wave within
+# each period. Measured (session 21, `benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows): 0.0005 /
 # 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics 0.028 /
 # 1.12 dB against 0.030 / 0.81, onsets 12/12 both; the 12 soft bows 0.009 / 0.11 cents against 0.072 / 0.36. Not
 # every model holds it: velocity-loud's C3 at velocity 112 came out 0.92 cents off the physics' pitch, a barely
@@ -97,6 +97,28 @@ def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
     return own_ratio(model, beta, vb, a)
 
 
+# --windows auto, per held note: free windows where the model's own pitch (own_ratio, at f0 100) is within
+# AUTO_FREE_CENTS of the physics' (free windows keep the harmonics truest: the 12 held-out soft bows 0.022 / 0.57 dB
+# free, 0.115 / 1.67 locked to the physics, their pitch 0.043 / 0.33 cents free), else windows locked to the
+# physics' period where the model holds it (the stick-slip tiles' own pitch is 0.5-4 cents off: 1.22 / 4.31 free),
+# else free. Measured (session 21, `listener.py --windows auto`): soft 0.025 / 1.11 dB, 0.014 / 0.18 cents; stick-slip
+# 0.028 / 1.12 dB, 0.0005 / 0.006 cents; every onset.
+AUTO_FREE_CENTS = 0.2  # the issue's median pitch target: a model that meets it plays free
+
+
+def auto_lock(model, beta: float, vb: float, a: float) -> float | None:
+    """windows 'auto': the physics' sounding ratio where a held note's windows lock to it, None where it plays in free
+    windows (its own pitch near enough, or a lock the model does not hold, or no period known)."""
+    try:
+        truth = sounding_ratio(beta, vb, a).r
+    except SilentNoteError:
+        return None
+    own = own_ratio(model, beta, vb, a)
+    if own is None or abs(1200.0 * math.log2(own / truth)) <= AUTO_FREE_CENTS:
+        return None
+    return truth if lock_ratio(model, beta, vb, a) == truth else None
+
+
 def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None,
                      windows: str = "free"):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
@@ -113,15 +135,19 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     m, why = _playing_model(scene, model, models)
     if m is None:
         return None, why
-    physics = check_windows(windows) == "physics" and not (scene.varying or scene.pitch_varies)  # else free windows
+    held = check_windows(windows) in ("physics", "auto") and not (scene.varying or scene.pitch_varies)  # else free
 
     def ratio(beta, vb, a, f0):
         try:
-            r = lock_ratio(m, beta, vb, a) if physics else operator_ratio(m)(beta, vb, a, f0)
+            if held and windows == "physics":
+                r = lock_ratio(m, beta, vb, a)
+            else:
+                r = auto_lock(m, beta, vb, a) if held else None
+                r = operator_ratio(m)(beta, vb, a, f0) if r is None else r
         except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
             r = None
         return sounding_ratio(beta, vb, a).r if r is None else r
-    return ratio, f"model {m.id}" + (" in windows locked to the physics' period" if physics else "")
+    return ratio, f"model {m.id}" + (f" in {windows} windows" if held else "")
 
 
 def _playing_model(scene: Scene, model=None, models=None):
@@ -163,12 +189,14 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
         return None
     if windows == "physics":
         r = lock_ratio(m, held.beta, held.vb, held.a)
+    elif windows == "auto":
+        r = auto_lock(m, held.beta, held.vb, held.a)
     else:  # a window clock at the physics' period would pull the note there over its first periods: see lock_ratio
         r = own_ratio(m, held.beta, held.vb, held.a, held.f0)
     return None if r is None else held.f0 * r
 
 
-WINDOWS = ("locked", "free", "physics")  # how an operator voice's windows lie against its note (api.render's)
+WINDOWS = ("locked", "free", "physics", "auto")  # how an operator voice's windows lie against its note (api.render's)
 
 
 def check_windows(windows: str) -> str:
