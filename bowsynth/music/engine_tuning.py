@@ -114,8 +114,9 @@ def auto_lock(model, beta: float, vb: float, a: float) -> float | None:
     except SilentNoteError:
         return None
     own = own_ratio(model, beta, vb, a)
-    if own is None or abs(1200.0 * math.log2(own / truth)) <= AUTO_FREE_CENTS:
+    if own is not None and abs(1200.0 * math.log2(own / truth)) <= AUTO_FREE_CENTS:
         return None
+    # off pitch, or not holding the bow from rest in free windows at all (stick-high at F_B / w 2, v_B 0.16): the lock
     return truth if lock_ratio(model, beta, vb, a) == truth else None
 
 
