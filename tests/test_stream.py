@@ -85,14 +85,15 @@ def test_a_stream_is_the_offline_render_of_the_same_events(tmp_path, method, blo
     assert np.max(np.abs(out - ref)) <= tol * np.max(np.abs(ref))
 
 
-@pytest.mark.parametrize("block", [512, 333])
-def test_a_stream_with_locked_windows_is_the_default_score_of_the_same_events(tmp_path, block):
+@pytest.mark.parametrize("block,windows", [(512, "locked"), (333, "locked"), (512, "physics")])
+def test_a_stream_with_locked_windows_is_the_default_score_of_the_same_events(tmp_path, block, windows):
     """`play --windows locked`: each held note's windows locked to its pitch as `score` locks them (its default), the
-    same samples; and not the free render's (the two differ where the windows do)."""
-    s = Stream(block=512, voices=8, model=MODEL, windows="locked")
+    same samples; and not the free render's (the two differ where the windows do). `physics`: locked to the physics'
+    period where the model holds it, tuned with that, as `score --windows physics` plays them."""
+    s = Stream(block=512, voices=8, model=MODEL, windows=windows)
     n = 32000
     out = play(s, EVENTS, n, block)
-    ref = offline(tmp_path, EVENTS, n, "operator", s.amp, s.dc_r, windows="locked")
+    ref = offline(tmp_path, EVENTS, n, "operator", s.amp, s.dc_r, windows=windows)
     assert s.counts["notes"] == 5 and s.counts["fdm_notes"] == 0
     assert np.max(np.abs(out - ref)) <= 2e-5 * np.max(np.abs(ref))
     free = offline(tmp_path, EVENTS, n, "operator", s.amp, s.dc_r)
