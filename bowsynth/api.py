@@ -266,7 +266,7 @@ def model_status(scene: Scene, config, out, box=None, init=None) -> str | None:
     trained = m.meta.training or {}
     for key in ("minutes", "steps", "seed", "batch_states", "rest_linear", "window"):
         was, want = trained.get(key, defaults.get(key)), getattr(config, key)
-        if was != want:
+        if was != want and not (init is not None and key == "window"):  # a refinement keeps its base's window
             return f"stale: trained with {key} {was}, the recipe asks for {want}"
     for key in ("width", "depth"):
         was, want = (m.meta.net or {}).get(key), getattr(config.net, key)

@@ -172,9 +172,13 @@ def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
     models = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
     recipes = sorted(models.glob("*.toml"))
     assert {r.stem for r in recipes} == {m.stem for m in models.glob("*.safetensors")}
+    from bowsynth.cli.train import recipe_status
+
     for r in recipes:
         rec = load_recipe(r)
         assert rec["out"] == r.with_suffix(".safetensors") and 0 < rec["minutes"] <= 45
+        # every shipped model is what its recipe makes (a refinement: from its base as shipped, its window kept)
+        assert recipe_status(r) is None, (r.name, recipe_status(r))
 
 
 def test_train_update_builds_what_is_missing_stale_or_unreadable_and_leaves_the_rest(tmp_path, capsys, monkeypatch):

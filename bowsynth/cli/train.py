@@ -136,7 +136,7 @@ def recipe_status(recipe: Path) -> str | None:
                                 None, None)
     cfg = _train_config(scene, box, **{k: r.get(k) for k in ("minutes", "steps", "seed", "width", "batch", "device",
                                                              "rest_linear", "window_ms")})
-    return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box)
+    return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box, init=r.get("from"))
 
 
 def _range_box(preset, f0, fb, vb, a):
