@@ -57,7 +57,8 @@ def main() -> None:
                 if i:
                     times[k].append(time.perf_counter() - t0)
         med = {k: statistics.median(v) for k, v in times.items()}
-        print(f"medians of {a.runs} alternated runs (s)\n\n| process | seconds | x --help | x the FDM's |\n|---|---|---|---|")
+        print(f"medians of {a.runs} alternated runs (s)\n")
+        print("| process | seconds | x --help | x the FDM's |\n|---|---|---|---|")
         for k in procs:
             print(f"| {k} | {med[k]:.3f} | {med[k] / med['help']:.2f} | {med[k] / med['fdm']:.2f} |")
         fdm = C.mix_physical(Path(d) / "fdm.wav")

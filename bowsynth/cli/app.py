@@ -75,8 +75,9 @@ WINDOWS_HELP = ("Operator: free: windows of the trained length (the network's er
                 "and below the harmonics, about 60 dB down); locked: a held bow's windows divide the period the "
                 "model sounds, so the error lands on its harmonics instead (truer chords and mixes; ~1.7-2x the "
                 "work); physics: they divide the physics' period at the bow, which pulls the note onto the physical "
-                "pitch over its first tens of periods where the model holds it (the truest pitch at a given f0); auto: "
-                "free where the model's own pitch is within 0.2 cent of the physics', else physics (docs/BENCHMARKS.md).")
+                "pitch over its first tens of periods where the model holds it (the truest pitch at a given f0); "
+                "auto: free where the model's own pitch is within 0.2 cent of the physics', else physics "
+                "(docs/BENCHMARKS.md).")
 WindowsOpt = typer.Option("free", "--windows", help=WINDOWS_HELP + " Default: free.")
 ScoreWindowsOpt = typer.Option("locked", "--windows", help=WINDOWS_HELP + " Default for a score: locked.")
 

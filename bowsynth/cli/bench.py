@@ -24,7 +24,8 @@ def bench(
     grid: str = typer.Option("10x8", "--grid", help="map: cells, F_B / w x v_B (F_B / w 0.02-2 log-spaced, v_B 0-0.28)."),
     seconds: float = typer.Option(2.0, "--seconds", help="map: each note's length from rest (s); errors over its second half."),
     model: Optional[str] = typer.Option(None, "--model", help="map: this model (a path, or a name in ./models or the shipped ones) plays every cell it covers, instead of the renderer's pick: a candidate before it ships."),
-    windows: str = typer.Option("free", "--windows", help="map: the operator's windows, as render's (free, locked or physics)."),
+    windows: str = typer.Option("free", "--windows",
+                                help="map: the operator's windows, as render's (free, locked, physics or auto)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json

@@ -106,12 +106,10 @@ class Stream(VoiceBank):
             # cached), NaN where it is not known or auto plays free windows: free windows there
             self.v_lock = np.full(128, np.nan)
             if self.windows != "free":
-                from ..music.engine_tuning import auto_lock, lock_ratio, own_ratio
+                from ..music.engine_tuning import held_lock
 
-                def lock(beta, vb):
-                    how = {"physics": lock_ratio, "auto": auto_lock}.get(self.windows)
-                    return (how or own_ratio)(model, beta, vb, self.a)
-                lock = [lock(float(t.v_beta[v]), float(t.v_vb[v])) if self.covered[v] else None for v in range(128)]
+                lock = [held_lock(model, self.windows, float(t.v_beta[v]), float(t.v_vb[v]), self.a)
+                        if self.covered[v] else None for v in range(128)]
                 self.v_lock[:] = [np.nan if r is None else r for r in lock]
         self._allocate_midi(dc_hz)
         self._warm()

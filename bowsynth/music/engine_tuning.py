@@ -68,8 +68,8 @@ def operator_ratio(model, locked: bool = False):
 # truth's sounding ratio, `tuning.sounding_ratio`: the reference integration `--pitch` has always run, Richardson-
 # extrapolated, once per bow, 30-100 ms, cached on disk), where the model holds that period. Such a clock pulls the
 # operator's cycle onto it, as an oscillator is pulled within its locking range, and the network plays the wave within
-# each period. Measured (session 21, `benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows): 0.0005 /
-# 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics 0.028 /
+# each period. Measured (session 21, `benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows):
+# 0.0005 / 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics 0.028 /
 # 1.12 dB against 0.030 / 0.81, onsets 12/12 both; the 12 soft bows 0.009 / 0.11 cents against 0.072 / 0.36. Not
 # every model holds it: velocity-loud's C3 at velocity 112 came out 0.92 cents off the physics' pitch, a barely
 # trained test model left its states. So the lock is measured once per model and bow (cached) and taken where the
@@ -120,6 +120,14 @@ def auto_lock(model, beta: float, vb: float, a: float) -> float | None:
     return truth if lock_ratio(model, beta, vb, a) == truth else None
 
 
+def held_lock(model, windows: str, beta: float, vb: float, a: float) -> float | None:
+    """The sounding ratio a held note's windows lock to in these windows: 'locked' the model's own (own_ratio; a
+    clock at the physics' period would pull the note there: see lock_ratio), 'physics' lock_ratio's, 'auto'
+    auto_lock's; None where they lock to nothing (free windows, or no period known)."""
+    how = {"locked": own_ratio, "physics": lock_ratio, "auto": auto_lock}.get(windows)
+    return None if how is None else how(model, beta, vb, a)
+
+
 def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None,
                      windows: str = "free"):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
@@ -140,11 +148,9 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
 
     def ratio(beta, vb, a, f0):
         try:
-            if held and windows == "physics":
-                r = lock_ratio(m, beta, vb, a)
-            else:
-                r = auto_lock(m, beta, vb, a) if held else None
-                r = operator_ratio(m)(beta, vb, a, f0) if r is None else r
+            r = held_lock(m, windows, beta, vb, a) if held else None
+            if r is None and not (held and windows == "physics"):  # free windows, or auto's free ones: its own
+                r = operator_ratio(m)(beta, vb, a, f0)
         except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
             r = None
         return sounding_ratio(beta, vb, a).r if r is None else r
@@ -178,8 +184,7 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
                       windows: str = "locked") -> float | None:
     """The frequency (Hz) a held note played by an operator model (given, or the covering one among `models`) is
     locked to, at its held bow (held's, where the scene's bow moves only to stop: a score's note): f0 times the
-    model's own ratio (windows 'locked': own_ratio, cached) or, windows 'physics', lock_ratio's (the physics' where
-    the model holds it). The windows of its voice divide that period (engines.operator.windows.locked_window). None
+    ratio held_lock gives for the windows (the model's own, or the physics' where the model holds it). The windows of its voice divide that period (engines.operator.windows.locked_window). None
     where there is no such number: a moving bow or pitch, no covering model, or a bow the model cannot hold from rest
     (or whose physics settles on no period)."""
     held = scene if held is None else held
@@ -188,12 +193,7 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
     m, _ = _playing_model(scene, model, models)
     if m is None:
         return None
-    if windows == "physics":
-        r = lock_ratio(m, held.beta, held.vb, held.a)
-    elif windows == "auto":
-        r = auto_lock(m, held.beta, held.vb, held.a)
-    else:  # a window clock at the physics' period would pull the note there over its first periods: see lock_ratio
-        r = own_ratio(m, held.beta, held.vb, held.a, held.f0)
+    r = held_lock(m, windows, held.beta, held.vb, held.a)
     return None if r is None else held.f0 * r
 
 

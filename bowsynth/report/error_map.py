@@ -35,8 +35,8 @@ def table(res: dict) -> str:
     s = summary(res)
     lines = [f"Cells where the truth sounds: {s['sounding']}; played by the operator: {s['played']}; silent: "
              f"{s['silent']} (the operator sounds in {s['silent_op_sounds']} of them). {res['seconds']:g} s notes from "
-             f"rest against a x100 FDM, the operator in {res.get('windows', 'free')} windows; medians / worsts over the "
-             "played cells:", "",
+             f"rest against a x100 FDM, the operator in {res.get('windows', 'free')} windows; medians / worsts over "
+             "the played cells:", "",
              "| engine | harmonics (dB) | pitch (cents) | onset (ms) | NMSE(p) |", "|---|---|---|---|---|"]
     for who, name in (("op", "operator"), ("fdm", "audio-rate FDM (same cells)")):
         w = s[who]

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...controls import Curve
 from ...errors import DomainError, ModelFileError
 from ...scene import Scene
 from .basis import _operator
@@ -141,15 +142,14 @@ EDGE = 0.1
 def bow_key(scene: Scene) -> tuple:
     """What decides which models cover a scene and how deep (Domain.mismatch, edge_depth): its bows' spans, whether
     v_B moves, a, the start state and the window's samples (f0_max, rate). Not its length or its pitch otherwise."""
-    from ...controls import Curve
-
     return (scene.beta_range, scene.vb_range, isinstance(scene.vb, Curve), scene.a, scene.q0, scene.p0,
             scene.f0_max, scene.sample_rate)
 
 
 # covering_model's picks in this process, by the models looked among (the objects: a key holds them, so an id is
-# never reused), which of them passed their validation, and the bow_key. A score asks several times a note (its tuning, its release, its lock, its batch) with
-# a new Scene each time: 1032 asks over 19 models for a 172-note chorale, 0.33 s of its 2.6 s profiled.
+# never reused), which of them passed their validation, and the bow_key. A score asks several times a note (its
+# tuning, its release, its lock, its batch) with a new Scene each time: 1032 asks over 19 models for a 172-note
+# chorale, 0.33 s of its 2.6 s profiled.
 _PICKS: dict = {}
 MAX_PICKS = 4096
 
