@@ -96,7 +96,9 @@ def rest_linearisation(b: float, vb: float, a: float) -> tuple[float, float]:
     return b * dphi(-vb, a), b * phi(vb, a)
 
 
-MAX_REST_DAMPING = 1.9  # |d| of an underdamped linearisation (|d| < 2); beyond it the linearised flow is not used
+# |d| of the linearisation a point model's network may carry in its output (--rest-linear: its window basis is the
+# underdamped flow's); the rest flow of the renderers takes any d (flow_coefficients)
+MAX_REST_DAMPING = 1.9
 
 # How far the friction's slope phi' may move from its value at rest over a swing of the relative velocity before the
 # flow linearised at rest stops describing the mass (rest_radius). Measured (session 14, eight slow-corner bows at
@@ -127,10 +129,10 @@ def rest_radius(vb: float, a: float, tol: float = REST_TOL) -> float:
 
 
 def rest_flow(b: float, vb: float, a: float, q: float, p: float):
-    """(d, q_s, radius) where the state (q, p) lies within the radius of the bow's rest state and the linearisation
-    there is underdamped (the exact flow linearised at rest plays it: engines/operator/onset.py); else None."""
+    """(d, q_s, radius) where the state (q, p) lies within the radius of the bow's rest state (the exact flow
+    linearised at rest plays it: engines/operator/onset.py); else None."""
     d, qs = rest_linearisation(b, vb, a)
-    if not abs(d) < MAX_REST_DAMPING:
+    if not math.isfinite(d):
         return None
     r = rest_radius(float(vb), float(a))
     return (d, qs, r) if (q - qs) ** 2 + p * p <= r * r else None
@@ -138,19 +140,27 @@ def rest_flow(b: float, vb: float, a: float, q: float, p: float):
 
 def flow_coefficients(tau, lin=None):
     """(m11, m12, m21, m22, k_q, k_p) at times tau: the linear flow is x(tau) = M x0 + k. lin None: the rotation
-    (k = 0); lin = (d, q_s): M = exp(A tau) with A = [[0, 1], [-1, -d]] (|d| < 2) and k = (I - M) (q_s, 0)."""
+    (k = 0); lin = (d, q_s): M = exp(A tau) with A = [[0, 1], [-1, -d]] and k = (I - M) (q_s, 0), for any d: an
+    underdamped bow (|d| < 2) oscillates, an overdamped one (a heavy bow below vb_stop: d up to ~30) creeps, its
+    two real modes' exponentials kept apart (cosh alone would overflow). The core's rest_coefficients is the same."""
     tau = np.asarray(tau, dtype=float)
     if lin is None:
         c, s = np.cos(tau), np.sin(tau)
         z = np.zeros_like(tau)
         return c, s, -s, c, z, z
     d, qs = lin
-    if not abs(d) < 2.0:
-        raise ValueError(f"the rest-state linearisation needs |d| < 2 (underdamped), got d = {d:g}")
-    wd = math.sqrt(1.0 - 0.25 * d * d)
-    e = np.exp(-0.5 * d * tau)
-    c, s = np.cos(wd * tau), np.sin(wd * tau) / wd
-    m11, m12, m21, m22 = e * (c + 0.5 * d * s), e * s, -e * s, e * (c - 0.5 * d * s)
+    if not math.isfinite(d):
+        raise ValueError(f"the rest-state linearisation needs a finite d, got d = {d:g}")
+    z = 1.0 - 0.25 * d * d
+    if z >= 0.0:
+        wd = math.sqrt(max(z, 1e-30))
+        e = np.exp(-0.5 * d * tau)
+        ec, es = e * np.cos(wd * tau), e * np.sin(wd * tau) / wd
+    else:
+        wd = math.sqrt(-z)
+        slow, fast = np.exp((wd - 0.5 * d) * tau), np.exp((-wd - 0.5 * d) * tau)
+        ec, es = 0.5 * (slow + fast), 0.5 * (slow - fast) / wd
+    m11, m12, m21, m22 = ec + 0.5 * d * es, es, -es, ec - 0.5 * d * es
     return m11, m12, m21, m22, qs * (1.0 - m11), -qs * m21
 
 

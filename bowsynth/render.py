@@ -72,6 +72,7 @@ class RenderInfo:
     release: str | None = None  # who played a score note's bow stop: "operator" or "fdm"
     release_model: str | None = None  # the model that played it, where another than the sustain's took over at the hold
     rest_flow: float | None = None  # seconds from the start played by the flow at the bow's rest point (onset.py)
+    ring_down: float | None = None  # seconds from which a held bow that damps the mass played that flow (onset.py)
     windows: int | None = None  # windows a sounding period where they were locked to it (windows.locked_window)
     chain: list | None = None  # (start in s, model name) per model, where models played the voice in turn
 

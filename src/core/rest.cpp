@@ -12,12 +12,25 @@
 namespace bowsynth {
 
 void rest_coefficients(double d, double qs, double dtau, double* c) {
-    const double wd = std::sqrt(std::max(1.0 - 0.25 * d * d, 1e-30));
-    const double e = std::exp(-0.5 * d * dtau), cw = std::cos(wd * dtau), sn = std::sin(wd * dtau) / wd;
-    c[0] = e * (cw + 0.5 * d * sn);
-    c[1] = e * sn;
-    c[2] = -e * sn;
-    c[3] = e * (cw - 0.5 * d * sn);
+    // e^(-d tau / 2) times (cos, sin / wd) of wd tau for an underdamped bow (|d| < 2), (cosh, sinh / wd) for an
+    // overdamped one, as the two real modes' exponentials (a heavy, slow bow: d up to ~30, whose cosh alone would
+    // overflow over a long step); both tend to (1, tau) at critical damping.
+    const double z = 1.0 - 0.25 * d * d;
+    double ec, es;
+    if (z >= 0.0) {
+        const double wd = std::sqrt(std::max(z, 1e-30)), e = std::exp(-0.5 * d * dtau);
+        ec = e * std::cos(wd * dtau);
+        es = e * std::sin(wd * dtau) / wd;
+    } else {
+        const double wd = std::sqrt(-z);
+        const double slow = std::exp((wd - 0.5 * d) * dtau), fast = std::exp((-wd - 0.5 * d) * dtau);
+        ec = 0.5 * (slow + fast);
+        es = 0.5 * (slow - fast) / wd;
+    }
+    c[0] = ec + 0.5 * d * es;
+    c[1] = es;
+    c[2] = -es;
+    c[3] = ec - 0.5 * d * es;
     c[4] = qs * (1.0 - c[0]);
     c[5] = -qs * c[2];
     c[6] = qs;

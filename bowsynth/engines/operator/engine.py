@@ -16,20 +16,11 @@ from ...render import LazyControls, Played, Render, RenderInfo
 from ...scene import Scene
 from .basis import _operator
 from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_verdict
-from .choose import (
-    _bow_exit,
-    as_model,
-    available_models,
-    covering_model,
-    find_model,
-    first_bow_outside,
-    partial_model,
-    train_hint,
-    unreadable_notes,
-)
+from .choose import (_bow_exit, as_model, available_models, covering_model, find_model, first_bow_outside,
+                     partial_model, train_hint, unreadable_notes)
 from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
 from .modelfile import OperatorModel
-from .onset import mute_from, rest_onset
+from .onset import mute_from, rest_onset, ring_down
 from .rollout import applied_controls, length_buckets, rollout_states, scene_bows
 from .windows import FAIL_BOW, FAIL_DOMAIN, FAIL_MUTE, FAILURES, locked_window, window_bounds
 
@@ -348,10 +339,13 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                            stop))
             ctrl_of[i] = functools.partial(_applied_after_rest, scenes[i], m, h, ctrl_of.get(i), win[i])
         idx = idx_all
+        landed = {}
         for row, i in enumerate(idx):  # a held note that sat at its rest point where the physics grows it
             mute = None if voices[row][2][0] >= 0 else mute_from(scenes[i], voices[row][1])
             if mute is not None:
                 voices[row] = (*voices[row][:2], [mute, FAIL_MUTE])
+            elif voices[row][2][0] < 0:  # or one that hums where the physics damps it
+                landed[i] = ring_down(scenes[i], *voices[row][:2])
         again: list[int] = []
         if model is None:  # a voice that left the picked model's states: the next covering model plays it
             rest = [x for x in models if x is not m]
@@ -387,6 +381,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                                                                "cents_abs_max")}
             if i in pre:
                 info.rest_flow = pre[i][0] / sc.sample_rate
+            if landed.get(i) is not None:
+                info.ring_down = landed[i] / sc.sample_rate
             if win[i] is not None:  # locked: how many windows a sounding period
                 info.windows = round(2 * math.pi * sc.f0 / sounding[i] / win[i])
             # constant controls: the scene's own (Render's lazy default) are what ran

@@ -34,7 +34,7 @@ def rest_onset(sc: Scene, m, spw: float):
     """The scene's first samples by the flow at rest, while its state stays within the radius of each window's bow
     (the bows the operator would play, scene_bows): (h, q, p, qh, ph) with q, p its h samples (float64) and (qh, ph)
     the state at sample h, where the operator goes on (h = n_samples: the whole note); or None where it does not
-    apply (a point model, a start away from the rest point, an overdamped bow)."""
+    apply (a point model, a start away from the rest point)."""
     if not uses_rest_flow(m) or sc.pitch_varies:
         return None
     # the first window's middle (scene_bows' bow there) decides, before the bows of every window are built: most
@@ -69,10 +69,10 @@ def rest_onset(sc: Scene, m, spw: float):
         d, qs = physics.rest_linearisation(sc.fb_at(t) / sc.omega, sc.vb_at(t), sc.a)
         r = np.repeat([physics.rest_radius(float(x), float(sc.a)) for x in bows[w0:w1, 1]],
                       (ends[w0:w1] - starts[w0:w1]).astype(np.int64))
-        ok = np.abs(d) < physics.MAX_REST_DAMPING
+        ok = np.isfinite(d)
         per = np.zeros((s1 - s0, 8))
         lib.rest_coefficients(np.where(ok, d, 0.0), qs, np.full(s1 - s0, sc.dtau), per)
-        per[:, 7] = np.where(ok, r, -1.0)  # an overdamped bow: the state is outside at once
+        per[:, 7] = np.where(ok, r, -1.0)  # no linearisation: the state is outside at once
         k, q, p = lib.rest_run(q, p, per, s1 - s0, oq[s0:], op[s0:])
         h = s0 + k
         if k < s1 - s0:
@@ -119,3 +119,24 @@ def mute_from(sc: Scene, p) -> int | None:
     tail = np.asarray(p[at:], dtype=float)
     scale = sc.vb - physics.vb_stop(sc.a)
     return at if np.isfinite(tail).all() and np.ptp(tail) < MUTE_FRACTION * scale else None
+
+
+def ring_down(sc: Scene, q, p) -> int | None:
+    """A held bow that damps the mass (below vb_stop: d > 0) plays, from the first sample whose state lies within the
+    radius of its rest point, the exact flow linearised there, in place in q and p. Inside the radius the swing can
+    only shrink (d/dtau ((q - q_s)^2 + p^2) = -2 d p^2), so the note comes to rest as the physics does, where the
+    operator left alone settled on a faint hum (bench map: p RMS 1e-4 to 5.6e-3 where the truth is silent, at 20 of
+    its 36 silent cells). Returns that sample, or None: the bow moves or drives the mass, or the state never came in."""
+    if sc.varying or sc.pitch_varies:
+        return None
+    d, qs = physics.rest_linearisation(sc.beta, sc.vb, sc.a)
+    r = physics.rest_radius(float(sc.vb), float(sc.a))
+    if not (d > 0 and r > 0):
+        return None
+    with np.errstate(invalid="ignore"):
+        inside = np.flatnonzero(np.square(q - qs) + np.square(p) <= r * r)
+    if not len(inside):
+        return None
+    k = int(inside[0])
+    q[k:], p[k:] = physics.linear_flow(float(q[k]), float(p[k]), np.arange(len(q) - k) * sc.dtau, (d, qs))
+    return k
