@@ -12,8 +12,12 @@ $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	$(PY) -m pip install -q --upgrade pip
 	# the CPU build of torch lies on this machine; a bare `torch` would pull a multi-GB CUDA build
 	$(PY) -m pip install -q torch==2.13.0
-	# builds the compiled core (src/core) with scikit-build-core: needs g++; CMake and nanobind come from PyPI
-	$(PY) -m pip install -q -e '.[test]'
+	# builds the compiled core (src/core) with scikit-build-core: needs g++; CMake and nanobind come from PyPI, into
+	# the venv and used from there (no build isolation), so that the wheel test (tests/test_reliability.py) builds
+	# with the same tools into the same build directory and recompiles nothing (in an isolated env, another nanobind
+	# and CMake: the core compiled again, 60 s of the suite)
+	$(PY) -m pip install -q 'scikit-build-core>=0.10' 'nanobind>=2.0' cmake ninja
+	$(PY) -m pip install -q --no-build-isolation -e '.[test]'
 	touch $(STAMP)
 
 setup: $(STAMP) chromium jackd
