@@ -2,9 +2,10 @@
 player as a subprocess, and a test client that sends MIDI to bowsynth:midi_in and records bowsynth:out.
 
 The sender and the recorder are two JACK clients, so the graph is sender -> bowsynth -> recorder with no cycle: all
-three run in the same period, and a take is timed by the frames the graph processed (a note-on sent for frame f is
-heard from frame f on; `perform`). No timing is asserted here (docs/BENCHMARKS.md has the callback times), nor the server's xrun
-count (the whole graph's, start-up included); what was lost shows in the sample-for-sample comparisons.
+three run in the same period, and a take is timed by the frames the graph processed (a note-on sent for frame f
+is heard from frame f on; `perform`). No timing is asserted here (docs/BENCHMARKS.md has the callback times), nor
+the server's xrun count (the whole graph's, start-up included); what was lost shows in the sample-for-sample
+comparisons.
 """
 
 from __future__ import annotations
@@ -150,11 +151,11 @@ def perform(server: str, events, seconds: float, target: str = "bowsynth", lead:
     player, recorder) each cycle, so a cycle is known by its frame time and placed at the frames the sender had
     processed before it. A server clock that jumps (a dummy driver without real-time scheduling, woken late on a
     busy machine) changes nothing the player hears. A cycle the recorder missed from `strict_from` seconds on is a
-    lost one (LostCycle; before it, the sender's own Python callback may be too slow: a flood of ~100 events a period
-    loses cycles, and what the flood test asserts does not hang on them), unless skips_ok (a benchmark that counts the xruns: the take as it was, silence where cycles were lost). Python's
-    cyclic garbage collector is off during the take: a full collection of this process's heap, late in the suite,
-    could hold a callback past the period. stall: seconds into the take at which the sender's callback sleeps 50 ms
-    (a lost cycle on purpose)."""
+    lost one (LostCycle; before it, the sender's own Python callback may be too slow: a flood of ~100 events a
+    period loses cycles, and what the flood test asserts does not hang on them), unless skips_ok (a benchmark that
+    counts the xruns: the take as it was, silence where cycles were lost). Python's cyclic garbage collector is off
+    during the take: a full collection of this process's heap, late in the suite, could hold a callback past the
+    period. stall: seconds into the take at which the sender's callback sleeps 50 ms (a lost cycle on purpose)."""
     _quiet()
     n = int(seconds * RATE)
     lead_n = int(round(lead * RATE))

@@ -212,17 +212,21 @@ def read_len(path) -> float:
 def test_models_report(browser, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the shipped models only
     page = tmp_path / "models.html"
-    # a 3 x 3 grid: soft-range's box reaches v_B 0, where the lowest row does not speak; six bows still do
-    code, out, err = run_main(["models", "--report", str(page), "--report-grid", "3"], capsys, monkeypatch)
+    # a 3 x 3 grid: soft-range's box reaches v_B 0, where the lowest row does not speak; six bows still do. Three
+    # models (--only): one point model, two range models; every model's report renders for a minute
+    code, out, err = run_main(["models", "--report", str(page), "--report-grid", "3", "--only",
+                               "soft-range,paper-fb10,stick-heavy"], capsys, monkeypatch)
     assert code == 0, err
     assert "models report: soft-range.safetensors: bow 9/9" in err  # progress lines
     assert "does not speak within" in err
     from bowsynth.engines.operator.choose import scan_models
 
-    found = [(p, m) for p, m, _ in scan_models()]
+    found = [(p, m) for p, m, _ in scan_models() if p.stem in ("soft-range", "paper-fb10", "stick-heavy")]
     points = [p for p, m in found if m is not None and not m.domain.is_range]
     ranges = [p for p, m in found if m is not None and m.domain.is_range]
-    assert points and ranges
+    assert len(points) == 1 and len(ranges) == 2
+    listed = [l.split()[0] for l in out.splitlines() if l.endswith(".safetensors") or ".safetensors  " in l]
+    assert sorted(Path(l).stem for l in listed) == ["paper-fb10", "soft-range", "stick-heavy"], out
     info = open_report(browser, page)
     # a point model: its own scene, model and truth; a range model: best, median, worst of the held-out bows, each
     # model and truth; all 1 s renders. One map per range model.
@@ -255,6 +259,10 @@ def test_report_path_rules_before_any_work(tmp_path, capsys, monkeypatch):
     code, _, err = run_main(["models", "--report", str(tmp_path / "m.html"), "--report-grid", "0"], capsys,
                             monkeypatch)
     assert code == 2 and "--report-grid" in err
+    for only, words in (("soft-range,no-such-model", "no model named no-such-model"), (" , ", "no name given")):
+        code, _, err = run_main(["models", "--report", str(tmp_path / "m.html"), "--only", only], capsys, monkeypatch)
+        assert code == 2 and words in err and "soft-range" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "m.html").exists()
 
 
 def test_no_half_page_when_compare_fails(tmp_path, capsys, monkeypatch):

@@ -46,6 +46,7 @@ def models(
     report: Optional[Path] = typer.Option(None, "--report", help="Also write an HTML report: each model's metadata, a map of its error over its box at held-out bows, players. Renders against a x100 FDM: tens of seconds."),
     report_grid: int = typer.Option(3, "--report-grid", help="--report: held-out bows per side of a range model's box (N x N FDM runs)."),
     force: bool = typer.Option(False, "--force", help="Replace a read-only --report file."),
+    only: Optional[str] = typer.Option(None, "--only", help="These models only, by name (comma-separated, e.g. soft-range,stick-heavy): listed and, with --report, reported (a report of every model renders for about a minute)."),
 ):
     """List the operator models found in ./models and the shipped ones, with their domains and scores."""
     from rich.markup import escape
@@ -56,7 +57,7 @@ def models(
         from ..report.models_page import check_report_path
 
         check_report_path(report, report_grid, force)
-    found = scan_models()
+    found = _only(scan_models(), only)
     if not found:
         out.print("no models found (train one with `bowsynth train --fb 100`)")
     for recipe, why in _recipe_problems(found):
@@ -91,6 +92,21 @@ def models(
 
         write_models_report(report, found, report_grid, force, progress=lambda s: err.print(s, soft_wrap=True))
         out.print(f"report written to {report}")
+
+
+def _only(found: list, only: str | None) -> list:
+    """The models named in --only (file stems, in the order found); a name that matches none is a usage error."""
+    from ..errors import UsageError
+
+    if only is None:
+        return found
+    names = [n.strip().removesuffix(".safetensors") for n in only.split(",") if n.strip()]
+    stems = [p.stem for p, _, _ in found]
+    missing = [n for n in names if n not in stems]
+    if not names or missing:
+        raise UsageError(f"--only {only}: {'no model named ' + ', '.join(missing) if missing else 'no name given'} "
+                         f"(models found: {', '.join(dict.fromkeys(stems)) or 'none'})")
+    return [f for f in found if f[0].stem in names]
 
 
 def _recipe_problems(found) -> list[tuple[Path, str]]:
