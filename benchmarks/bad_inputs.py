@@ -148,6 +148,7 @@ CASES = [
     ("metadata edited: signal \"x\"", "compare sigx.wav"),
     ("a stems index edited: duration \"abc\"", "compare stemmed.wav"),
     ("a 300-character output name", "render --method fdm -d 0.1 " + "a" * 300 + ".wav"),
+    ("models --only a name no model has", "models --only soft-range,soft-rnage --report m.html"),
 ]
 
 # (what, command, signal, seconds after start-up): the signal lands in the phase named

@@ -210,7 +210,7 @@ def perform(server: str, events, seconds: float, target: str = "bowsynth", lead:
     return np.nan_to_num(out, nan=0.0), [f - lead_n for f, _ in sched]
 
 
-def played(player, server: str, args, events, seconds: float, sig=signal.SIGINT, tries: int = 3, **kw):
+def played(player, server: str, args, events, seconds: float, sig=signal.SIGINT, tries: int = 5, **kw):
     """`bowsynth play ARGS` started, the events performed (perform), the player stopped with `sig`: (recording,
     frames, exit code, output). A take with a lost cycle (LostCycle) is played again by a fresh player, up to
     `tries` times: a callback of the instrument too slow for the period would lose cycles in every take and fail
