@@ -342,8 +342,8 @@ struct VoicesPy {
         if (md == bowsynth::REST) {  // the rest flow, then the operator from where it ends
             const double* R = V.rest + bowsynth::REST_COLS * v;
             need(std::isfinite(R[bowsynth::R_RADIUS]) && R[bowsynth::R_RADIUS] >= 0 &&
-                     std::fabs(R[bowsynth::R_D]) < 2.0 && std::isfinite(R[6]),
-                 f + "needs a rest flow of radius >= 0, |d| < 2 and a finite rest point");
+                     std::isfinite(R[bowsynth::R_D]) && std::isfinite(R[6]),
+                 f + "needs a rest flow of radius >= 0, a finite d and a finite rest point");
             need(V.pos[v] >= V.orig[v] && V.orig[v] >= 0, f + "has its partition's start after its position");
         }
         const double sw = V.spw[v];

@@ -138,5 +138,12 @@ def ring_down(sc: Scene, q, p) -> int | None:
     if not len(inside):
         return None
     k = int(inside[0])
-    q[k:], p[k:] = physics.linear_flow(float(q[k]), float(p[k]), np.arange(len(q) - k) * sc.dtau, (d, qs))
+    # the core's rest_run, one step a sample, as the note's first samples (rest_onset) and the live voices' REST mode
+    # play the flow; inside the radius the state does not leave it
+    c = np.zeros((1, 8))
+    core.load().rest_coefficients(np.array([d]), np.array([qs]), np.array([sc.dtau]), c)
+    c[0, 7] = r
+    oq, op = np.empty(len(q) - k), np.empty(len(q) - k)
+    h = core.load().rest_run(float(q[k]), float(p[k]), c, len(q) - k, oq, op)[0]
+    q[k:k + h], p[k:k + h] = oq[:h], op[:h]
     return k
