@@ -168,6 +168,8 @@ def test_a_held_bow_that_damps_the_mass_comes_to_rest_as_the_truth(beta, vb):
     r = render(sc, engine="operator")
     ref = truth(sc)
     assert r.method.engine == "operator" and r.info.ring_down is not None and r.info.ring_down < 0.5
+    said = f"t = {r.info.ring_down:.4f} s"
+    assert any(n.startswith("note: the bow damps the mass") and said in n for n in r.info.notes), r.info.notes
     half = sc.n_samples // 2
     assert np.std(r.p[half:]) < 1e-6 and np.std(ref.p[half:]) < 1e-6
     _, qs = physics.rest_linearisation(beta, vb, sc.a)
@@ -180,3 +182,4 @@ def test_a_bow_that_drives_the_mass_or_moves_is_not_rung_down():
     held = render(slow_scene(duration=0.5), engine="operator")
     moving = render(slow_scene(duration=0.5).replace(vb=[(0.0, 0.04), (0.4, 0.2)]), engine="operator")
     assert held.info.ring_down is None and moving.info.ring_down is None and np.std(held.p[-2000:]) > 1e-3
+    assert not any("damps the mass" in n for n in held.info.notes + moving.info.notes)
