@@ -10,9 +10,10 @@ u^{+-1} = u^0 +- k p0 - k^2/2 (w^2 u^0 + F_B phi(p0 - v_B)) -- the second-order 
 p[0] = p0, and the render converges at second order to the initial-value problem. The paper's own file instead uses
 u^{-1} = u^0 = 0 (see `run_fdm_raw`).
 
-Two paths: `render_fdm` (one voice, the compiled loop of `bowsynth.compiled`, src/core/fdm.cpp) and `fdm_batch` (numpy,
-vectorised across initial states, for training data, and the readable reference the tests hold the compiled loop to).
-They run the same iteration and agree to the bit.
+Two paths: the compiled loop of `bowsynth.compiled` (src/core/fdm.cpp: `render_fdm`, one voice, and `fdm_batch`'s
+default, many states for training data, over threads) and numpy (`fdm_batch(loop="numpy")`, vectorised across the
+states: the readable reference the tests hold the compiled loop to). They run the same iteration and agree to the
+bit.
 """
 
 from __future__ import annotations
@@ -140,9 +141,8 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None, loop: st
 
     loop "core": each state by the compiled loop (run_fdm_raw), the states spread over the CPU's cores (the loop
     lets go of the GIL), where vb is not a function of time; "numpy" (and a vb that is one): vectorised across the
-    states, the readable reference. Both agree to the bit. Training data is this batch: a point's data (18k steps
-    of 4k states) took 60 s in numpy and takes a few in the core.
-    """
+    states, the readable reference. Both agree to the bit. Training data is this batch: a shipped recipe's took
+    19-64 s in numpy and takes 5-17 s in the core (benchmarks/train_data.py)."""
     q0 = np.asarray(q0, dtype=float)
     p0 = np.asarray(p0, dtype=float)
     moving = callable(vb)
