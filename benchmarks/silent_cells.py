@@ -1,6 +1,7 @@
 """The cells of `bench map` where the truth is silent (a bow that damps the mass, v_B 0 and 0.04, from rest), played by
-the operator of a checkout: p's standard deviation over each 2 s note's second half. Results: docs/BENCHMARKS.md, "A
-held bow that damps the mass comes to rest".
+the operator of a checkout: p's standard deviation over each 2 s note's second half; then bow stops (v_B 0.2 -> 0 over
+0.5-0.6 s, held at 0 to 2.5 s): p's standard deviation over 0.7-1.0 s and from 1.5 s, the operator's and the x8
+FDM's. Results: docs/BENCHMARKS.md, "A held bow that damps the mass comes to rest".
 
     .venv/bin/python benchmarks/silent_cells.py [TREE]     # TREE: another checkout (default: this one)
 
@@ -55,6 +56,14 @@ def main() -> None:
     s = np.array(stds)
     print(f"\n{len(s)} cells; above 1e-4 (bench map's 'sounds'): {int((s > 1e-4).sum())}; std median "
           f"{np.median(s):.2g}, worst {s.max():.2g}")
+    print("\n| bow stop: f0 | F_B / w | operator 0.7-1.0 s | FDM x8 | operator from 1.5 s | FDM x8 |")
+    print("|---|---|---|---|---|---|")
+    for f0, b in ((110.0, 0.1), (110.0, 0.3), (220.0, 0.2), (440.0, 0.05), (110.0, 1.0)):
+        sc = Scene(f0=f0, fb=b * 2 * math.pi * f0, vb=[(0.0, 0.2), (0.5, 0.2), (0.6, 0.0)], duration=2.5)
+        op, ref = render(sc, engine="operator"), render(sc, engine="fdm", oversample=8)
+        mid, end = slice(int(0.7 * 44100), 44100), slice(int(1.5 * 44100), None)
+        print(f"| {f0:g} | {b:g} | {np.std(op.p[mid]):.2e} | {np.std(ref.p[mid]):.2e} | {np.std(op.p[end]):.2e} | "
+              f"{np.std(ref.p[end]):.2e} |")
 
 
 if __name__ == "__main__":

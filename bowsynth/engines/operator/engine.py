@@ -384,8 +384,9 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 info.rest_flow = pre[i][0] / sc.sample_rate
             if landed.get(i) is not None:  # a silent note, said: the physics rests there
                 info.ring_down = landed[i] / sc.sample_rate
+                vb = float(sc.vb_at(info.ring_down))
                 info.notes = [*info.notes, f"note: {'' if _single else f'voice {labels[i]}: '}the bow damps the "
-                              f"mass (v_B {sc.vb:g} at or below 1/sqrt(2a) = {physics.vb_stop(sc.a):.4g}): the note "
+                              f"mass (v_B {vb:g} at or below 1/sqrt(2a) = {physics.vb_stop(sc.a):.4g}): the note "
                               f"rests, by the flow at rest from t = {info.ring_down:.4f} s"]
             if win[i] is not None:  # locked: how many windows a sounding period
                 info.windows = round(2 * math.pi * sc.f0 / sounding[i] / win[i])

@@ -16,6 +16,7 @@ import numpy as np
 
 from ... import compiled as core
 from ... import physics
+from ...controls import Curve
 from ...scene import Scene
 from .rollout import scene_bows
 from .windows import window_bounds
@@ -122,26 +123,34 @@ def mute_from(sc: Scene, p) -> int | None:
 
 
 def ring_down(sc: Scene, q, p) -> int | None:
-    """A held bow that damps the mass (below vb_stop: d > 0) plays, from the first sample whose state lies within the
-    radius of its rest point, the exact flow linearised there, in place in q and p. Inside the radius the swing can
-    only shrink (d/dtau ((q - q_s)^2 + p^2) = -2 d p^2), so the note comes to rest as the physics does, where the
-    operator left alone settled on a faint hum (bench map: p RMS 1e-4 to 5.6e-3 where the truth is silent, at 20 of
-    its 36 silent cells). Returns that sample, or None: the bow moves or drives the mass, or the state never came in."""
-    if sc.varying or sc.pitch_varies:
+    """A bow that damps the mass (below vb_stop: d > 0), held from some time to the note's end, plays from the first
+    sample after that time whose state lies within the radius of its rest point the exact flow linearised there, in
+    place in q and p. Inside the radius the swing can only shrink (d/dtau ((q - q_s)^2 + p^2) = -2 d p^2), so the
+    note comes to rest as the physics does, where the operator left alone settled on a faint hum: bench map's held
+    bows, p RMS 1e-4 to 3e-3 at 20 of its 36 silent cells; a bow stop to v_B 0, 6e-5 to 3e-4 after it where the truth
+    decays to 1e-15 and below. Returns that sample, or None: the bow at the end drives the mass, or the state never
+    came in."""
+    # the last breakpoint of any curve: from there pitch, force and speed hold still
+    hold = max([c.points[-1][0] for c in (sc.f0, sc.fb, sc.vb) if isinstance(c, Curve)], default=0.0)
+    s0, n = max(0, math.ceil(hold * sc.sample_rate)), len(q)
+    if s0 >= n:
         return None
-    d, qs = physics.rest_linearisation(sc.beta, sc.vb, sc.a)
-    r = physics.rest_radius(float(sc.vb), float(sc.a))
+    t_end = (n - 1) / sc.sample_rate
+    w = physics.omega(float(sc.f0_at(t_end)))
+    vb = float(sc.vb_at(t_end))
+    d, qs = physics.rest_linearisation(float(sc.fb_at(t_end)) / w, vb, sc.a)
+    r = physics.rest_radius(vb, float(sc.a))
     if not (d > 0 and r > 0):
         return None
     with np.errstate(invalid="ignore"):
-        inside = np.flatnonzero(np.square(q - qs) + np.square(p) <= r * r)
+        inside = s0 + np.flatnonzero(np.square(q[s0:] - qs) + np.square(p[s0:]) <= r * r)
     if not len(inside):
         return None
     k = int(inside[0])
     # the core's rest_run, one step a sample, as the note's first samples (rest_onset) and the live voices' REST mode
     # play the flow; inside the radius the state does not leave it
     c = np.zeros((1, 8))
-    core.load().rest_coefficients(np.array([d]), np.array([qs]), np.array([sc.dtau]), c)
+    core.load().rest_coefficients(np.array([d]), np.array([qs]), np.array([w / sc.sample_rate]), c)
     c[0, 7] = r
     oq, op = np.empty(len(q) - k), np.empty(len(q) - k)
     h = core.load().rest_run(float(q[k]), float(p[k]), c, len(q) - k, oq, op)[0]
