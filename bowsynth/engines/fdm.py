@@ -161,7 +161,9 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None, loop: st
     u_prev = taylor_start(u_cur, p0, k, w, fb, vb, a)
     eta = p0 - vb
     if loop == "core" and not moving:
-        return _fdm_rows(q0, u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress)
+        q, p = _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress)
+        q[:, 0] = q0
+        return q, p
     c, ck, w2 = 2.0 / k, 2.0 / (k * k), w * w
     q = np.empty((q0.size, n_out))
     p = np.empty((q0.size, n_out))
@@ -180,13 +182,13 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None, loop: st
     return q, p
 
 
-def _fdm_rows(q0, u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=None):
+def _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=None):
     """fdm_batch's states one by one in the compiled loop, in slices over a pool of threads (the core runs
     without the GIL); each row's arithmetic is the numpy batch's, so the rows are the same to the bit."""
     import os
     from concurrent.futures import ThreadPoolExecutor, as_completed
 
-    n = q0.size
+    n = u_cur.size
     q, p = np.empty((n, n_out)), np.empty((n, n_out))
 
     def rows(lo: int, hi: int) -> int:
@@ -196,7 +198,7 @@ def _fdm_rows(q0, u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progres
             p[i] = e + vb[i]
         return hi - lo
 
-    per = max(1, min(64, n // 32 or 1))
+    per = max(1, min(64, n // 32))
     pool = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
     try:
         done = 0
@@ -206,7 +208,6 @@ def _fdm_rows(q0, u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progres
                 on_progress(done / n)
     finally:  # an interrupt (Ctrl-C) waits for the slices running, not for those queued
         pool.shutdown(wait=True, cancel_futures=True)
-    q[:, 0] = q0
     return q, p
 
 

@@ -24,6 +24,16 @@ from .windows import window_bounds
 CHUNK = 32  # windows whose rows are built at a time when the bow moves (a note leaves the radius within ~0.2-2 s)
 
 
+def _held_flow(d: float, qs: float, r: float, dtau: float, q: float, p: float, oq, op):
+    """The flow at rest of one held bow (d, q_s, radius r) from (q, p), a step of dtau a sample, into oq and op while
+    the state stays within r: (samples played, q, p at the next), by the core's rest_run with one row of
+    coefficients, the loop of the live voices' REST mode."""
+    c = np.zeros((1, 8))
+    core.load().rest_coefficients(np.array([d]), np.array([qs]), np.array([dtau]), c)
+    c[0, 7] = r
+    return core.load().rest_run(q, p, c, len(oq), oq, op)
+
+
 def uses_rest_flow(m) -> bool:
     """Range models start a note with the flow at rest. A point model learnt its own bow's trajectory from rest
     (paper-fb10: onset errors of microseconds; scratch-g2 carries the rest flow inside its network), so its notes
@@ -50,11 +60,7 @@ def rest_onset(sc: Scene, m, spw: float):
     lib = core.load()
     q, p = float(sc.q0), float(sc.p0)
     if np.ptp(bows[:, 0]) == 0 and np.ptp(bows[:, 1]) == 0:  # one bow throughout: one row, as a live note's
-        d, qs, r = flow
-        c = np.zeros((1, 8))
-        lib.rest_coefficients(np.array([d]), np.array([qs]), np.array([sc.dtau]), c)
-        c[0, 7] = r
-        h, q, p = lib.rest_run(q, p, c, n, oq, op)
+        h, q, p = _held_flow(*flow, sc.dtau, q, p, oq, op)
         return h, oq[:h], op[:h], q, p
     starts, ends = window_bounds(spw, n)
     ends = np.minimum(ends, n)
@@ -139,20 +145,18 @@ def ring_down(sc: Scene, q, p) -> int | None:
     w = physics.omega(float(sc.f0_at(t_end)))
     vb = float(sc.vb_at(t_end))
     d, qs = physics.rest_linearisation(float(sc.fb_at(t_end)) / w, vb, sc.a)
+    if not d > 0:  # the bow drives the mass (every sounding note): no radius to look for
+        return None
     r = physics.rest_radius(vb, float(sc.a))
-    if not (d > 0 and r > 0):
+    if not r > 0:
         return None
     with np.errstate(invalid="ignore"):
         inside = s0 + np.flatnonzero(np.square(q[s0:] - qs) + np.square(p[s0:]) <= r * r)
     if not len(inside):
         return None
     k = int(inside[0])
-    # the core's rest_run, one step a sample, as the note's first samples (rest_onset) and the live voices' REST mode
-    # play the flow; inside the radius the state does not leave it
-    c = np.zeros((1, 8))
-    core.load().rest_coefficients(np.array([d]), np.array([qs]), np.array([w / sc.sample_rate]), c)
-    c[0, 7] = r
-    oq, op = np.empty(len(q) - k), np.empty(len(q) - k)
-    h = core.load().rest_run(float(q[k]), float(p[k]), c, len(q) - k, oq, op)[0]
+    # played as a note's first samples are (rest_onset); inside the radius the state does not leave it
+    oq, op = np.empty(n - k), np.empty(n - k)
+    h = _held_flow(d, qs, r, w / sc.sample_rate, float(q[k]), float(p[k]), oq, op)[0]
     q[k:k + h], p[k:k + h] = oq[:h], op[:h]
     return k
