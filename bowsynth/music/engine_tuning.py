@@ -69,12 +69,12 @@ def operator_ratio(model, locked: bool = False):
 # extrapolated, once per bow, 30-100 ms, cached on disk), where the model holds that period. Such a clock pulls the
 # operator's cycle onto it, as an oscillator is pulled within its locking range, and the network plays the wave within
 # each period. Measured (session 21, `benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows):
-# 0.0005 / 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics 0.028 /
-# 1.12 dB against 0.030 / 0.81, onsets 12/12 both; the 12 soft bows 0.009 / 0.11 cents against 0.072 / 0.36. Not
-# every model holds it: velocity-loud's C3 at velocity 112 came out 0.92 cents off the physics' pitch, a barely
-# trained test model left its states. So the lock is measured once per model and bow (cached) and taken where the
-# model's pitch in it is within LOCK_HOLDS_CENTS of the physics'; elsewhere the windows lock to the model's own period
-# (--windows locked), the note tuned with that. The pull-in has a price: a short note sounds it. The chorale's mix
+# 0.0005 / 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics
+# 0.028 / 1.12 dB against 0.030 / 0.81, onsets 12/12 both; the 12 soft bows 0.009 / 0.11 cents against 0.072 / 0.36. Not
+# every model holds it: velocity-loud's C3 at velocity 112 came out 0.92 cents off the physics' pitch, a barely trained
+# test model left its states. So the lock is measured once per model and bow (cached) and taken where the model's pitch
+# in it is within LOCK_HOLDS_CENTS of the physics'; elsewhere the windows lock to the model's own period (--windows
+# locked), the note tuned with that. The pull-in has a price: a short note sounds it. The chorale's mix
 # (`benchmarks/chorale.py`, notes of 0.4-1.6 s) came out 1.12 dB from the FDM's (60 dB floor) against 0.88 with its
 # windows locked to each model's own period, so a score keeps those (--windows locked, its default).
 LOCK_HOLDS_CENTS = 0.05
@@ -184,9 +184,10 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
                       windows: str = "locked") -> float | None:
     """The frequency (Hz) a held note played by an operator model (given, or the covering one among `models`) is
     locked to, at its held bow (held's, where the scene's bow moves only to stop: a score's note): f0 times the
-    ratio held_lock gives for the windows (the model's own, or the physics' where the model holds it). The windows of its voice divide that period (engines.operator.windows.locked_window). None
-    where there is no such number: a moving bow or pitch, no covering model, or a bow the model cannot hold from rest
-    (or whose physics settles on no period)."""
+    ratio held_lock gives for the windows (the model's own, or the physics' where the model holds it). The windows of
+    its voice divide that period (engines.operator.windows.locked_window). None where there is no such number: a
+    moving bow or pitch, no covering model, or a bow the model cannot hold from rest (or whose physics settles on no
+    period)."""
     held = scene if held is None else held
     if held.varying or scene.pitch_varies:
         return None
