@@ -12,7 +12,7 @@ from bowsynth import Scene
 from bowsynth.api import render
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.rollout import BATCH_FROM, rollout_states
-from bowsynth.engines.operator.windows import locked_window
+from bowsynth.engines.operator.windows import Lock, locked_window
 
 from conftest import run_main
 from test_kernels import torch_rollout
@@ -27,6 +27,18 @@ def test_a_locked_window_is_the_sounding_period_over_the_fewest_windows_that_fit
     assert math.isclose(k * w, period, rel_tol=1e-12)
     assert w <= T * (1 + 1e-12)
     assert k == 1 or period / (k - 1) > T  # one window fewer would be longer than the trained one
+
+
+@pytest.mark.parametrize("ratio", [1.0, 0.93, 0.4999, 0.237])
+def test_a_lock_with_more_windows_divides_the_same_period_into_that_many_more(ratio):
+    T, f0 = 2 * math.pi, 220.0
+    k = round(T / ratio / locked_window(T, f0, ratio * f0))
+    for more in (1, 2):
+        lock = Lock(ratio * f0, more)
+        assert lock == ratio * f0 and lock.more == more and lock.scaled(2.0).more == more
+        w = locked_window(T, f0, lock)
+        assert math.isclose((k + more) * w, T / ratio, rel_tol=1e-12)
+    assert getattr(Lock(1.0, 1) * 2.0, "more", None) is None  # arithmetic gives a plain float: scaled keeps it
 
 
 @pytest.mark.parametrize("loop", ["numpy", "core-voices", "core-batch", "core"])
@@ -179,3 +191,26 @@ def test_auto_windows_play_free_where_the_model_is_in_tune_and_lock_to_the_physi
         other = render(sc, model=model, windows="physics" if like == "free" else "free")
         assert not np.array_equal(auto.p, other.p)
 
+
+
+def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does():
+    """stick-stops at F_B / w 0.7188, v_B 0.08 (bench map's worst pitch in session 21): the physics' period is 16.9 of
+    its trained windows; 17 windows of 0.994 T leave its cycle at its own period, 5.3 cents sharp at 110 Hz
+    (measured), 18 hold the physics' within 0.02 cent. lock_ratio takes the 18 (a Lock with more = 1), and a
+    physics render plays them."""
+    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.engines.operator.choose import as_model
+    from bowsynth.music.engine_tuning import LOCK_HOLDS_CENTS, lock_ratio, operator_ratio
+    from bowsynth.music.tuning import sounding_ratio
+
+    m, beta, vb = as_model("stick-stops"), 0.7188, 0.08
+    truth = sounding_ratio(beta, vb).r
+    fewest = operator_ratio(m, locked=True)(beta, vb, 100.0, 100.0)
+    assert abs(1200 * math.log2(fewest / truth)) > 1.0
+    lock = lock_ratio(m, beta, vb, 100.0)
+    assert lock == truth and lock.more == 1
+    sc = Scene(f0=110.0, fb=beta * 2 * math.pi * 110.0, vb=vb, duration=2.0)
+    r = render(sc, model=m, windows="physics")
+    assert r.info.windows == 18
+    tail = r.p[sc.n_samples // 2:]
+    assert abs(1200 * math.log2(f0_estimate(tail, sc.sample_rate) / (110.0 * truth))) < 2 * LOCK_HOLDS_CENTS

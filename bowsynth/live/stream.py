@@ -41,6 +41,7 @@ import numpy as np
 from ..engines.operator import voices as V
 from ..engines.operator.bank import VoiceBank
 from ..engines.operator.grid import needs_whole_windows
+from ..engines.operator.windows import Lock, lock_more
 from ..errors import UsageError
 from ..music import midi as M
 from ..music.note import RELEASE, stop_tail
@@ -105,12 +106,14 @@ class Stream(VoiceBank):
             # model's own, or with --windows physics / auto the physics' where the model holds it: engine_tuning,
             # cached), NaN where it is not known or auto plays free windows: free windows there
             self.v_lock = np.full(128, np.nan)
+            self.v_more = np.zeros(128, np.int64)  # windows a period beyond the fewest (windows.Lock)
             if self.windows != "free":
                 from ..music.engine_tuning import held_lock
 
                 lock = [held_lock(model, self.windows, float(t.v_beta[v]), float(t.v_vb[v]), self.a)
                         if self.covered[v] else None for v in range(128)]
                 self.v_lock[:] = [np.nan if r is None else r for r in lock]
+                self.v_more[:] = [lock_more(r) for r in lock]
         self._allocate_midi(dc_hz)
         self._warm()
 
@@ -314,7 +317,7 @@ class Stream(VoiceBank):
                 # locked (a neutral note held at its pitch from its note-on): the model's own period, as `score`
                 # locks it; a note bent later keeps its windows, where offline its pitch curve plays free ones
                 lock = self.v_lock[vel] if neutral and pm[slot] == V.HELD else math.nan
-                if self.start_operator(slot, f0, f0 * lock if lock > 0 else None):
+                if self.start_operator(slot, f0, Lock(f0 * lock, self.v_more[vel]) if lock > 0 else None):
                     self.start_rest(slot, beta, vb, self.a, f0)
                     return
             self.counts["fdm_notes"] += 1

@@ -9,6 +9,7 @@ import math
 
 from .. import physics
 from ..errors import DomainError, UsageError
+from ..engines.operator.windows import Lock, lock_more
 from ..scene import Scene
 from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
 
@@ -38,10 +39,10 @@ RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain do
 RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
 
 
-def operator_ratio(model, locked: bool = False):
+def operator_ratio(model, locked: bool = False, more: int = 0):
     """The sounding ratio of a trained operator, as `pitch.tune(ratio=...)` takes it: the model rolled out from rest
     at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods; locked: in
-    windows locked to the physics' period (lock_ratio). A model's window chain depends on (beta, v_B) only, so one
+    windows locked to the physics' period (lock_ratio), `more` windows a period beyond the fewest that fill it. A model's window chain depends on (beta, v_B) only, so one
     measurement per model and bow serves every pitch (cached on disk with the model's id)."""
     from ..analysis.metrics import f0_estimate
     from ..engines.operator.choose import as_model
@@ -57,10 +58,11 @@ def operator_ratio(model, locked: bool = False):
             periods = RATIO_PERIODS * (2 if locked else 1)
             seconds = min((truth.settle_periods + periods / truth.r) / RATIO_F0, 60.0)
             sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=seconds)
-            r = render_operator(sc, model=m, sounding=RATIO_F0 * truth.r if locked else None)
+            r = render_operator(sc, model=m, sounding=Lock(RATIO_F0 * truth.r, more) if locked else None)
             tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
             return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
-        return engine_ratio(f"operator{'-locked2x' if locked else ''}{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
+        how = f"-locked2x{f'+{more}' if more else ''}" if locked else ""
+        return engine_ratio(f"operator{how}{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
     return ratio
 
 
@@ -78,22 +80,27 @@ def operator_ratio(model, locked: bool = False):
 # (`benchmarks/chorale.py`, notes of 0.4-1.6 s) came out 1.12 dB from the FDM's (60 dB floor) against 0.88 with its
 # windows locked to each model's own period, so a score keeps those (--windows locked, its default).
 LOCK_HOLDS_CENTS = 0.05
+# Windows a period beyond the fewest, tried in turn: windows of nearly T do not always pull the cycle (stick-stops at
+# F_B / w 0.719, v_B 0.08: 17 windows of 0.994 T leave it 5.3-5.8 cents off, 18 hold it within 0.01; windows.Lock)
+LOCK_MORE = (0, 1)
 
 
 def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
-    """The sounding ratio a held note's locked windows take with this model: the physics' where the model holds it,
-    else the model's own (own_ratio); None where neither is known (the physics settles on no period: a bow at or
-    below v_B = 1 / sqrt(2a); or the model cannot hold the bow from rest for the measurement)."""
+    """The sounding ratio a held note's locked windows take with this model: the physics' where the model holds it
+    (a Lock, with the windows a period it holds it in: the fewest that fill the period, else one more), else the
+    model's own (own_ratio); None where neither is known (the physics settles on no period: a bow at or below v_B =
+    1 / sqrt(2a); or the model cannot hold the bow from rest for the measurement)."""
     try:
         truth = sounding_ratio(beta, vb, a).r
     except SilentNoteError:
         return None
-    try:
-        held = operator_ratio(model, locked=True)(beta, vb, a, RATIO_F0)
-        if abs(1200.0 * math.log2(held / truth)) <= LOCK_HOLDS_CENTS:
-            return truth
-    except (DomainError, SilentNoteError):
-        pass
+    for more in LOCK_MORE:
+        try:
+            held = operator_ratio(model, locked=True, more=more)(beta, vb, a, RATIO_F0)
+            if abs(1200.0 * math.log2(held / truth)) <= LOCK_HOLDS_CENTS:
+                return Lock(truth, more)
+        except (DomainError, SilentNoteError):
+            pass
     return own_ratio(model, beta, vb, a)
 
 
@@ -117,7 +124,8 @@ def auto_lock(model, beta: float, vb: float, a: float) -> float | None:
     if own is not None and abs(1200.0 * math.log2(own / truth)) <= AUTO_FREE_CENTS:
         return None
     # off pitch, or not holding the bow from rest in free windows at all (stick-high at F_B / w 2, v_B 0.16): the lock
-    return truth if lock_ratio(model, beta, vb, a) == truth else None
+    lock = lock_ratio(model, beta, vb, a)
+    return lock if lock == truth else None
 
 
 def held_lock(model, windows: str, beta: float, vb: float, a: float) -> float | None:
@@ -195,7 +203,7 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
     if m is None:
         return None
     r = held_lock(m, windows, held.beta, held.vb, held.a)
-    return None if r is None else held.f0 * r
+    return None if r is None else Lock(held.f0 * r, lock_more(r))
 
 
 WINDOWS = ("locked", "free", "physics", "auto")  # how an operator voice's windows lie against its note (api.render's)

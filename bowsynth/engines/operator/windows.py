@@ -37,9 +37,38 @@ def window_bounds(spw: float, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([[0], ends[:-1]]).astype(np.int64), ends
 
 
+class Lock(float):
+    """A frequency (Hz), or a ratio to f0, that a voice's windows are locked to, with `more`: windows a period beyond
+    the fewest of at most T that fill it (locked_window). A plain float is a lock with more = 0.
+
+    Why more: a lock is measured (music.engine_tuning.lock_ratio), and the fewest windows do not always hold it.
+    stick-stops at F_B / w 0.719, v_B 0.08 fills the physics' period with 16.9 trained windows; 17 windows, each
+    0.994 T, leave its pitch where its own period is (+5.3 / +5.8 cents at 110 / 440 Hz, harmonics 0.49 dB worst),
+    18 hold it (+0.010 / -0.000 cents, 0.044 dB; scratch measurement, session 23). Arithmetic on a Lock gives a
+    plain float: `scaled` keeps `more`."""
+
+    more: int
+
+    def __new__(cls, value: float, more: int = 0):
+        lock = super().__new__(cls, value)
+        lock.more = int(more)
+        return lock
+
+    def scaled(self, by: float) -> "Lock":
+        return Lock(float(self) * by, self.more)
+
+    def __repr__(self) -> str:
+        return f"Lock({float(self)!r}, more={self.more})"
+
+
+def lock_more(sounding) -> int:
+    """The windows a period beyond the fewest that a lock asks for (0 for a plain float)."""
+    return getattr(sounding, "more", 0)
+
+
 def locked_window(T: float, f0: float, sounding: float) -> float:
     """The window (in tau, at most the trained T) of a voice locked to the period it sounds at: that period over k,
-    k the fewest windows of at most T that fill it.
+    k the fewest windows of at most T that fill it, plus the lock's `more` (a Lock; 0 for a float).
 
     Why: a window's error depends on where in the limit cycle it starts. Windows of T (the free period) are shorter
     than the sounding period (friction lowers the pitch), so each starts at another phase of the cycle, and the
@@ -49,5 +78,5 @@ def locked_window(T: float, f0: float, sounding: float) -> float:
     harmonics. The sounding frequency is needed to ~1 %: a mismatch moves the lines to within that share of each
     harmonic. The price: k * ratio windows per free period instead of one (1.7-2x for a soft bow)."""
     period = 2 * math.pi * f0 / sounding
-    k = max(1, math.ceil(period / T * (1 - 1e-12)))
+    k = max(1, math.ceil(period / T * (1 - 1e-12))) + lock_more(sounding)
     return period / k
