@@ -170,3 +170,21 @@ def test_a_release_is_handed_over_at_the_hold_to_a_model_that_covers_the_bow_sto
     np.testing.assert_array_equal(r.q[h:], ref.q)
     np.testing.assert_array_equal(r.p[h:], ref.p)
     assert r.method.fdm_fallback == ref.method.fdm_fallback
+
+
+def test_the_cycle_shape_error_reads_the_shape_not_the_phase():
+    from bowsynth.analysis.metrics import cycle_shape_error
+
+    sr, f = 44100, 97.0
+    t = np.arange(2 * sr) / sr
+    ref = np.sign(np.sin(2 * np.pi * f * t)) * 0.1  # slip edges: a sample-by-sample max reads any phase as the range
+    late = np.sign(np.sin(2 * np.pi * f * (t - 40 / sr))) * 0.1
+    assert np.max(np.abs(late - ref)) / 0.2 == 1.0
+    err, shift = cycle_shape_error(late, ref, 200)
+    assert err == 0.0 and shift == 40
+    taller = late * 1.02  # 2 % too tall: 1 % of the range at each plateau
+    assert abs(cycle_shape_error(taller, ref, 200)[0] - 0.01) < 1e-9
+    drifting = np.sign(np.sin(2 * np.pi * f * 1.001 * t)) * 0.1  # 1.7 cents sharp: no one shift holds 2 s
+    assert cycle_shape_error(drifting, ref, 200)[0] == 1.0
+    with pytest.raises(ValueError):
+        cycle_shape_error(ref[:100], ref[:100], 200)

@@ -44,6 +44,22 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     return float((len(keep) - 1) * sample_rate / (keep[-1] - keep[0]))
 
 
+def cycle_shape_error(x, ref, max_shift: int) -> tuple[float, int]:
+    """The limit cycle's shape error: min over one time shift s (|s| < max_shift samples, the same for the whole
+    signal) of max |x(t + s) - ref(t)|, as a fraction of ref's range; and that shift. Why a shift: a note that
+    speaks a millisecond early plays its whole cycle that much ahead, and a sample-by-sample max then reads the
+    phase (up to the whole range at a slip edge), not the cycle; one shift for the whole span still sees any drift.
+    The edges (max_shift samples) are left out of the comparison."""
+    x, ref = np.asarray(x, float), np.asarray(ref, float)
+    if len(x) != len(ref) or len(x) <= 2 * max_shift:
+        raise ValueError(f"cycle_shape_error needs two signals of one length > {2 * max_shift} samples")
+    span = float(ref.max() - ref.min())
+    inner = ref[max_shift:len(ref) - max_shift]
+    best = min((float(np.max(np.abs(x[max_shift + s:len(x) - max_shift + s] - inner))), s)
+               for s in range(-max_shift + 1, max_shift))
+    return best[0] / span if span > 0 else float("inf"), best[1]
+
+
 def cents(f, f_ref) -> float:
     if not (f > 0 and f_ref > 0):
         return float("nan")
