@@ -61,7 +61,10 @@ def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: 
     xruns = [0]
     try:
         rate, period = client.samplerate, client.blocksize
-        say(f"bowsynth: preparing {voices} voice(s), {engine} at {rate} Hz, {period}-frame periods ...")
+        first = ("" if windows == "free" or engine != "operator" else
+                 f" (--windows {windows}: a first start measures the bow of each velocity the model plays, 0.5-1.5 "
+                 f"minutes; later starts read it from the cache)")
+        say(f"bowsynth: preparing {voices} voice(s), {engine} at {rate} Hz, {period}-frame periods{first} ...")
         stream = Stream(sample_rate=rate, block=max(period, 256), voices=voices, engine=engine, model=model, a4=a4,
                         amp=AMP if amp is None else amp, bend_range=bend_range, windows=windows)
         midi_in = client.midi_inports.register("midi_in")
