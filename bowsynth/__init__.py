@@ -7,8 +7,9 @@ import os as _os
 # numpy's OpenBLAS on one thread (unless the user set it; it is read when numpy loads): bowsynth's numpy products are
 # small (a trunk on its grid, a harmonic fit), the compiled core keeps its own threads, and OpenBLAS's threads spin
 # for cores another process holds. Measured with a training beside it on this 2-core machine: a harmonic fit's
-# 44100 x 21 normal matrix 1380 ms on OpenBLAS's threads, 1.3 ms on one; the chorale's `score --mix` 1.86-2.01 s
-# against 1.42-1.77 s (docs/BENCHMARKS.md, "numpy's BLAS on one thread").
+# 44100 x 21 normal matrix 1380 ms on OpenBLAS's threads, 1.3 ms on one (a first `play --windows auto` 384 s -> 90 s,
+# with the harmonic fit's normal equations); a whole `score --mix` of the chorale showed no difference beyond its noise
+# (docs/BENCHMARKS.md, "numpy's BLAS on one thread").
 _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from .errors import BowsynthError, DomainError, ModelFileError, SceneError, UsageError  # noqa: E402,F401
