@@ -43,8 +43,9 @@ RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
 def operator_ratio(model, locked: bool = False, more: int = 0):
     """The sounding ratio of a trained operator, as `pitch.tune(ratio=...)` takes it: the model rolled out from rest
     at the bow until the truth's settling time plus RATIO_PERIODS periods, its pitch over those periods; locked: in
-    windows locked to the physics' period (lock_ratio), `more` windows a period beyond the fewest that fill it. A model's window chain depends on (beta, v_B) only, so one
-    measurement per model and bow serves every pitch (cached on disk with the model's id)."""
+    windows locked to the physics' period (lock_ratio), `more` windows a period beyond the fewest that fill it. A
+    model's window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached
+    on disk with the model's id)."""
     from ..analysis.metrics import f0_estimate
     from ..engines.operator.choose import as_model
     from ..engines.operator.engine import render_operator

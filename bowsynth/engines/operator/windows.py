@@ -44,8 +44,8 @@ class Lock(float):
     Why more: a lock is measured (music.engine_tuning.lock_ratio), and the fewest windows do not always hold it.
     stick-stops at F_B / w 0.719, v_B 0.08 fills the physics' period with 16.9 trained windows; 17 windows, each
     0.994 T, leave its pitch where its own period is (+5.3 / +5.8 cents at 110 / 440 Hz, harmonics 0.49 dB worst),
-    18 hold it (+0.010 / -0.000 cents, 0.044 dB; scratch measurement, session 23). Arithmetic on a Lock gives a
-    plain float: `scaled` keeps `more`."""
+    18 hold it (+0.012 / -0.002 cents, 0.048 dB: benchmarks/map_cell.py, session 23). Arithmetic on a Lock gives a
+    plain float, so a lock is made anew where it is scaled (engine_tuning.operator_sounding)."""
 
     more: int
 
@@ -53,9 +53,6 @@ class Lock(float):
         lock = super().__new__(cls, value)
         lock.more = int(more)
         return lock
-
-    def scaled(self, by: float) -> "Lock":
-        return Lock(float(self) * by, self.more)
 
     def __repr__(self) -> str:
         return f"Lock({float(self)!r}, more={self.more})"
