@@ -35,6 +35,17 @@ def source_digest(core_dir: Path) -> str | None:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def usable_cores() -> int:
+    """The cores this process may run the compiled loops on (they release the GIL): its CPU affinity, what a
+    container or `taskset` grants, else the machine's count."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
 _module = None
 
 

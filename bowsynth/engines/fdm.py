@@ -185,8 +185,9 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None, loop: st
 def _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=None):
     """fdm_batch's states one by one in the compiled loop, in slices over a pool of threads (the core runs
     without the GIL); each row's arithmetic is the numpy batch's, so the rows are the same to the bit."""
-    import os
     from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    from .. import compiled
 
     n = u_cur.size
     q, p = np.empty((n, n_out)), np.empty((n, n_out))
@@ -199,7 +200,7 @@ def _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=No
         return hi - lo
 
     per = max(1, min(64, n // 32))
-    pool = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
+    pool = ThreadPoolExecutor(max_workers=min(4, compiled.usable_cores()))
     try:
         done = 0
         for f in as_completed([pool.submit(rows, i, min(i + per, n)) for i in range(0, n, per)]):

@@ -128,8 +128,6 @@ def window_scores(model, beta: float, vb: float, a: float, lock) -> tuple[float,
     """(free, physics): each mode's score at f0 100 (max(harmonic worst / TARGET_HARMONIC_DB, |cents| /
     TARGET_CENTS); inf where it does not play): the pitch from the cached ratios (own_ratio's, the lock's), the
     harmonics from a note of AUTO_SECONDS from rest against the FDM at x AUTO_OVERSAMPLE."""
-    import numpy as np
-
     from ..analysis.metrics import listener_errors
     from ..engines.fdm import render_fdm
     from ..engines.operator.choose import as_model
@@ -150,7 +148,7 @@ def window_scores(model, beta: float, vb: float, a: float, lock) -> tuple[float,
             continue
         harm = listener_errors(r.p, truth.p, sc.sample_rate)["harm_db_max"]
         cents = math.inf if ratio is None else abs(1200.0 * math.log2(ratio / truth_r))
-        harm = math.inf if harm is None or not np.isfinite(harm) else harm
+        harm = math.inf if harm is None or not math.isfinite(harm) else harm
         scores.append(max(harm / TARGET_HARMONIC_DB, cents / TARGET_CENTS))
     return scores[0], scores[1]
 

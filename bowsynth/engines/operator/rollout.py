@@ -7,7 +7,6 @@ loops run compiled (`bowsynth.compiled`: src/core/rollout.cpp), or in numpy (`_r
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -45,13 +44,10 @@ _pool: ThreadPoolExecutor | None = None
 
 
 def threads() -> int:
-    """The cores a render may use: this process's CPU affinity (what a container or `taskset` grants), at most
-    MAX_THREADS."""
-    try:
-        n = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not on Linux
-        n = os.cpu_count() or 1
-    return max(1, min(n, MAX_THREADS))
+    """The cores a render may use (compiled.usable_cores: this process's CPU affinity), at most MAX_THREADS."""
+    from ... import compiled
+
+    return min(compiled.usable_cores(), MAX_THREADS)
 
 
 def voice_runs(work: np.ndarray, n_threads: int) -> list[tuple[int, int]]:
