@@ -24,6 +24,9 @@ MIN_F0 = 1.0  # Hz: below it u = q / w grows without bound and nothing sounds
 MIN_A = 1e-9  # s^2/m^2: a friction curve this flat is no friction; 5e-324 underflowed a / a_model to 0
 MAGNITUDE_LIMITS = (("fb", 1e9, "m/s^2"), ("vb", 1e3, "m/s"), ("a", 1e9, "s^2/m^2"), ("q0", 1e3, "m/s"),
                     ("p0", 1e3, "m/s"))
+# A note holds its bow (Scene.held_bow) where it holds one bow for at least this share of its length: a score's note
+# holds it to its release, a rendered note with an attack or a stop mostly; a gesture moves through other bows.
+HELD_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -157,6 +160,42 @@ class Scene:
     @property
     def n_samples(self) -> int:
         return int(round(self.duration * self.sample_rate))
+
+    def held_bow(self) -> "Scene | None":
+        """The scene with its bow held throughout at the bow it holds for most of the note, where its curves move
+        only for an attack (rising from F_B or v_B = 0) before that stretch and a stop (falling to 0) after it: what
+        a held note's windows lock to (music.engine_tuning.sounding_for), as a score's note locks to its sustain.
+        The scene itself where its bow holds still; None for a gesture (a bow that moves otherwise, or holds for
+        less than HELD_SHARE of the note) or a moving pitch."""
+        if self.pitch_varies:
+            return None
+        if not self.varying:
+            return self
+        end = self.duration
+        t = np.union1d(np.concatenate([controls.breakpoints(c)[0] for c in (self.fb, self.vb)]), [0.0, end])
+        t = t[(t >= 0) & (t <= end)]
+        fb, vb = self.fb_at(t), self.vb_at(t)
+        # linear between consecutive times of the union: a stretch holds where both ends agree in both curves
+        flat = (fb[1:] == fb[:-1]) & (vb[1:] == vb[:-1])
+        best, i = None, 0
+        while i < len(flat):
+            if flat[i]:
+                j = i
+                while j + 1 < len(flat) and flat[j + 1]:
+                    j += 1
+                if best is None or t[j + 1] - t[i] > t[best[1]] - t[best[0]]:
+                    best = (i, j + 1)
+                i = j + 1
+            else:
+                i += 1
+        if best is None or t[best[1]] - t[best[0]] < HELD_SHARE * end:
+            return None
+        a, b = best
+        attack = a == 0 or (min(fb[0], vb[0]) == 0 and (np.diff(fb[:a + 1]) >= 0).all()
+                            and (np.diff(vb[:a + 1]) >= 0).all())
+        stop = b == len(t) - 1 or (min(fb[-1], vb[-1]) == 0 and (np.diff(fb[b:]) <= 0).all()
+                                   and (np.diff(vb[b:]) <= 0).all())
+        return self.replace(fb=float(fb[a]), vb=float(vb[a])) if attack and stop else None
 
     def replace(self, **changes) -> "Scene":
         return dataclasses.replace(self, **changes)

@@ -70,3 +70,25 @@ def test_make_scene_with_pitch_and_beta():
     assert make_scene(beta=0.2, f0=200).fb == pytest.approx(0.2 * 2 * math.pi * 200)
     with pytest.raises(UsageError, match="fb or as beta"):
         make_scene(beta=0.2, fb=100)
+
+
+@pytest.mark.parametrize("fb,vb,duration,held", [
+    (300.0, [(1.0, 0.2), (1.1, 0.0)], 1.6, (300.0, 0.2)),  # a bow stop: v_B falls to 0 after the hold
+    ([(0.0, 0.0), (0.05, 120.0)], 0.2, 1.5, (120.0, 0.2)),  # an attack from F_B 0
+    ([(0.0, 0.0), (0.1, 120.0), (1.2, 120.0), (1.3, 0.0)], 0.15, 1.5, (120.0, 0.15)),  # both
+    (300.0, 0.2, 1.0, (300.0, 0.2)),  # a held bow is its own
+    ([(0.3, 30.0), (1.8, 300.0)], 0.2, 2.0, None),  # a crescendo: a gesture
+    (300.0, [(0.5, 0.12), (1.5, 0.25)], 2.0, None),  # a bow-speed change holds for half the note, but not from rest
+    (300.0, [(0.1, 0.2), (0.6, 0.0)], 1.0, None),  # the stop takes most of the note
+    (300.0, [(1.0, 0.2), (1.1, 0.0), (1.2, 0.1)], 2.0, None),  # it stops, then bows again
+    (300.0, [(0.5, 0.2), (0.6, 0.1), (0.7, 0.2)], 2.0, None),  # a dip before the hold is no attack
+    ([(0.0, 50.0), (0.05, 120.0)], 0.2, 1.5, None),  # a force that rises from 50, not from the string at rest
+])
+def test_the_held_bow_of_a_note_is_the_one_it_holds_between_an_attack_and_a_stop(fb, vb, duration, held):
+    got = Scene(f0=150.0, fb=fb, vb=vb, duration=duration).held_bow()
+    assert (None if got is None else (got.fb, got.vb)) == (None if held is None else pytest.approx(held))
+    assert got is None or not got.varying
+
+
+def test_a_moving_pitch_holds_no_bow():
+    assert Scene(f0=[(0.0, 150.0), (1.0, 160.0)], fb=300.0, vb=0.2).held_bow() is None

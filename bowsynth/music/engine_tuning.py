@@ -199,7 +199,7 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     m, why = _playing_model(scene, model, models)
     if m is None:
         return None, why
-    held = check_windows(windows) in ("physics", "auto") and not (scene.varying or scene.pitch_varies)  # else free
+    held = check_windows(windows) in ("physics", "auto") and scene.held_bow() is not None  # else free
 
     def ratio(beta, vb, a, f0):
         try:
@@ -265,14 +265,16 @@ def check_windows(windows: str) -> str:
 def sounding_for(scene, windows: str = "free", model=None, held=None):
     """What `engines.render(sounding=...)` takes for `api.render(windows=...)`: None for free windows; else per scene
     the frequency its windows are locked to (operator_sounding; None where unknown: that voice rolls in free
-    windows). scene: one, or a list; held: the scene (or list) whose held bow each note sounds with, where it is not
-    the scene itself (a score's note: its sustain, while the whole note with its bow stop renders)."""
+    windows). scene: one, or a list; held: the scene (or list) whose held bow each note sounds with (a score's note:
+    its sustain, while the whole note with its bow stop renders); None: each scene's Scene.held_bow (a note with an
+    attack or a stop locks to the bow it holds; a gesture rolls free)."""
     check_windows(windows)
     if windows == "free":
         return None
     many = isinstance(scene, (list, tuple))
     scenes = list(scene) if many else [scene]
-    helds = scenes if held is None else (list(held) if many else [held])
+    # a note with an attack or a stop locks to the bow it holds (Scene.held_bow), a gesture (None there) to nothing
+    helds = [sc.held_bow() or sc for sc in scenes] if held is None else (list(held) if many else [held])
     pool = None
     if model is None:
         from ..engines.operator.choose import available_models
