@@ -59,9 +59,18 @@ def test_batch_agrees_with_single_voice(loop):
         assert np.abs(r.q - q[i]).max() < 1e-12 and np.abs(r.p - p[i]).max() < 1e-12
 
 
+def _numpy_exp_is_libm() -> bool:
+    """Does numpy's exp give the C library's bits, which the compiled loops use? On most CPUs it does; on AVX-512
+    ones numpy computes it in its own SIMD code, an ulp off on ~5 % of arguments (46k of 1M in [-50, 1], measured on
+    an AVX-512 Xeon with numpy 2.4), and the numpy reference then parts from the compiled loop in the last bits."""
+    x = np.linspace(-50.0, 1.0, 20001)
+    return np.array_equal(np.exp(x), np.array([math.exp(v) for v in x]))
+
+
 def test_the_batchs_two_loops_agree_to_the_bit_over_pitches_and_bows():
     """Training data's batch: states at their own pitch, force and speed (stick-slip among them), oversampled; the
-    compiled rows (over threads) and the vectorised numpy reference give the same numbers, progress to the end."""
+    compiled rows (over threads) and the vectorised numpy reference give the same numbers (to the bit where numpy's
+    exp is the C library's), progress to the end."""
     rng = np.random.default_rng(1)
     n = 300
     q0, p0 = rng.uniform(-0.5, 0.5, n), rng.uniform(-0.5, 0.5, n)
@@ -71,7 +80,11 @@ def test_the_batchs_two_loops_agree_to_the_bit_over_pitches_and_bows():
     seen = []
     a = fdm_batch(q0, p0, 200, 3, k, w, fb, vb, 100.0, loop="numpy")
     b = fdm_batch(q0, p0, 200, 3, k, w, fb, vb, 100.0, on_progress=seen.append)
-    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.all(np.isfinite(b[1]))
+    assert np.all(np.isfinite(b[1]))
+    if _numpy_exp_is_libm():
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    else:  # the same steps with an exponential an ulp apart: equal to rounding (measured 2e-14), not to the bit
+        assert np.abs(a[0] - b[0]).max() < 1e-12 and np.abs(a[1] - b[1]).max() < 1e-12
     assert seen and seen[-1] == 1.0 and seen == sorted(seen)
 
 
