@@ -1,6 +1,9 @@
 import math
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bowsynth import Scene, SceneError, UsageError, make_scene
 from bowsynth.scene import list_presets, load_preset
@@ -92,3 +95,35 @@ def test_the_held_bow_of_a_note_is_the_one_it_holds_between_an_attack_and_a_stop
 
 def test_a_moving_pitch_holds_no_bow():
     assert Scene(f0=[(0.0, 150.0), (1.0, 160.0)], fb=300.0, vb=0.2).held_bow() is None
+
+
+_times = st.lists(st.floats(0.0, 3.0, allow_nan=False), min_size=1, max_size=5, unique=True).map(sorted)
+
+
+@st.composite
+def _curve(draw, hi):
+    ts = draw(_times)
+    return [(t, draw(st.sampled_from([0.0, hi / 2, hi]))) for t in ts]
+
+
+@settings(max_examples=200, deadline=None)
+@given(fb=st.one_of(st.just(300.0), _curve(300.0)), vb=st.one_of(st.just(0.2), _curve(0.2)),
+       duration=st.floats(0.05, 3.0))
+def test_a_held_bow_is_held_for_half_the_note_and_every_other_bow_is_an_attack_or_a_stop(fb, vb, duration):
+    """Any breakpoints: held_bow never raises; where it names a bow, the curves hold exactly that bow for at least
+    HELD_SHARE of the note, rise to it from a bow at rest and fall from it to a bow at rest, never beyond it."""
+    from bowsynth.scene import HELD_SHARE
+
+    sc = Scene(f0=150.0, fb=fb, vb=vb, duration=duration)
+    h = sc.held_bow()
+    if h is None:
+        return
+    assert not h.varying
+    t = np.linspace(0.0, duration, 4001)
+    f, v = sc.fb_at(t), sc.vb_at(t)
+    held = (f == h.fb) & (v == h.vb)
+    assert held.mean() >= HELD_SHARE - 2e-3
+    assert (f <= h.fb).all() and (v <= h.vb).all()  # the bow moves only below the held one: to or from rest
+    if sc.varying and not held.all():
+        ends = [i for i in (0, -1) if not held[i]]
+        assert all(min(f[i], v[i]) == 0.0 for i in ends)
