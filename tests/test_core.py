@@ -210,3 +210,39 @@ def test_the_loops_write_each_voice_into_its_row_and_leave_the_others(monkeypatc
     np.testing.assert_array_equal(p[0], p1[1])
     np.testing.assert_array_equal(fail[[2, 0]], args[25])
     assert (q[1] == 7.0).all() and (p[1] == 7.0).all() and (fail[1] == 9).all()  # a row no voice names: untouched
+
+
+def _cpu_runs_avx512() -> bool:
+    try:
+        flags = next(line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags"))
+    except (OSError, StopIteration):
+        return False
+    return {"avx512f", "avx512vl", "avx512bw", "avx512dq"} <= set(flags.split(":", 1)[1].split())
+
+
+def test_the_avx512_and_avx2_loops_play_alike(tmp_path):
+    """Where the CPU runs AVX-512 (and on x86-64 with GCC, where it is built) the batch's products take 16 floats, unless
+    BOWSYNTH_NO_AVX512 asks for the AVX2 loops. A batch of nine voices at nine window lengths in a process without them
+    plays within float32 rounding of this process's (the test above holds this process's to the numpy reference)."""
+    import platform
+
+    built = core.load().AVX512_BUILT
+    assert built or platform.machine() not in ("x86_64", "AMD64")  # this suite's machines build it with GCC
+    assert core.load().vector_width() == (16 if built and _cpu_runs_avx512() else 8)
+    m = load_model(FB100)
+    spw = np.array([3.0, 9.0, 15.0, 17.3, 40.0, 65.0, 121.0, 200.0, 441.0])
+    x0 = np.stack([np.linspace(-0.05, 0.05, 9), np.linspace(0.05, -0.05, 9)], 1)
+    here = rollout_states(m, x0, 900, m.domain.window / spw, check_domain=False, loop="core-batch")
+    script = (f"import numpy as np; from bowsynth import compiled as core; "
+              f"from bowsynth.engines.operator.modelfile import load_model; "
+              f"from bowsynth.engines.operator.rollout import rollout_states; m = load_model({str(FB100)!r}); "
+              f"spw = np.array({spw.tolist()}); x0 = np.array({x0.tolist()}); "
+              f"q, p, f = rollout_states(m, x0, 900, m.domain.window / spw, check_domain=False, loop='core-batch'); "
+              f"np.savez({str(tmp_path / 'avx2.npz')!r}, q=q, p=p, f=f); print(core.load().vector_width())")
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "BOWSYNTH_NO_AVX512": "1"})
+    assert r.returncode == 0 and r.stdout.strip() == "8", r.stdout + r.stderr
+    there = np.load(tmp_path / "avx2.npz")
+    assert np.array_equal(there["f"], here[2]) and np.isfinite(here[0]).all()
+    for a, b in ((here[0], there["q"]), (here[1], there["p"])):
+        assert np.abs(a - b).max() < 1e-5 * max(1.0, np.abs(b).max())

@@ -85,6 +85,16 @@ int64_t live_window(const Net& N, double& q, double& p, const double* center, co
                     const double* eb, const double* el, float* scratch, double* zd, float* qrow, float* prow);
 int64_t live_scratch(const Net& N);  // floats live_window's scratch holds (and m doubles for zd)
 void roll_batch(const Rollout& r);
+// The same loops built for AVX-512 (rollout.cpp compiled again with 16-float products): the entry points above hand
+// over to them where use_v16() (the CPU runs AVX-512 and BOWSYNTH_NO_AVX512 is not set)
+bool use_v16();
+namespace v16 {
+void roll_voices(const Rollout& r);
+void roll_batch(const Rollout& r);
+int64_t live_window(const Net& N, double& q, double& p, const double* center, const double* halfrange,
+                    const double* pin, double g, const float* Bq, const float* Bp, int64_t ld, int64_t n,
+                    const double* eb, const double* el, float* scratch, double* zd, float* qrow, float* prow);
+}  // namespace v16
 // ---- the flow at the bow's rest point (rest.cpp): a note's first samples, exact ----
 // c[:7]: M (m11, m12, m21, m22), k (kq, kp) and q_s of one sample's step dtau at the linearisation (d, q_s); a row
 // of rest_run's takes the radius (physics.rest_radius) in c[7]

@@ -527,4 +527,12 @@ NB_MODULE(_core, mod) {
         return std::make_tuple(c, s);
     }, "z"_a);
     mod.def("_window_end", &bowsynth::window_end_of, "w"_a, "spw"_a);
+#ifdef BOWSYNTH_HAVE_V16
+    mod.attr("AVX512_BUILT") = true;
+#else
+    mod.attr("AVX512_BUILT") = false;
+#endif
+    mod.def("vector_width", [] { return bowsynth::use_v16() ? 16 : 8; },
+            "Floats in a matrix product's vector in the rollout loops this process runs: 16 where the CPU runs "
+            "AVX-512 and BOWSYNTH_NO_AVX512 is not set, else 8.");
 }

@@ -13,18 +13,35 @@
 // No -ffast-math: a NaN must reach the finiteness check.
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <vector>
 
 #include "core.h"
 
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+// BOWSYNTH_VW: the floats a matrix product's vector holds. 8 (AVX2) in the build's main unit, whose hot entry points
+// are cloned for x86-64-v3 and dispatched at load time. CMake compiles this file a second time for AVX-512
+// (-march=x86-64-v4, BOWSYNTH_VW 16) into namespace bowsynth::v16; the main unit's entry points hand over to it where
+// the CPU runs AVX-512 (core.h: use_v16). The element-wise loops stay on 8 floats in both.
+#ifndef BOWSYNTH_VW
+#define BOWSYNTH_VW 8
+#endif
+#if BOWSYNTH_VW == 16
+#define HOT __attribute__((flatten))
+#define BOWSYNTH_V16_BEGIN namespace v16 {
+#define BOWSYNTH_V16_END }
+#elif defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 #define HOT __attribute__((target_clones("arch=x86-64-v3", "default"), flatten))
+#define BOWSYNTH_V16_BEGIN
+#define BOWSYNTH_V16_END
 #else
 #define HOT
+#define BOWSYNTH_V16_BEGIN
+#define BOWSYNTH_V16_END
 #endif
 
 namespace bowsynth {
+BOWSYNTH_V16_BEGIN
 namespace {
 
 typedef float v8 __attribute__((vector_size(32)));
@@ -34,30 +51,44 @@ typedef float v8u __attribute__((vector_size(32), aligned(4), may_alias));
 
 inline v8 load8(const float* p) { return *reinterpret_cast<const v8u*>(p); }
 inline void store8(float* p, v8 v) { *reinterpret_cast<v8u*>(p) = v; }
+// A matrix product's vector: V floats. Products over several rows (a batch's voices, four windows' samples) take
+// BOWSYNTH_VW; one row's keep 8, which 16 did not speed up (one voice at 440 / 880 Hz: 1061x / 607x against 1131x /
+// 624x, benchmarks/core_speed.py on an AVX-512 Xeon: a window's ~50-100 samples leave a ragged 16-float end).
+template <int V>
+struct Vec {
+    typedef float type __attribute__((vector_size(4 * V)));
+    typedef float loose __attribute__((vector_size(4 * V), aligned(4), may_alias));
+    static type load(const float* p) { return *reinterpret_cast<const loose*>(p); }
+    static void store(float* p, type v) { *reinterpret_cast<loose*>(p) = v; }
+};
+template <int R>
+constexpr int VW = R == 1 ? 8 : BOWSYNTH_VW;
 
-// out[r, j] = bias[j] + sum_i X[r, i] W[i, j] for R rows and the CH vectors of 8 columns starting at j0, j0 + 8, ...
-// (the last one at most at N - 8: a ragged end is computed as a full vector overlapping the one before). The
+// out[r, j] = bias[j] + sum_i X[r, i] W[i, j] for R rows and the CH vectors of VW columns starting at j0, j0 + VW, ...
+// (the last one at most at N - VW: a ragged end is computed as a full vector overlapping the one before). The
 // R x CH tile stays in registers over the whole sum; S partial sums over i break the chain of dependent
 // multiply-adds where the tile is small (one vector's K = 67 multiply-adds in a row waited on each other's latency:
 // the windows' samples at 880 Hz ran at a quarter of the speed).
-template <int R, int CH, int S, bool RAGGED = false>
+template <int R, int CH, int S, bool RAGGED = false, int V = VW<R>>
 inline void dense_tile(const float* X, int64_t ldx, int64_t K, const float* W, int64_t ldw, int64_t N, int64_t j0,
                        const float* bias, float* out, int64_t ldo) {
-    // vector c at j0 + 8c, the last at N - 8 where the end is ragged (constant offsets otherwise: a table of
+    typedef Vec<V> vec;
+    typedef typename vec::type vw;
+    // vector c at j0 + V c, the last at N - V where the end is ragged (constant offsets otherwise: a table of
     // offsets was kept on the stack and loaded for every multiply-add)
-    const int64_t last = RAGGED ? N - 8 - 8 * (CH - 1) : j0;
+    const int64_t last = RAGGED ? N - V - V * (CH - 1) : j0;
     int64_t col[CH];
 #pragma GCC unroll 8
-    for (int c = 0; c < CH; ++c) col[c] = (c == CH - 1 ? last : j0) + 8 * c;
-    v8 acc[S][R][CH];
+    for (int c = 0; c < CH; ++c) col[c] = (c == CH - 1 ? last : j0) + V * c;
+    vw acc[S][R][CH];
 #pragma GCC unroll 8
     for (int c = 0; c < CH; ++c) {
-        const v8 b0 = bias ? load8(bias + col[c]) : v8{};
+        const vw b0 = bias ? vec::load(bias + col[c]) : vw{};
 #pragma GCC unroll 4
         for (int r = 0; r < R; ++r) {
             acc[0][r][c] = b0;
 #pragma GCC unroll 4
-            for (int t = 1; t < S; ++t) acc[t][r][c] = v8{};
+            for (int t = 1; t < S; ++t) acc[t][r][c] = vw{};
         }
     }
     int64_t i = 0;
@@ -70,7 +101,7 @@ inline void dense_tile(const float* X, int64_t ldx, int64_t K, const float* W, i
             for (int r = 0; r < R; ++r) x[r] = X[r * ldx + i + t];
 #pragma GCC unroll 8
             for (int c = 0; c < CH; ++c) {
-                const v8 wc = load8(w + col[c]);
+                const vw wc = vec::load(w + col[c]);
 #pragma GCC unroll 4
                 for (int r = 0; r < R; ++r) acc[t][r][c] += x[r] * wc;
             }
@@ -80,7 +111,7 @@ inline void dense_tile(const float* X, int64_t ldx, int64_t K, const float* W, i
         const float* w = W + i * ldw;
 #pragma GCC unroll 8
         for (int c = 0; c < CH; ++c) {
-            const v8 wc = load8(w + col[c]);
+            const vw wc = vec::load(w + col[c]);
 #pragma GCC unroll 4
             for (int r = 0; r < R; ++r) acc[0][r][c] += X[r * ldx + i] * wc;
         }
@@ -89,19 +120,19 @@ inline void dense_tile(const float* X, int64_t ldx, int64_t K, const float* W, i
     for (int r = 0; r < R; ++r)
 #pragma GCC unroll 8
         for (int c = 0; c < CH; ++c) {
-            v8 sum = acc[0][r][c];
+            vw sum = acc[0][r][c];
 #pragma GCC unroll 4
             for (int t = 1; t < S; ++t) sum += acc[t][r][c];
-            store8(out + r * ldo + col[c], sum);
+            vec::store(out + r * ldo + col[c], sum);
         }
 }
 
-// out (R, N) = X (R, K) @ W (K, N; rows ldw apart) + bias (N; or none)
-template <int R>
-inline void dense(const float* X, int64_t ldx, int64_t K, const float* W, int64_t ldw, int64_t N, const float* bias,
-                  float* out, int64_t ldo) {
+// out (R, N) = X (R, K) @ W (K, N; rows ldw apart) + bias (N; or none), in vectors of V floats
+template <int R, int V>
+inline void dense_v(const float* X, int64_t ldx, int64_t K, const float* W, int64_t ldw, int64_t N, const float* bias,
+                    float* out, int64_t ldo) {
     constexpr int CH = R == 1 ? 8 : (R == 2 ? 4 : 2);  // 8 accumulators + the row's vectors: within 16 registers
-    if (N < 8) {  // narrower than one vector (a window of fewer than 8 samples: f0 above ~5 kHz)
+    if (N < V) {  // narrower than one vector (a window of fewer than V samples: f0 above ~2.5-5 kHz)
         for (int64_t j = 0; j < N; ++j)
             for (int r = 0; r < R; ++r) {
                 float s = bias ? bias[j] : 0.0f;
@@ -111,24 +142,32 @@ inline void dense(const float* X, int64_t ldx, int64_t K, const float* W, int64_
         return;
     }
     int64_t j = 0;
-    for (; j + 8 * CH <= N; j += 8 * CH) dense_tile<R, CH, 1>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+    for (; j + V * CH <= N; j += V * CH) dense_tile<R, CH, 1, false, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
     if (j == N) return;
-    const int64_t nvec = (N - j + 7) / 8;  // the rest, its last vector ending at N
+    const int64_t nvec = (N - j + V - 1) / V;  // the rest, its last vector ending at N
     if constexpr (R == 1) {
         switch (nvec) {
-            case 1: return dense_tile<1, 1, 4, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-            case 2: return dense_tile<1, 2, 4, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-            case 3: return dense_tile<1, 3, 2, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-            case 4: return dense_tile<1, 4, 2, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-            case 5: return dense_tile<1, 5, 2, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-            case 6: return dense_tile<1, 6, 2, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-            case 7: return dense_tile<1, 7, 1, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-            default: return dense_tile<1, 8, 1, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);  // 8: rem > 56
+            case 1: return dense_tile<1, 1, 4, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+            case 2: return dense_tile<1, 2, 4, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+            case 3: return dense_tile<1, 3, 2, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+            case 4: return dense_tile<1, 4, 2, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+            case 5: return dense_tile<1, 5, 2, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+            case 6: return dense_tile<1, 6, 2, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+            case 7: return dense_tile<1, 7, 1, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+            default: return dense_tile<1, 8, 1, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);  // 8: rem > 7 V
         }
     } else {
-        for (; j + 8 <= N; j += 8) dense_tile<R, 1, 2>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
-        if (j < N) dense_tile<R, 1, 2, true>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+        for (; j + V <= N; j += V) dense_tile<R, 1, 2, false, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
+        if (j < N) dense_tile<R, 1, 2, true, V>(X, ldx, K, W, ldw, N, j, bias, out, ldo);
     }
+}
+
+// dense_v in the rows' vector width. Products over several rows take 16 floats in the AVX-512 unit, windows' samples
+// of ~50-100 columns too: keeping 8 below 128 columns lost the batch's gain (64 voices 1766-1820x -> 1515-1601x)
+template <int R>
+inline void dense(const float* X, int64_t ldx, int64_t K, const float* W, int64_t ldw, int64_t N, const float* bias,
+                  float* out, int64_t ldo) {
+    dense_v<R, VW<R>>(X, ldx, K, W, ldw, N, bias, out, ldo);
 }
 
 // every row of X (rows, K) through W: four rows share each load of W
@@ -391,6 +430,9 @@ inline int64_t length_index(const Rollout& R, int64_t P, int64_t n) {
 }  // namespace
 
 HOT void roll_voices(const Rollout& R) {
+#if BOWSYNTH_VW == 8 && defined(BOWSYNTH_HAVE_V16)
+    if (use_v16()) return v16::roll_voices(R);
+#endif
     const int64_t k = R.k, w = R.width, m = R.m;
     const Net N = net_of(R);
     float* s = scratch(ws_f, 2 * m + 7 * w + 2 * k + k + 3);
@@ -427,6 +469,10 @@ HOT void roll_voices(const Rollout& R) {
 HOT int64_t live_window(const Net& N, double& q, double& p, const double* center, const double* halfrange,
                         const double* pin, double g, const float* Bq, const float* Bp, int64_t ld, int64_t n,
                         const double* eb, const double* el, float* s, double* zd, float* qrow, float* prow) {
+#if BOWSYNTH_VW == 8 && defined(BOWSYNTH_HAVE_V16)
+    if (use_v16())
+        return v16::live_window(N, q, p, center, halfrange, pin, g, Bq, Bp, ld, n, eb, el, s, zd, qrow, prow);
+#endif
     const int64_t k = N.k;
     float *o = s + 2 * N.m + 7 * N.width, *x = o + 2 * k;
     branch(N, q, p, center, halfrange, pin, g, s, zd, o);
@@ -447,6 +493,9 @@ constexpr int64_t BLOCK = 64;  // windows per pass of roll_batch
 // stays in cache over the block (writing each window's samples inside the chain touched every pitch's basis per
 // window: memory-bound).
 HOT void roll_batch(const Rollout& R) {
+#if BOWSYNTH_VW == 8 && defined(BOWSYNTH_HAVE_V16)
+    if (use_v16()) return v16::roll_batch(R);
+#endif
     const int64_t B = R.B, k = R.k, w = R.width, m = R.m;
     float* H = scratch(ws_f, B * (2 * m + 3 * w + 4 * w + 2 * k + BLOCK * 2 * k) + 4 * (k + 3) + 4 * R.n_max);
     float *G = H + B * 2 * m, *U = G + B * 3 * w, *V = U + B * w, *h = V + B * w, *Z = h + B * w, *O = Z + B * w;
@@ -537,10 +586,30 @@ HOT void roll_batch(const Rollout& R) {
     }
 }
 
+#if BOWSYNTH_VW == 8
+// The AVX-512 loops where the CPU runs them (AVX-512 F, VL, BW and DQ: x86-64-v4) and they were built, unless
+// BOWSYNTH_NO_AVX512 is set to something other than 0 (to measure or test the AVX2 loops on such a CPU). Asked once.
+bool use_v16() {
+#if defined(BOWSYNTH_HAVE_V16)
+    static const bool yes = [] {
+        const char* off = std::getenv("BOWSYNTH_NO_AVX512");
+        if (off && *off && std::strcmp(off, "0") != 0) return false;
+        __builtin_cpu_init();
+        return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
+               __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512dq");
+    }();
+    return yes;
+#else
+    return false;
+#endif
+}
+#endif
+
 // The kernels' own tanh, cos, sin and window rule, one value at a time, for the tests (not a hot path).
 float tanh32_of(float x) { return tanh32(x); }
 void cos_sin_of(double z, double& c, double& s) { cos_sin(z, c, s); }
 int64_t window_end_of(int64_t w, double spw) { return window_end(w, spw); }
 int64_t live_scratch(const Net& N) { return 2 * N.m + 7 * N.width + 3 * N.k + 3; }
 
+BOWSYNTH_V16_END
 }  // namespace bowsynth
