@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import tomllib
 from dataclasses import dataclass
@@ -177,17 +178,11 @@ class Scene:
         fb, vb = self.fb_at(t), self.vb_at(t)
         # linear between consecutive times of the union: a stretch holds where both ends agree in both curves
         flat = (fb[1:] == fb[:-1]) & (vb[1:] == vb[:-1])
-        best, i = None, 0
-        while i < len(flat):
-            if flat[i]:
-                j = i
-                while j + 1 < len(flat) and flat[j + 1]:
-                    j += 1
-                if best is None or t[j + 1] - t[i] > t[best[1]] - t[best[0]]:
-                    best = (i, j + 1)
-                i = j + 1
-            else:
-                i += 1
+        best = None  # the longest run of flat stretches: (its first time, its last) as indices into t
+        for held, run in itertools.groupby(range(len(flat)), key=lambda j: bool(flat[j])):
+            run = list(run)
+            if held and (best is None or t[run[-1] + 1] - t[run[0]] > t[best[1]] - t[best[0]]):
+                best = (run[0], run[-1] + 1)
         if best is None or t[best[1]] - t[best[0]] < HELD_SHARE * end:
             return None
         a, b = best
