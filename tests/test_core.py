@@ -221,9 +221,10 @@ def _cpu_runs_avx512() -> bool:
 
 
 def test_the_avx512_and_avx2_loops_play_alike(tmp_path):
-    """Where the CPU runs AVX-512 (and on x86-64 with GCC, where it is built) the batch's products take 16 floats, unless
-    BOWSYNTH_NO_AVX512 asks for the AVX2 loops. A batch of nine voices at nine window lengths in a process without them
-    plays within float32 rounding of this process's (the test above holds this process's to the numpy reference)."""
+    """Where the CPU runs AVX-512 (and on x86-64 with GCC, where it is built) the batch's products take 16 floats,
+    unless BOWSYNTH_NO_AVX512 asks for the AVX2 loops. A batch of nine voices at nine window lengths in a process
+    without them plays within float32 rounding of this process's (the test above holds this process's to the numpy
+    reference)."""
     import platform
 
     built = core.load().AVX512_BUILT

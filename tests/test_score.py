@@ -302,3 +302,21 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
         assert np.array_equal(r.q[:hold], q[:hold]) and r.method == "operator + fdm release"
         assert np.max(np.abs(r.q[hold:] - ref.q)) < 1e-12 and np.max(np.abs(r.p[hold:] - ref.p)) < 1e-12
     assert check_oversample(_release_scene(notes[3], sustains[3]), 1, warn=False) > 1  # its own batch, oversampled
+
+
+def test_a_score_note_with_an_attack_locks_to_its_held_bow_whichever_path_plays_it(tmp_path):
+    """A note whose force rises from 0 to the bow it holds (an attack curve) locks its windows as a plain note does
+    (Scene.held_bow), both where its model plays it whole with its bow stop (`soft-range` at v_B 0.27: its box
+    reaches v_B 0) and where the bow stop is handed over (`slow-soft` at v_B 0.1); a crescendo note rolls free."""
+    from bowsynth.music.perform import _plays_whole, render_notes
+
+    p = tmp_path / "s.toml"
+    note = '[[voice.note]]\nstart = {}\nduration = 0.8\npitch = "A3"\nvb = {}\nbeta = {}\n'
+    p.write_text('[[voice]]\nname = "v"\n' + note.format(0.0, 0.27, "[[0.0, 0.0], [0.05, 0.15]]")
+                 + note.format(1.0, 0.1, "[[0.0, 0.0], [0.05, 0.3]]")
+                 + note.format(2.0, 0.2, "[[0.0, 0.05], [0.8, 0.3]]"))
+    whole, handed, crescendo = notes = load_score(p)
+    assert _plays_whole(whole) and not _plays_whole(handed)
+    assert whole.rollout_scene().held_bow() is not None and crescendo.rollout_scene().held_bow() is None
+    rw, rh, rc = render_notes(notes, windows="locked")
+    assert rw.info.windows and rh.info.windows and not rc.info.windows

@@ -238,13 +238,13 @@ def own_ratio(model, beta: float, vb: float, a: float, f0: float = RATIO_F0) -> 
 def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None = None,
                       windows: str = "locked") -> float | None:
     """The frequency (Hz) a held note played by an operator model (given, or the covering one among `models`) is
-    locked to, at its held bow (held's, where the scene's bow moves only to stop: a score's note): f0 times the
-    ratio held_lock gives for the windows (the model's own, or the physics' where the model holds it). The windows of
-    its voice divide that period (engines.operator.windows.locked_window). None where there is no such number: a
-    moving bow or pitch, no covering model, or a bow the model cannot hold from rest (or whose physics settles on no
-    period)."""
-    held = scene if held is None else held
-    if held.varying or scene.pitch_varies:
+    locked to, at its held bow (Scene.held_bow of `held`, else of the scene: a score's note gives its sustain): f0
+    times the ratio held_lock gives for the windows (the model's own, or the physics' where the model holds it). The
+    windows of its voice divide that period (engines.operator.windows.locked_window). None where there is no such
+    number: a gesture or a moving pitch, no covering model, or a bow the model cannot hold from rest (or whose
+    physics settles on no period)."""
+    held = (scene if held is None else held).held_bow()
+    if held is None or scene.pitch_varies:
         return None
     m, _ = _playing_model(scene, model, models)
     if m is None:
@@ -273,8 +273,7 @@ def sounding_for(scene, windows: str = "free", model=None, held=None):
         return None
     many = isinstance(scene, (list, tuple))
     scenes = list(scene) if many else [scene]
-    # a note with an attack or a stop locks to the bow it holds (Scene.held_bow), a gesture (None there) to nothing
-    helds = [sc.held_bow() or sc for sc in scenes] if held is None else (list(held) if many else [held])
+    helds = [None] * len(scenes) if held is None else (list(held) if many else [held])
     pool = None
     if model is None:
         from ..engines.operator.choose import available_models
