@@ -97,6 +97,37 @@ def test_render_imports_neither_torch_nor_scipy(tmp_path):
     assert f"({FB100})" in r.stdout and "fb100_f0100_vb0.2_a100@" in r.stdout
 
 
+def test_a_files_digest_is_hashed_once_and_an_edit_in_place_is_hashed_afresh(tmp_path, monkeypatch):
+    """The digest is checked once per file (its identity kept on disk); the same file loads again without hashing.
+    One weight changed in place, its modification time set back, size unchanged: refused, as a new file would be; so
+    is a file whose digest was taken out."""
+    import shutil
+
+    from bowsynth.engines.operator import modelfile
+
+    path = tmp_path / "m.safetensors"
+    shutil.copyfile(FB100, path)
+    calls = []
+    real = modelfile.digest
+    monkeypatch.setattr(modelfile, "digest", lambda *a: calls.append(1) or real(*a))
+    load_model(path)
+    load_model(path)
+    assert len(calls) == 1
+    st = path.stat()
+    with open(path, "r+b") as fh:
+        fh.seek(-100, os.SEEK_END)
+        b = fh.read(1)
+        fh.seek(-100, os.SEEK_END)
+        fh.write(bytes([b[0] ^ 0x40]))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert path.stat().st_size == st.st_size and path.stat().st_mtime_ns == st.st_mtime_ns
+    with pytest.raises(ModelFileError, match="metadata does not match the weights"):
+        load_model(path)
+    assert len(calls) == 2
+    with pytest.raises(ModelFileError, match="metadata does not match the weights"):
+        load_model(rewrite(FB100, tmp_path / "d.safetensors", lambda m: m.pop("digest"), fix_digest=False))
+
+
 def test_metadata_edited_without_the_digest_is_refused(tmp_path):
     with pytest.raises(ModelFileError, match="metadata does not match the weights: the file was edited"):
         load_model(rewrite(FB100, tmp_path / "a.safetensors", claim_double_force, fix_digest=False))
