@@ -173,14 +173,16 @@ def blas_gmacs(n: int = 512, repeats: int = 10) -> float:
 
 
 def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
-                   oversamples=EQUAL_OVERSAMPLES) -> list[dict]:
+                   oversamples=EQUAL_OVERSAMPLES, windows: str = "free") -> list[dict]:
     """The operator against the FDM at equal accuracy, at the model's own bow (a point model's; a range model's box
     centre) at each pitch: the operator's errors against a x100 FDM (metrics.accuracy: harmonics, pitch, NMSE) and
     its cost (wall seconds per audio second, warm, median), the FDM's at each oversampling, and the cheapest FDM as
-    accurate on all three (metrics.as_accurate). A pitch the model cannot play is left out."""
+    accurate on all three (metrics.as_accurate). A pitch the model cannot play is left out. windows: the operator's,
+    as api.render's (a lock is measured once, before the timing: it is cached on disk as in a user's renders)."""
     from ..engines.fdm import check_oversample
     from ..engines.operator.engine import render_operator
     from ..errors import DomainError
+    from ..music.engine_tuning import sounding_for
     from .metrics import accuracy, as_accurate
 
     d, rows = model.domain, []
@@ -191,11 +193,14 @@ def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
             continue
         ref = render_fdm(sc, oversample=TRUTH_OVERSAMPLE).p
         try:
-            op = accuracy(render_operator(sc, model=model).p, ref, sc.sample_rate)
+            lock = sounding_for(sc, windows, model)
+            op = accuracy(render_operator(sc, model=model, sounding=lock).p, ref, sc.sample_rate)
         except DomainError as e:  # the rollout left the model's states: no accuracy to match
             rows.append({"model": name, "scene": sc, "f0": f0, "beta": d.beta, "vb": d.vb, "failed": str(e)})
             continue
-        op["sec_per_audio_s"] = _median_time(lambda: render_operator(sc, model=model), repeats) / duration
+        op["windows"] = windows if lock is not None else "free"
+        op["sec_per_audio_s"] = _median_time(lambda: render_operator(sc, model=model, sounding=lock),
+                                             repeats) / duration
         op["gmac_per_s"] = macs_per_second(model, sc) / op["sec_per_audio_s"] / 1e9
         fdm = []
         # an oversampling below the scene's stability bound is raised by the FDM: each is measured once, as itself

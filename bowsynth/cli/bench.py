@@ -25,7 +25,8 @@ def bench(
     seconds: float = typer.Option(2.0, "--seconds", help="map: each note's length from rest (s); errors over its second half."),
     model: Optional[str] = typer.Option(None, "--model", help="map: this model (a path, or a name in ./models or the shipped ones) plays every cell it covers, instead of the renderer's pick: a candidate before it ships."),
     windows: str = typer.Option("free", "--windows",
-                                help="map: the operator's windows, as render's (free, locked, physics or auto)."),
+                                help="map and equal: the operator's windows, as render's (free, locked, physics "
+                                     "or auto)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
@@ -35,11 +36,11 @@ def bench(
 
     if what not in ("fdm", "equal", "map", "all"):
         raise UsageError(f"bench target must be fdm, equal, map or all, got {what!r}")
+    from ..music.engine_tuning import check_windows
+
+    check_windows(windows)
     if what == "map":
         map_args = _map_args(f0, grid, seconds)
-        from ..music.engine_tuning import check_windows
-
-        check_windows(windows)
         if model is not None:
             from ..engines.operator.choose import as_model
 
@@ -57,7 +58,7 @@ def bench(
         _bench_map(map_args, out_prefix, json_out, force, model, windows)
         return
     if what == "equal":
-        res = B.run_equal(quick=quick, out_prefix=out_prefix)
+        res = B.run_equal(quick=quick, out_prefix=out_prefix, windows=windows)
         md, js = B.equal_table(res), json.dumps(B.to_json(res), indent=2)
         _write(out_prefix, md, js, force)
         out.print(js if json_out else md, soft_wrap=True)

@@ -72,17 +72,18 @@ def plot_pareto(rows, path) -> None:
     plt.close(fig)
 
 
-def run_equal(quick: bool = False, out_prefix=None) -> dict:
+def run_equal(quick: bool = False, out_prefix=None, windows: str = "free") -> dict:
     """Speed at equal accuracy for every shipped model family at 100, 440 and 880 Hz (quick: one model at 100 Hz,
-    FDM x1 and x2), with the machine's matrix-product speed measured in the same run."""
+    FDM x1 and x2), with the machine's matrix-product speed measured in the same run; the operator in these windows
+    (api.render's)."""
     from ..engines.operator.choose import SHIPPED_DIR, as_model
 
     paths = sorted(SHIPPED_DIR.glob("*.safetensors"))
     if quick:
         paths = [p for p in paths if p.stem == "paper-fb100"][:1]
     kw = dict(f0s=(100.0,), duration=1.0, repeats=1, oversamples=(1, 2)) if quick else {}
-    rows = [r for p in paths for r in equal_accuracy(as_model(p), **kw)]
-    res = {"equal_accuracy": rows, "blas_gmac_per_s": blas_gmacs()}
+    rows = [r for p in paths for r in equal_accuracy(as_model(p), windows=windows, **kw)]
+    res = {"equal_accuracy": rows, "blas_gmac_per_s": blas_gmacs(), "windows": windows}
     if out_prefix and any("failed" not in r for r in rows):
         plot_equal(rows, f"{out_prefix}.png")
     return res
@@ -93,8 +94,9 @@ def equal_table(res: dict) -> str:
     on harmonics, pitch and NMSE at once."""
     peak = res["blas_gmac_per_s"]
     lines = [f"Errors against an FDM x{TRUTH_OVERSAMPLE}, {res['equal_accuracy'][0]['scene'].duration:g} s from rest "
-             "at the model's own bow (a range model's box centre); costs are wall seconds per audio second (warm, "
-             f"median). One core's float32 matrix product (numpy's BLAS, one thread) in this run: {peak:.1f} GMAC/s.", "",
+             f"at the model's own bow (a range model's box centre), the operator in {res.get('windows', 'free')} "
+             "windows; costs are wall seconds per audio second (warm, median). One core's float32 matrix product "
+             f"(numpy's BLAS, one thread) in this run: {peak:.1f} GMAC/s.", "",
              "| model | f0 (Hz) | operator: harmonics dB / cents / NMSE(p) | operator s per s | GMAC/s (of the "
              "matrix product) | FDM as accurate | its s per s | speed-up at equal accuracy |",
              "|---|---|---|---|---|---|---|---|"] if res["equal_accuracy"] else ["(no model plays these pitches)"]
