@@ -4,9 +4,9 @@ rollouts of `score --mix` roll, what that is in multiply-adds, and how long it w
     PYTHONPATH=. .venv/bin/python benchmarks/chorale_work.py [--windows locked]
 
 Plays benchmarks/chorale.py's piece in this process with every `rollout_states` call counted (voices, samples, windows,
-the model's width), then prints per model the windows and voice-samples, the multiply-adds (a window's branch: its
-weights' sizes; a sample: 2 (k + 3), the window's basis) and the time at one core's float32 matrix-product speed
-measured in the same run, on one core and on two.
+the model's width), then prints per model the windows and voice-samples, the multiply-adds (analysis.bench's
+window_macs and sample_macs) and the time at one core's float32 matrix-product speed measured in the same run
+(analysis.bench.blas_gmacs), on one core and on two.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import argparse
 import os
 import sys
 import tempfile
-import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -25,25 +24,19 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
-def branch_macs(model) -> int:
-    """Multiply-adds of one window's branch: every branch weight matrix once (Fourier features, gates, layers, out)."""
-    from bowsynth.engines.operator.npnet import weight_shapes
-
-    return sum(a * b for name, shape in weight_shapes(model.cfg).items()
-               if name.startswith("branch.") and len(shape) == 2 for a, b in [shape])
-
-
 def main() -> None:
     import numpy as np
 
     import bowsynth.engines.operator.engine as engine
     import bowsynth.engines.operator.rollout as rollout
+    from bowsynth.analysis.bench import blas_gmacs, sample_macs, window_macs
     from chorale import write_piece
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--windows", default="locked")
     args = ap.parse_args()
-    counts: dict = defaultdict(lambda: [0, 0, 0.0, 0, 0])  # model: calls, voice-samples, windows, macs/window, k
+    # per model: calls, voice-samples, windows, multiply-adds a window, a sample
+    counts: dict = defaultdict(lambda: [0, 0, 0.0, 0, 0])
     real = rollout.rollout_states
 
     def counted(model, x0, n_samples, dtau, *a, **k):
@@ -56,17 +49,10 @@ def main() -> None:
         c[0] += 1
         c[1] += B * n_samples
         c[2] += float(np.sum(np.ceil(n_samples / spw)))
-        c[3], c[4] = branch_macs(model), model.cfg.k
+        c[3], c[4] = window_macs(model), sample_macs(model)
         return out
     rollout.rollout_states = engine.rollout_states = counted
-
-    a = np.random.rand(512, 512).astype(np.float32)
-    ts = []
-    for _ in range(20):
-        t0 = time.process_time()
-        a @ a
-        ts.append(time.process_time() - t0)
-    gmac = 512**3 / min(ts) / 1e9
+    gmac = blas_gmacs(repeats=20)
 
     from bowsynth.cli.main import main as cli
 
@@ -83,10 +69,10 @@ def main() -> None:
     print("| model | rollout calls | voice-samples | windows | MAC a window / a sample | GMAC |")
     print("|---|---|---|---|---|---|")
     total = 0.0
-    for name, (calls, samples, windows, mw, k) in counts.items():
-        g = (windows * mw + samples * 2 * (k + 3)) / 1e9
+    for name, (calls, samples, windows, mw, ms) in counts.items():
+        g = (windows * mw + samples * ms) / 1e9
         total += g
-        print(f"| {name} | {calls} | {samples:,} | {windows:,.0f} | {mw:,} / {2 * (k + 3)} | {g:.2f} |")
+        print(f"| {name} | {calls} | {samples:,} | {windows:,.0f} | {mw:,} / {ms} | {g:.2f} |")
     print(f"\nin all {total:.2f} GMAC: {total / gmac:.3f} s on one core at the BLAS speed, "
           f"{total / gmac / 2:.3f} s on two")
 

@@ -142,17 +142,27 @@ def bench_paper_anchors(anchor_dir) -> list[dict]:
 EQUAL_F0 = (100.0, 440.0, 880.0)
 
 
-def macs_per_second(model, scene: Scene) -> float:
-    """The operator's multiply-adds per second of audio at the scene's pitch: the branch network once a window (its
-    weight matrices, Fourier features included), and each sample's basis product (2 (k + 3): q and p)."""
-    from ..engines.operator.basis import _operator
+def window_macs(model) -> int:
+    """The operator's multiply-adds once a window: the branch network (its weight matrices, Fourier features
+    included)."""
     from ..engines.operator.npnet import weight_shapes
 
-    cfg = model.cfg
-    per_window = sum(int(np.prod(shape)) for name, shape in weight_shapes(cfg).items()
-                     if name.startswith("branch.") and name.endswith(("weight", "ff.B")))
+    return sum(int(np.prod(shape)) for name, shape in weight_shapes(model.cfg).items()
+               if name.startswith("branch.") and name.endswith(("weight", "ff.B")))
+
+
+def sample_macs(model) -> int:
+    """The operator's multiply-adds once a sample: the window's basis product, 2 (k + 3) (q and p)."""
+    return 2 * (model.cfg.k + 3)
+
+
+def macs_per_second(model, scene: Scene) -> float:
+    """The operator's multiply-adds per second of audio at the scene's pitch: window_macs once a window, sample_macs
+    once a sample."""
+    from ..engines.operator.basis import _operator
+
     windows = scene.sample_rate / _operator(model).samples_per_window(scene.dtau)
-    return per_window * windows + 2 * (cfg.k + 3) * scene.sample_rate
+    return window_macs(model) * windows + sample_macs(model) * scene.sample_rate
 
 
 def blas_gmacs(n: int = 512, repeats: int = 10) -> float:

@@ -64,8 +64,8 @@ struct Vec {
 template <int R>
 constexpr int VW = R == 1 ? 8 : BOWSYNTH_VW;
 
-// out[r, j] = bias[j] + sum_i X[r, i] W[i, j] for R rows and the CH vectors of VW columns starting at j0, j0 + VW, ...
-// (the last one at most at N - VW: a ragged end is computed as a full vector overlapping the one before). The
+// out[r, j] = bias[j] + sum_i X[r, i] W[i, j] for R rows and the CH vectors of V columns starting at j0, j0 + V, ...
+// (the last one at most at N - V: a ragged end is computed as a full vector overlapping the one before). The
 // R x CH tile stays in registers over the whole sum; S partial sums over i break the chain of dependent
 // multiply-adds where the tile is small (one vector's K = 67 multiply-adds in a row waited on each other's latency:
 // the windows' samples at 880 Hz ran at a quarter of the speed).

@@ -227,16 +227,11 @@ def _check_regular(path: Path) -> os.stat_result:
 # the file moves its change time, which no user can set back, so an edited or replaced file is hashed afresh. (The
 # digest guards against edits and damage, not a forger, who can recompute it: the physics check is for that.) The
 # 21 shipped files' digests took 11 ms of every process that looks up a model (`--help` 0.13 s, a 1 s note 0.21 s).
-_hashed = None
-
-
+@functools.cache
 def _hashed_files():
-    global _hashed
-    if _hashed is None:
-        from ...io.cache import DiskTable
+    from ...io.cache import DiskTable
 
-        _hashed = DiskTable("model-digests", "1")
-    return _hashed
+    return DiskTable("model-digests", "1")
 
 
 def _identity(st: os.stat_result) -> str:
