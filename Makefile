@@ -43,7 +43,7 @@ test: $(STAMP) chromium jackd
 # its checkpoint, so `make models` can be stopped and run again. A wide stick-slip range failed its validation and is
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops,
 # stick-mid, -low, -slow, -high and -stops: stick-slip tiles on quarter-period windows; soft-top and soft-high: the
-# soft bow's top forces (BENCHMARKS.md).
+# soft bow's top forces; soft-fast its fastest bows (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch.
 RECIPES := $(wildcard bowsynth/models/*.toml)
 REFINED := $(shell grep -l '^from *=' $(RECIPES) 2>/dev/null)

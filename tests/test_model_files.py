@@ -574,7 +574,8 @@ def test_only_a_box_that_starts_in_the_soft_bow_plays_the_bows_below_it():
     assert soft.domain.plays_below and not loud.domain.plays_below
     weak = Scene(f0=110.0, fb=0.1 * 2 * np.pi * 110.0, vb=0.24, duration=0.5)
     assert soft.covers(weak) and not loud.covers(weak)
-    assert "soft-range" in render_operator(weak).info.model_path
+    # a soft box plays it: soft-range, or since session 25 soft-fast (soft-range refined on v_B 0.22-0.3, the smaller)
+    assert Path(render_operator(weak).info.model_path).stem in ("soft-range", "soft-fast")
     attack = Scene(f0=100.0, fb=[[0.0, 0.0], [0.05, 0.2 * 2 * np.pi * 100.0]], vb=0.2, duration=0.3)
     # a soft box plays it: since session 14 velocity-soft (bottom 0.038, the smaller box, both at their bottom edge)
     r = render_operator(attack)

@@ -305,14 +305,15 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
 
 
 def test_a_score_note_with_an_attack_locks_to_its_held_bow_whichever_path_plays_it(tmp_path):
-    """A note whose force rises from 0 to the bow it holds (an attack curve) locks its windows as a plain note does
-    (Scene.held_bow), both where its model plays it whole with its bow stop (`soft-range` at v_B 0.27: its box
-    reaches v_B 0) and where the bow stop is handed over (`slow-soft` at v_B 0.1); a crescendo note rolls free."""
+    """A note whose force or speed rises from 0 to the bow it holds (an attack curve) locks its windows as a plain
+    note does (Scene.held_bow), both where its model plays it whole with its bow stop (`soft-range` at v_B 0.27, the bow
+    starting from v_B 0: its box reaches v_B 0, soft-fast's does not) and where the bow stop is handed over
+    (`slow-soft` at v_B 0.1, the force rising from 0); a crescendo note rolls free."""
     from bowsynth.music.perform import _plays_whole, render_notes
 
     p = tmp_path / "s.toml"
     note = '[[voice.note]]\nstart = {}\nduration = 0.8\npitch = "A3"\nvb = {}\nbeta = {}\n'
-    p.write_text('[[voice]]\nname = "v"\n' + note.format(0.0, 0.27, "[[0.0, 0.0], [0.05, 0.15]]")
+    p.write_text('[[voice]]\nname = "v"\n' + note.format(0.0, "[[0.0, 0.0], [0.05, 0.27]]", 0.15)
                  + note.format(1.0, 0.1, "[[0.0, 0.0], [0.05, 0.3]]")
                  + note.format(2.0, 0.2, "[[0.0, 0.05], [0.8, 0.3]]"))
     whole, handed, crescendo = notes = load_score(p)
