@@ -128,6 +128,42 @@ def test_a_files_digest_is_hashed_once_and_an_edit_in_place_is_hashed_afresh(tmp
         load_model(rewrite(FB100, tmp_path / "d.safetensors", lambda m: m.pop("digest"), fix_digest=False))
 
 
+def test_a_checked_file_is_read_by_its_header_and_its_weights_only_when_a_render_needs_them(tmp_path):
+    """A process looks up a model among every file's header; a file checked whole before (same identity) gives its
+    weights on first use, the same arrays an eager read gives, and the same render."""
+    import shutil
+
+    from safetensors.numpy import load_file
+
+    path = tmp_path / "m.safetensors"
+    shutil.copyfile(FB100, path)
+    eager = load_model(path)  # the first read checks it whole
+    lazy = load_model(path)
+    assert eager._weights is not None and lazy._weights is None
+    want = {k: v for k, v in load_file(str(path)).items() if k != "domain.mask"}
+    got = lazy.weights
+    assert set(got) == set(want) and all(np.array_equal(got[k], want[k]) for k in want)
+    scene = Scene(fb=100.0, duration=0.05)
+    assert np.array_equal(render_operator(scene, model=load_model(path)).p, render_operator(scene, model=eager).p)
+
+
+def test_a_file_replaced_after_its_header_was_read_is_refused_not_played(tmp_path, capsys, monkeypatch):
+    """The weights are read from the file whose header was checked or not at all: a file put in its place (a rename
+    over it, as a training's --force does) between the lookup and the render is refused in one line."""
+    import shutil
+
+    path = tmp_path / "m.safetensors"
+    shutil.copyfile(FB100, path)
+    load_model(path)
+    model = load_model(path)
+    other = tmp_path / "other.safetensors"
+    shutil.copyfile(SHIPPED_DIR / "paper-fb1000.safetensors", other)
+    os.replace(other, path)
+    with pytest.raises(ModelFileError, match="changed since bowsynth read it"):
+        render_operator(Scene(fb=100.0, duration=0.05), model=model)
+    assert load_model(path).meta.id != model.meta.id  # read afresh, it is the new file
+
+
 def test_metadata_edited_without_the_digest_is_refused(tmp_path):
     with pytest.raises(ModelFileError, match="metadata does not match the weights: the file was edited"):
         load_model(rewrite(FB100, tmp_path / "a.safetensors", claim_double_force, fix_digest=False))
