@@ -42,7 +42,7 @@ test: $(STAMP) chromium jackd
 # missing, unreadable or stale against its recipe is trained (`train --update`); an interrupted run continues from
 # its checkpoint, so `make models` can be stopped and run again. A wide stick-slip range failed its validation and is
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops,
-# stick-mid, -low, -slow, -high, -stops, -heavy and -creep: stick-slip tiles on quarter-period windows; soft-top and
+# stick-mid, -low, -slow, -high, -stops, -heavy, -creep and -top: stick-slip tiles on quarter-period windows; soft-top and
 # soft-high: the soft bow's top forces; soft-fast its fastest bows (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch.
 RECIPES := $(wildcard bowsynth/models/*.toml)

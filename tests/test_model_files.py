@@ -551,6 +551,37 @@ def test_a_stick_slip_tile_is_told_from_a_mislabelled_file_over_a_longer_span():
     assert "velocity-loud" in r.info.model_path and any("not a mislabelled file" in n for n in r.info.notes)
 
 
+def test_a_tile_that_catches_the_stick_early_is_judged_by_its_limit_cycle(tmp_path):
+    """stick-top (the fast heavy corner, notes at a third of f0) catches the stick phase a quarter period early from
+    rest: its first windows are off the physics, and sample by sample over 16 periods a bow 5 % slower fits it
+    better than its claim, which would call an honest file a lie. Its limit cycle, shifted, fits the claim and no
+    neighbour, so the corner plays; the same weights labelled as a weaker tile (F_B / w 20 % lower, its box moved
+    with it) are still refused."""
+    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.check import LONG_CHECK_PERIODS, NEIGHBOURS, PHYSICS_MAX_ERROR, claim_fits_best, \
+        physics_error
+
+    path = SHIPPED_DIR / "stick-top.safetensors"
+    m = load_model(path)
+    d = m.domain
+    err = physics_error(m, 0.0, 0.0)
+    assert err > PHYSICS_MAX_ERROR
+    long = int(np.ceil(LONG_CHECK_PERIODS * 2 * np.pi / _operator(m).window - 1e-9))
+    plain = [physics_error(m, 0.0, 0.0, d.beta * fb, d.vb * fv, long) for fb, fv in ((1.0, 1.0), *NEIGHBOURS)]
+    assert min(plain[1:]) < plain[0]
+    assert claim_fits_best(m, err)[0]
+    r = render_operator(Scene(f0=110.0, fb=2.0 * 2 * np.pi * 110.0, vb=0.28, duration=0.3))
+    assert "stick-top" in r.info.model_path and np.all(np.isfinite(r.p))
+
+    def weaker(meta):
+        dom = meta["domain"]
+        dom["beta"], dom["box"][0], dom["box"][1] = 0.8 * dom["beta"], 0.8 * dom["box"][0], 0.8 * dom["box"][1]
+        meta["scene"]["fb"] *= 0.8
+    lie = rewrite(path, tmp_path / "lie.safetensors", weaker)
+    with pytest.raises(ModelFileError, match="does not do what it claims"):
+        render_operator(Scene(f0=110.0, fb=1.6 * 2 * np.pi * 110.0, vb=0.28, duration=0.3), model=lie)
+
+
 def test_a_quarter_window_tile_is_told_from_a_mislabelled_file_over_16_periods():
     """fast-bow's onset from rest sticks to the bow, whatever the force: over 16 of its quarter-period windows (4
     periods) a bow 10 % away fits about as well as its claim, which would call the file a lie and refuse it; over 16
