@@ -45,8 +45,8 @@ CASES = [
     ("a non-finite curve value", "render --fb nan@0,100@1 x.wav"),
     ("a bow curve that leaves every model's range", "render --fb 100@0,3000@1 x.wav"),
     ("... the same with --fallback fdm (finishes with the FDM)", "render --fb 100@0,3000@1 -d 1 --fallback fdm x.wav"),
-    ("a note whose model stays silent where the bow drives the mass (F_B / w 2, v_B 0.28: the space's corner)",
-     "render --f0 110 --fb 1382.3 --vb 0.28 -d 1 x.wav"),
+    ("a note whose model stays silent where the bow drives the mass (stick-high at F_B / w 2, v_B 0.28: the space's "
+     "corner, which stick-top plays)", "render --f0 110 --fb 1382.3 --vb 0.28 -d 1 --model stick-high x.wav"),
     ("a curve on a parameter that cannot vary", "render --f0 100@0,200@1 x.wav"),
     ("missing model file", "render --model nomodel.safetensors x.wav"),
     ("corrupt model file", "render --model garbage.safetensors x.wav"),
