@@ -157,7 +157,8 @@ def _table():
         from ...io.cache import DiskTable
 
         _verdicts = DiskTable("physics-check", f"{CHECK_WINDOWS}/{CHECK_STEPS}/{CHECK_FLOOR!r}/{RK4_STIFF!r}/"
-                                               f"{LONG_CHECK_PERIODS}/{NEIGHBOURS!r}/{MISLABEL_MARGIN!r}/cycle{ONSET_PERIODS}")
+                                               f"{LONG_CHECK_PERIODS}/{NEIGHBOURS!r}/{MISLABEL_MARGIN!r}/"
+                                               f"cycle{ONSET_PERIODS}")
     return _verdicts
 
 
