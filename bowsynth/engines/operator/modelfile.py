@@ -351,7 +351,7 @@ def _read_weights(path: Path, identity: str) -> dict:
         raise
     except Exception as e:
         raise ModelFileError(f"{path} is not a readable model file ({type(e).__name__}: {e})") from None
-    del tensors["domain.mask"]
+    tensors.pop("domain.mask", None)
     for k, v in tensors.items():
         if not np.all(np.isfinite(v)):
             raise ModelFileError(f"{path} holds non-finite weights ({k})")
