@@ -256,18 +256,19 @@ def load_model(path) -> OperatorModel:
     try:
         with safe_open(str(path), framework="numpy") as f:
             raw = (f.metadata() or {}).get(META_KEY)
-            known = _checked_before(raw, ident)
+            d = _json_object(raw)  # None where missing or not a JSON object: refused below, with the reason
+            known = d is not None and _checked_before(d, ident)
             # a file checked whole before and unchanged since: its header and the tensors the checks below read
             # now, the weights when a render first needs them (_read_weights)
             tensors = {k: f.get_tensor(k) for k in f.keys() if not known or k in HEADER_TENSORS}
-            shapes = {k: (tuple(f.get_slice(k).get_shape()), f.get_slice(k).get_dtype()) for k in f.keys()}
+            shapes = {k: (tuple(sl.get_shape()), sl.get_dtype()) for k in f.keys() for sl in [f.get_slice(k)]}
     except Exception as e:  # safetensors raises several types for bad headers and truncation
         raise ModelFileError(f"{path} is not a readable model file ({type(e).__name__}: {e})") from None
     if raw is None:
         raise ModelFileError(f"{path} is a safetensors file but not a bowsynth model (no '{META_KEY}' metadata)")
     try:
-        d = json.loads(raw)
-        if not isinstance(d, dict):
+        if d is None:
+            json.loads(raw)  # broken JSON: the parser's own message
             raise ValueError("the metadata is not a JSON object")
         if d.get("format") != FORMAT:
             raise ModelFileError(f"{path} is not a bowsynth operator (format {d.get('format')!r})")
@@ -320,16 +321,21 @@ def load_model(path) -> OperatorModel:
 HEADER_TENSORS = frozenset({"domain.mask", "window", "halfrange", "corr_scale"})
 
 
-def _checked_before(raw, ident: str) -> bool:
-    """Whether this exact file (identity: see _identity) passed every check of load_model before: its digest, as
-    recorded then, is the one its metadata claims."""
+def _json_object(raw) -> dict | None:
+    """The metadata parsed once (it is ~6 KB a file, every file a lookup reads), or None if it is not a JSON object."""
     try:
         d = json.loads(raw)
-        claimed = d.get("digest") if isinstance(d, dict) else None
-        return (isinstance(claimed, str) and isinstance(d.get("format_version"), int) and d["format_version"] >= 2
-                and _hashed_files().get(ident) == claimed)
-    except (TypeError, ValueError):
-        return False
+    except (TypeError, ValueError, RecursionError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
+def _checked_before(d: dict, ident: str) -> bool:
+    """Whether this exact file (identity: see _identity) passed every check of load_model before: its digest, as
+    recorded then, is the one its metadata d claims."""
+    claimed = d.get("digest")
+    return (isinstance(claimed, str) and isinstance(d.get("format_version"), int) and d["format_version"] >= 2
+            and _hashed_files().get(ident) == claimed)
 
 
 def _read_weights(path: Path, identity: str) -> dict:
