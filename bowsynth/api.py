@@ -157,8 +157,9 @@ def _train(scene, config, out, ckpt, name, force, resume, progress, console, box
             else:
                 from .training import validate_range
 
-                rep.update("validating: 1 s rollouts on a 3 x 3 grid of the box against a x100 FDM", 0.0)
-                model.meta.validation = validate_range(model, scene, box)
+                secs = config.judge_seconds
+                rep.update(f"validating: {secs:g} s rollouts on a 3 x 3 grid of the box against a x100 FDM", 0.0)
+                model.meta.validation = validate_range(model, scene, box, seconds=secs)
             rep.update("validated", 1.0)
         except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM raised as errors.Terminated by the CLI
             code = interrupt_exit_code(e)
@@ -267,7 +268,7 @@ def model_status(scene: Scene, config, out, box=None, init=None) -> str | None:
         return f"stale: it plays {m.meta.name}, the recipe asks for {name}"
     defaults = {f.name: f.default for f in dataclasses.fields(config) if f.default is not dataclasses.MISSING}
     trained = m.meta.training or {}
-    for key in ("minutes", "steps", "seed", "batch_states", "rest_linear", "window"):
+    for key in ("minutes", "steps", "seed", "batch_states", "rest_linear", "window", "band_seconds"):
         was, want = trained.get(key, defaults.get(key)), getattr(config, key)
         if was != want and not (init is not None and key == "window"):  # a refinement keeps its base's window
             return f"stale: trained with {key} {was}, the recipe asks for {want}"

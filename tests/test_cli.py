@@ -281,6 +281,28 @@ def test_train_batch_width_window_and_device_from_a_recipe_and_the_device_is_rec
     assert code == 2 and "window_ms must be int or float" in err, err
 
 
+def test_a_range_recipe_with_a_longer_band_is_judged_as_long_and_its_band_is_part_of_the_recipe(tmp_path, capsys,
+                                                                                                  monkeypatch):
+    from bowsynth.cli.train import recipe_status
+    from bowsynth.engines.operator.modelfile import load_model
+
+    rec = tmp_path / "r.toml"
+    rec.write_text('fb = "60:80"\nvb = "0.2:0.22"\nsteps = 2\nbatch = 64\nwidth = 8\nband_seconds = 1.5\n'
+                   'out = "m.safetensors"\n')
+    code, out, err = run_main(["train", "--config", str(rec), "--n-data", "64"], capsys, monkeypatch)
+    assert code == 0, err
+    m = load_model(tmp_path / "m.safetensors")
+    assert m.meta.training["band_seconds"] == 1.5 and m.meta.validation["seconds"] == 1.5
+    assert "validating: 1.5 s rollouts on a 3 x 3 grid" in err, err
+    assert recipe_status(rec) is None
+    rec.write_text(rec.read_text().replace("band_seconds = 1.5", "band_seconds = 2"))
+    assert "stale: trained with band_seconds 1.5, the recipe asks for 2" in recipe_status(rec)
+    for bad in ("0", "31", "nan"):
+        code, out, err = run_main(["train", "--fb", "60:80", "--steps", "1", "--band-seconds", bad], capsys,
+                                  monkeypatch)
+        assert code == 2 and "--band-seconds must be > 0 and at most 30" in err and "Traceback" not in err, err
+
+
 @pytest.mark.parametrize("args, needle", [(["--device", "gpu"], "--device must be auto, cpu or cuda"),
                                           (["--batch", "0"], "--batch must be in"),
                                           (["--device", "cuda"], "torch sees no CUDA GPU")])

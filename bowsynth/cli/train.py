@@ -29,6 +29,7 @@ def train(
     from_model: Optional[str] = typer.Option(None, "--from", help="Refine a trained range model (a file, or a name such as soft-range) for these bows or this score: its network is kept and trained further on their data only (the bows must lie in its box)."),
     batch: Optional[int] = typer.Option(None, "--batch", help="Window starts per optimiser step (default 1024); a GPU takes more per second."),
     device: Optional[str] = typer.Option(None, "--device", help="auto (a CUDA GPU where torch sees one, default), cpu or cuda; the model records which."),
+    band_seconds: Optional[float] = typer.Option(None, "--band-seconds", help="Seconds (at --f0) of the renders from rest the training data comes from, and of a range model's selection and validation rollouts (default 1; up to 30): longer for bows whose notes take seconds to grow."),
     n_data: Optional[int] = typer.Option(None, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band (default 4096)."),
     checkpoint_every: Optional[float] = typer.Option(None, "--checkpoint-every", help="Seconds between checkpoints (default 60)."),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Model file (default ./models/<name>.safetensors)."),
@@ -50,7 +51,7 @@ def train(
     if config is not None:
         given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
                      rest_linear=rest_linear or None, out=out_path,
-                     batch=batch, width=width, device=device, window_ms=window_ms)
+                     batch=batch, width=width, device=device, window_ms=window_ms, band_seconds=band_seconds)
         given["from"] = from_model
         r = load_recipe(config)
         merged = {k: (v if v is not None else r.get(k)) for k, v in given.items()}
@@ -58,11 +59,12 @@ def train(
         minutes, steps, seed, out_path = merged["minutes"], merged["steps"], merged["seed"], merged["out"]
         rest_linear = bool(merged["rest_linear"])
         batch, width, device, window_ms = merged["batch"], merged["width"], merged["device"], merged["window_ms"]
-        from_model = merged["from"]
+        from_model, band_seconds = merged["from"], merged["band_seconds"]
     scene, box = _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4)
     cfg = _train_config(scene, box, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs,
                         hybrid=hybrid, window_ms=window_ms, width=width, depth=depth, n_data=n_data,
-                        checkpoint_every=checkpoint_every, rest_linear=rest_linear, batch=batch, device=device)
+                        checkpoint_every=checkpoint_every, rest_linear=rest_linear, batch=batch, device=device,
+                        band_seconds=band_seconds)
     if update:
         if config is None or out_path is None:
             raise UsageError("--update compares a model file with its recipe: give --config (a recipe with `out`)")
@@ -85,7 +87,7 @@ def train(
     if v.get("error"):
         return
     if box is not None and not box.is_point:  # a score with one bow trains a point model
-        tell(False, f"validation (1 s from rest on a {v.get('grid')} x {v.get('grid')} grid of the box vs FDM "
+        tell(False, f"validation ({v.get('seconds', 1):g} s from rest on a {v.get('grid')} x {v.get('grid')} grid of the box vs FDM "
                     f"x{v.get('ref_oversample')}, where the note speaks): harmonics {fmt_num(v.get('harm_db_median'), '.2g')} dB "
                     f"median, pitch {fmt_num(v.get('cents_abs_max'), '.2g')} cents worst; median NMSE(p) "
                     f"{fmt_num(v.get('nmse'), '.3g')}, worst {fmt_num(v.get('nmse_max'), '.3g')}")
@@ -112,7 +114,7 @@ def _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4):
 
 def _train_config(scene, box, minutes=None, steps=None, seed=None, optimizer=None, lbfgs=None, hybrid=True,
                   window_ms=None, width=None, depth=None, n_data=None, checkpoint_every=None, rest_linear=False,
-                  batch=None, device=None):
+                  batch=None, device=None, band_seconds=None):
     """The TrainConfig of train's flags (a recipe's keys are those flags' names): the one mapping of flags to its
     fields, for a training and for `recipe_status`'s comparison alike."""
     from .. import api
@@ -122,7 +124,7 @@ def _train_config(scene, box, minutes=None, steps=None, seed=None, optimizer=Non
                                  n_data=n_data if box is None else None,
                                  range_n_data=n_data if box is not None else None,
                                  checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
-                                 batch_states=batch, device=device)
+                                 batch_states=batch, device=device, band_seconds=band_seconds)
 
 
 def recipe_status(recipe: Path) -> str | None:
@@ -135,7 +137,7 @@ def recipe_status(recipe: Path) -> str | None:
     scene, box = _scene_and_box(r.get("preset"), r.get("f0"), r.get("fb"), r.get("vb"), r.get("a"), None, None,
                                 None, None)
     cfg = _train_config(scene, box, **{k: r.get(k) for k in ("minutes", "steps", "seed", "width", "batch", "device",
-                                                             "rest_linear", "window_ms")})
+                                                             "rest_linear", "window_ms", "band_seconds")})
     return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box, init=r.get("from"))
 
 

@@ -12,6 +12,8 @@ from ..errors import UsageError
 
 MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
 MAX_STEPS = 10_000_000
+# a range's band at 30 s: 320 runs of 30 s at 44.1 kHz, every 4th state kept, ~3.4 GB of states
+MAX_BAND_SECONDS = 30.0
 
 
 @dataclass
@@ -30,6 +32,9 @@ class TrainConfig:
     hybrid: bool = True
     window: float | None = None  # in tau; None picks one period of the free oscillator, 2 pi
     sampling: str = "scene"  # scene (the band a render visits) | box (the whole bounding box)
+    # the renders from rest (and gestures) that make the data last this long at the recipe's f0; a range model's
+    # weight selection and validation roll out as long (judge_seconds). Longer for bows whose notes grow for many
+    # seconds: at F_B / w 0.02, v_B 0.28 a note from rest reaches its limit cycle after ~9 s at f0 100 (2 s at 440 Hz)
     band_seconds: float = 1.0
     margin: float = 0.05  # of the band's range, around the band
     n_data: int = 4096
@@ -63,6 +68,11 @@ class TrainConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    @property
+    def judge_seconds(self) -> float:
+        """How long a range model's selection and validation roll out from rest: the band's length, at least 1 s."""
+        return max(1.0, self.band_seconds)
+
     def validate(self) -> "TrainConfig":
         """Refuse settings that cannot train (one line each); returns self."""
         if self.optimizer not in ("adam", "soap"):
@@ -95,6 +105,8 @@ class TrainConfig:
         if not (1 <= self.range_points <= 100_000 and 0 <= self.range_gestures <= 100_000):
             raise UsageError(f"range points must be in [1, 100000], gestures in [0, 100000], got "
                              f"{self.range_points}, {self.range_gestures}")
+        if not (math.isfinite(self.band_seconds) and 0 < self.band_seconds <= MAX_BAND_SECONDS):
+            raise UsageError(f"--band-seconds must be > 0 and at most {MAX_BAND_SECONDS:g}, got {self.band_seconds:g}")
         if not (math.isfinite(self.checkpoint_seconds) and self.checkpoint_seconds > 0):
             raise UsageError(f"--checkpoint-every must be > 0 s, got {self.checkpoint_seconds:g}")
         return self

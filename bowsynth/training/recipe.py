@@ -22,7 +22,8 @@ from ..errors import UsageError
 # key: the types the value may have (TOML's); each is the `bowsynth train` flag of that name
 KEYS = {"preset": (str,), "f0": (int, float), "fb": (str, int, float), "vb": (str, int, float), "a": (int, float),
         "minutes": (int, float), "steps": (int,), "seed": (int,), "rest_linear": (bool,), "out": (str,),
-        "batch": (int,), "width": (int,), "device": (str,), "window_ms": (int, float), "from": (str,)}
+        "batch": (int,), "width": (int,), "device": (str,), "window_ms": (int, float), "from": (str,),
+        "band_seconds": (int, float)}
 
 
 def load_recipe(path) -> dict:

@@ -83,17 +83,18 @@ def listener_score(x, ref, sample_rate: float) -> float:
 
 
 class RangeSelector(Selector):
-    """Selection for a range model: the mean listener score (listener_score) of 1 s rollouts from rest at `n` bows
-    of the box drawn apart from the training points (another seed), where the note speaks within the second."""
+    """Selection for a range model: the mean listener score (listener_score) of rollouts from rest, `seconds` long
+    (TrainConfig.judge_seconds), at `n` bows of the box drawn apart from the training points (another seed), where
+    the note speaks within them."""
 
-    def __init__(self, scene: Scene, box, n: int, seed: int):
+    def __init__(self, scene: Scene, box, n: int, seed: int, seconds: float = 1.0):
         from .ranges import distinct, speaks
 
         pts = box.sample(4 * n, np.random.default_rng(seed))
-        pts = distinct(pts[speaks(pts[:, 0], pts[:, 1], box.a, scene.f0)])[:n]
+        pts = distinct(pts[speaks(pts[:, 0], pts[:, 1], box.a, scene.f0, seconds)])[:n]
         if not len(pts):
             pts = np.array([[box.beta_hi, (box.vb_lo + box.vb_hi) / 2]])
-        self.scenes = [scene.replace(fb=float(b) * scene.omega, vb=float(v), duration=1.0) for b, v in pts]
+        self.scenes = [scene.replace(fb=float(b) * scene.omega, vb=float(v), duration=seconds) for b, v in pts]
         super().__init__(self.scenes[0])
         self._refs = None
 

@@ -84,7 +84,8 @@ class Trainer:
         if self.box is None:
             self.selector = Selector(selection_scene(scene, self.data.band, self.window, d.contains))
         else:
-            self.selector = RangeSelector(scene, self.box, cfg.range_select_points, seed=cfg.seed + 1)
+            self.selector = RangeSelector(scene, self.box, cfg.range_select_points, seed=cfg.seed + 1,
+                                          seconds=cfg.judge_seconds)
 
     def _fit_bow_scaling(self):
         from .ranges import fit_bow_scaling
