@@ -41,7 +41,8 @@ test: $(STAMP) chromium jackd
 # `bowsynth train`), on a 2-core CPU at most 15 minutes for each point model and 45 for a range model. Only what is
 # missing, unreadable or stale against its recipe is trained (`train --update`); an interrupted run continues from
 # its checkpoint, so `make models` can be stopped and run again. A wide stick-slip range failed its validation and is
-# not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops,
+# not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops, loud-mid
+# the soft / stick-slip border at moderate bow speeds,
 # stick-mid, -low, -slow, -high, -stops, -heavy, -creep and -top: stick-slip tiles on quarter-period windows; soft-top and
 # soft-high: the soft bow's top forces; soft-fast its fastest bows (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch.
