@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 from bowsynth import BowsynthError, Scene
-from bowsynth.analysis.metrics import listener_errors, nmse
+from bowsynth.analysis.metrics import listener_errors, nmse, onset_limit_ms
 from bowsynth.api import render
 
 REGIONS = {  # (F_B / w lo, hi), (v_B lo, hi): the soft-bow and stick-slip spaces
@@ -47,7 +47,7 @@ def draw(region: str, n: int, seed: int) -> list[tuple[float, float, float]]:
 
 
 def onset_ok(err_ms: float, ref_ms: float) -> bool:
-    return math.isfinite(err_ms) and abs(err_ms) <= max(5.0, 0.02 * ref_ms)
+    return math.isfinite(err_ms) and abs(err_ms) <= onset_limit_ms(ref_ms)
 
 
 WINDOWS = "locked"  # the operator's windows (api.render's; --windows)

@@ -20,6 +20,7 @@ from bowsynth import Scene, render_fdm
 from bowsynth.analysis.metrics import cents, f0_estimate
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.onset import settled_seconds
 from bowsynth.engines.operator.rollout import rollout_states
 
 
@@ -31,7 +32,8 @@ def convergence(m, seed: int, voices: int):
     sc = Scene(**m.meta.scene)
     q, p, fail = rollout_states(m, x, 2 * sc.sample_rate, sc.omega / sc.sample_rate)
     ok = fail[:, 0] == -1
-    ref = render_fdm(sc.replace(duration=2.0), oversample=8)
+    # the FDM's limit cycle: its last 0.5 s once the note has spoken (a light fast bow takes seconds)
+    ref = render_fdm(sc.replace(duration=settled_seconds(sc)), oversample=8)
     tail = slice(-sc.sample_rate // 2, None)
     amp = np.abs(p[ok][:, tail]).max(1) / np.abs(ref.p[tail]).max() - 1
     f_ref = f0_estimate(ref.q[tail], sc.sample_rate, tail=1.0)
@@ -42,7 +44,7 @@ def convergence(m, seed: int, voices: int):
 def long_pitch(m) -> float:
     sc = Scene(**{**m.meta.scene, "duration": 30.0})
     r = render_operator(sc, model=m)
-    ref = render_fdm(sc.replace(duration=5.0), oversample=8)
+    ref = render_fdm(sc.replace(duration=settled_seconds(sc, after=5.0)), oversample=8)
     return cents(f0_estimate(r.q[-5 * sc.sample_rate:], sc.sample_rate, tail=1.0),
                  f0_estimate(ref.q, sc.sample_rate))
 

@@ -195,6 +195,26 @@ def test_auto_windows_play_the_mode_that_sounds_truest_at_f0_100():
         assert not np.array_equal(auto.p, other.p)
 
 
+def test_auto_windows_score_a_slow_bow_once_it_has_spoken_and_by_its_onset_too():
+    """A light fast bow speaks late: at F_B / w 0.02, v_B 0.28 a note from rest at f0 100 speaks after ~9.8 s, so
+    the 2 s note auto windows used to score was the flow at rest's, and the pitch alone chose the lock. Now the note
+    lasts 2 s past the time the physics speaks, and its onset counts: corner-long there scores 0.06 free against 1.10
+    locked (measured; the lock moves the onset 37 ms at 440 Hz, where free windows are 2.4 ms off), so auto plays free."""
+    from bowsynth.engines.operator.choose import as_model
+    from bowsynth.engines.operator.onset import settled_seconds
+    from bowsynth.music.engine_tuning import lock_ratio, window_scores
+
+    def at(beta, vb):
+        return Scene(f0=100.0, fb=beta * 2 * math.pi * 100.0, vb=vb, duration=1.0)
+    assert settled_seconds(at(0.291, 0.213)) == 2.0  # speaks within a second: as before
+    assert 11.0 < settled_seconds(at(0.02, 0.28)) < 12.5 and settled_seconds(at(0.02, 0.3)) == 30.0
+    m, beta, vb = as_model("corner-long"), 0.02, 0.28
+    free, locked = window_scores(m, beta, vb, 100.0, lock_ratio(m, beta, vb, 100.0))
+    assert free < 0.2 and locked > 5 * free, (free, locked)
+    sc = Scene(f0=440.0, fb=beta * 2 * math.pi * 440.0, vb=vb, duration=2.0)
+    assert np.array_equal(render(sc, windows="auto").p, render(sc, model=m, windows="free").p)
+
+
 def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does():
     """stick-stops at F_B / w 0.7188, v_B 0.08 (bench map's worst pitch in session 21): the physics' period is 16.9 of
     its trained windows; 17 windows of 0.994 T leave its cycle at its own period, 5.3 cents sharp at 110 Hz

@@ -193,6 +193,11 @@ def onset_time(x, sample_rate: float, f0: float | None = None, end: int | None =
     return float((hit[0] + per) / sample_rate) if len(hit) else float("nan")
 
 
+def onset_limit_ms(ref_ms: float) -> float:
+    """The onset error a listener's target allows (issue 21): max(5 ms, 2 % of the truth's onset)."""
+    return max(5.0, 0.02 * ref_ms)
+
+
 def listener_errors(x, ref, sample_rate: float, steady_seconds: float = 1.0) -> dict:
     """What a listener hears of x against ref, both from the same start: pitch (cents), harmonics 1-10 (dB, those
     of ref above AUDIBLE_DB; each signal fitted at its own pitch) over the last `steady_seconds` (at most the last

@@ -114,6 +114,15 @@ def speak_time(sc: Scene) -> float | None:
     return math.log(max(scale / offset, 1.0)) / rate
 
 
+def settled_seconds(sc: Scene, after: float = 2.0, most: float = 30.0) -> float:
+    """How long a held note from the scene's start must last to be `after` seconds past its onset: `after`, or where
+    the physics takes more than a second to speak (speak_time) that time plus `after`, at most `most`. A light fast
+    bow speaks late: F_B / w 0.02, v_B 0.28 after ~9.8 s at f0 100 (its half-RMS onset 8.2 s)."""
+    t = speak_time(sc)
+    speak = 0.0 if t is None else t / sc.omega
+    return after if speak <= 1.0 else min(most, speak + after)
+
+
 def mute_from(sc: Scene, p) -> int | None:
     """The sample from which a held note should have been sounding but was not (its p spans < MUTE_FRACTION of
     v_B - vb_stop from there to its end), or None: it sounds, the bow moves, or the physics lets it be silent."""
