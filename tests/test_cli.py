@@ -100,6 +100,15 @@ def test_no_model_covers_scene(tmp_path, monkeypatch, capsys):
     assert err.count("\n") == 1 and not (tmp_path / "x.wav").exists()
 
 
+def test_a_range_render_says_how_long_its_model_was_validated(tmp_path, monkeypatch, capsys):
+    # corner-long was validated over 16 s from rest (its notes take seconds to grow), soft-high over 1 s
+    monkeypatch.chdir(tmp_path)
+    for fb, vb, secs in (("55.3", "0.28", 16), ("300", "0.2", 1)):
+        code, out, err = run_main(["render", "--f0", "440", "--fb", fb, "--vb", vb, "-d", "0.2", "x.wav", "--force"],
+                                  capsys, monkeypatch)
+        assert code == 0 and f"its validation ({secs} s from rest on a 3 x 3 grid" in out + err, out + err
+
+
 def test_model_by_name(tmp_path, tiny_model, monkeypatch, capsys):
     """--model takes a model's name in ./models (before the shipped ones) as well as a file; an unknown name is one
     line naming the models there are, exit 1, nothing written."""

@@ -102,8 +102,8 @@ def render(
             say.print(note, soft_wrap=True)
         rv = r.info.range_validation
         if rv and rv.get("nmse") is not None:
-            say.print(f"note: a range model; its validation (1 s from rest on a {rv.get('grid')} x {rv.get('grid')} "
-                      f"grid of its box vs FDM x100): harmonics {fmt_num(rv.get('harm_db_median'), '.2g')} dB median, pitch "
+            say.print(f"note: a range model; its validation ({rv.get('seconds', 1):g} s from rest on a {rv.get('grid')} x "
+                      f"{rv.get('grid')} grid of its box vs FDM x100): harmonics {fmt_num(rv.get('harm_db_median'), '.2g')} dB median, pitch "
                       f"{fmt_num(rv.get('cents_abs_max'), '.2g')} cents worst; median NMSE(p) {rv['nmse']:.2g}, worst "
                       f"{fmt_num(rv.get('nmse_max'), '.2g')}; `bowsynth compare "
                       f"{output if str(output) != '-' else 'FILE'}` measures this render",
