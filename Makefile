@@ -44,8 +44,8 @@ test: $(STAMP) chromium jackd
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops, loud-mid
 # the soft / stick-slip border at moderate bow speeds; stick-mid, -low, -slow, -high, -stops, -heavy, -creep, -top and
 # floor-long: stick-slip tiles on quarter-period windows; soft-top and soft-high: the soft bow's top forces; soft-fast
-# its fastest bows; corner-long the light fast corner (floor-long and corner-long learnt from renders of 6 and 16 s:
-# their notes take seconds to settle) (BENCHMARKS.md).
+# its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long, fast-long and
+# corner-long learnt from renders of 6, 6 and 16 s: their notes take seconds to settle) (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch.
 RECIPES := $(wildcard bowsynth/models/*.toml)
 REFINED := $(shell grep -l '^from *=' $(RECIPES) 2>/dev/null)

@@ -93,6 +93,8 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
 # floor-long (session 27, stick-high refined on F_B / w 1.75-2.02 x v_B 0.076-0.1 with 6 s renders: its centre bow
 # F_B / w 1.880, v_B 0.088, sounding ~3 octaves below f0; seeds 1-3): 24 / 20 / 24 left, 2.97e-3, 5.93 cents (its own
 # period in free windows, 5.4 cents flat); 30 s -5.42 cents.
+# fast-long (session 27, soft-fast refined on F_B / w 0.06-0.45 x v_B 0.25-0.3 with 6 s renders: its centre bow F_B / w
+# 0.164, v_B 0.275; seeds 1-3): 0 left, 1.65e-3, 0.022 cents; 30 s +0.002 cents.
 CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), "paper-fb1000": (12, 2.7e-2, 0.8),
                "soft-range": (36, 1.4e-2, 0.45), "scratch-g2": (12, 1.2e-2, 0.6),
                "velocity-loud": (44, 6.5e-2, 3.5), "loud-stops": (24, 2.4e-2, 3.7),
@@ -105,7 +107,8 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                "stick-heavy": (36, 8.4e-3, 3.0), "soft-high": (8, 2.8e-2, 1.45),
                "soft-fast": (4, 5e-3, 0.3), "stick-creep": (32, 5e-3, 1.8),
                "stick-top": (32, 3e-3, 0.6), "loud-mid": (12, 1.8e-2, 2.7),
-               "corner-long": (2, 2.5e-3, 0.12), "floor-long": (40, 6e-3, 7.0)}
+               "corner-long": (2, 2.5e-3, 0.12), "floor-long": (40, 6e-3, 7.0),
+               "fast-long": (2, 4e-3, 0.1)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
