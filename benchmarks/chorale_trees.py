@@ -32,17 +32,23 @@ RUNNER = ("import sys\n"
           "sys.exit(main())\n")
 
 
+def source_tree(path: Path) -> Path:
+    """OTHER_TREE resolved, or the run refused: a path with no bowsynth package would have RUNNER's processes import
+    this checkout (through the venv), measuring this tree twice."""
+    if not (path / "bowsynth" / "__init__.py").is_file():
+        raise SystemExit(f"{path} holds no bowsynth package")
+    return path.resolve()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("other", type=Path)
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--windows", default="locked", help="this tree's operator windows, comma-separated")
     a = ap.parse_args()
-    if not (a.other / "bowsynth" / "__init__.py").is_file():  # else the processes would quietly import this tree
-        raise SystemExit(f"{a.other} holds no bowsynth package")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPATH")}
     score = ["score", "--score", "chorale.mid", "--mix", "--force"]
-    procs = {"help": (ROOT, ["--help"]), "other locked": (a.other.resolve(), [*score, "other.wav"])}
+    procs = {"help": (ROOT, ["--help"]), "other locked": (source_tree(a.other), [*score, "other.wav"])}
     for w in a.windows.split(","):
         procs[f"this {w}"] = (ROOT, [*score, f"this-{w}.wav", "--windows", w])
     procs["fdm"] = (ROOT, [*score, "fdm.wav", "--method", "fdm"])

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from chorale_trees import RUNNER  # noqa: E402
+from chorale_trees import RUNNER, source_tree  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {"--help": ["--help"],
@@ -33,13 +33,15 @@ def main() -> None:
     ap.add_argument("other", type=Path)
     ap.add_argument("--runs", type=int, default=9)
     args = ap.parse_args()
-    trees = {"this tree": ROOT, "other tree": args.other.resolve()}
+    trees = {"this tree": ROOT, "other tree": source_tree(args.other)}
     # the processes a user runs read their modules' bytecode (see chorale.py)
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPATH")}
     t = {(tr, c): [] for tr in trees for c in CASES}
     with tempfile.TemporaryDirectory() as d:
-        for _ in range(args.runs):
-            for tr, root in trees.items():
+        for i in range(args.runs):
+            # the trees take turns going first, as chorale_trees.py's operator processes take turns in each slot
+            for tr in list(trees)[::1 if i % 2 == 0 else -1]:
+                root = trees[tr]
                 for c, argv in CASES.items():
                     t0 = time.perf_counter()
                     r = subprocess.run([sys.executable, "-c", RUNNER, str(root), *argv], cwd=d, env=env,
