@@ -295,6 +295,28 @@ def _chorale(path):
     return path
 
 
+@pytest.mark.parametrize("method", ["operator", "fdm"])
+def test_a_repeated_note_is_rendered_once_and_copied(tmp_path, method, monkeypatch):
+    """The unison of _chorale (alto and tenor, the same G4 from beat 0) is one scene: it renders once, each note gets
+    its own arrays (a release is written over them in place), and every note sounds as it does rendered alone."""
+    from bowsynth.music import perform
+    from bowsynth.music.score import load_score
+
+    notes = load_score(_chorale(tmp_path / "chorale.mid"))
+    asked = []
+    real = perform._render_notes
+    monkeypatch.setattr(perform, "_render_notes", lambda ns, *a: asked.append(len(ns)) or real(ns, *a))
+    rs = perform.render_notes(notes, method=method)
+    assert asked == [7]
+    a, b = (i for i, n in enumerate(notes) if n.pitch is not None and round(n.pitch) == 392 and n.start == 0.0)
+    assert notes[a].scene == notes[b].scene and rs[a].p is not rs[b].p and rs[a].q is not rs[b].q
+    assert np.array_equal(rs[a].p, rs[b].p) and rs[b].scene is notes[b].scene
+    alone = real(notes, method)
+    for r, one in zip(rs, alone):
+        np.testing.assert_array_equal(r.p, one.p)
+        np.testing.assert_array_equal(r.q, one.q)
+
+
 def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys, monkeypatch):
     from bowsynth.music.midi import read_midi
     from bowsynth.music.score import load_score
@@ -311,7 +333,8 @@ def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys
     assert len(notes) == 8 and notes.remarks == p.remarks
     code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "c.wav"),
                                "--method", "fdm"], capsys, monkeypatch)
-    assert code == 0 and "several tracks" in out and "rendered 8 notes in 4 voices" in out
+    # the alto/tenor unison is one note played twice: rendered once (render_notes)
+    assert code == 0 and "several tracks" in out and "rendered 8 notes (7 distinct) in 4 voices" in out
     assert "bow stops" not in out  # the FDM plays whole notes: nothing was handed over
     code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "o.wav")],
                               capsys, monkeypatch)

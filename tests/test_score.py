@@ -81,7 +81,9 @@ def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch,
     assert code == 1 and "voice 1: the rollout left" in err and not (tmp_path / "v").exists()
     code, out, err = run_main([*args, "--fallback", "fdm", str(tmp_path / "v")], capsys, monkeypatch)
     assert code == 0, err
-    assert out.count("finished with the FDM") == 2
+    # the two notes are one scene, rendered once (render_notes): the line is said once, for both
+    assert out.count("finished with the FDM") == 1 and "paper-fb100 and 1 more notes: note: voice 1: the rollout" in out
+    assert read_wav(tmp_path / "v" / "paper-fb100.wav").meta["method"] == "operator+fdm"
     assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["notes.json", "paper-fb100-2.wav",
                                                                    "paper-fb100.wav"]
     stem = read_wav(tmp_path / "v" / "paper-fb100-2.wav")

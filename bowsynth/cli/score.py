@@ -50,7 +50,7 @@ def score(
     from ..io.audio import check_audio_output, check_dc, check_gain_db
     from ..io.outfile import check_output_path
     from ..music.mix import check_outputs_fit, stem_paths, write_voices
-    from ..music.perform import check_releases, render_notes
+    from ..music.perform import check_releases, render_notes, same_note
     from ..music.score import load_score, voices_from_presets
 
     if (score_file is None) == (presets_list is None):
@@ -132,6 +132,8 @@ def score(
     stops = (f"; bow stops: {by.count('operator')} by the operator, {by.count('fdm')} by the FDM"
              if method == "operator" and by else "")
     shown = ", ".join(str(p) for p in paths[:4]) + (f" and {len(paths) - 4} more" if len(paths) > 4 else "")
-    tell(quiet, f"rendered {len(notes)} notes in {voices} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
+    distinct = len({same_note(n) for n in notes})  # a repeat is a copy of its first (render_notes)
+    again = f" ({distinct} distinct)" if distinct < len(notes) else ""
+    tell(quiet, f"rendered {len(notes)} notes{again} in {voices} voices ({audio:g} s of audio) with {method} in {secs:.3f} s "
                 f"({audio / max(secs, 1e-9):.0f}x real time in all)" + (f", model {', '.join(used)}" if used else "")
                 + stops + f"; wrote {shown}", say)

@@ -81,6 +81,30 @@ def check_releases(releases: str) -> str:
 
 def render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
                  source=None, releases: str = "auto", windows: str = "locked") -> list[Render]:
+    """_render_notes of the distinct notes, each repeat a copy of its first (a note's samples depend only on its
+    scene, hold and release, not on when it starts: 79 distinct among a chorale's 172 notes)."""
+    first: dict = {}
+    which = [first.setdefault(same_note(n), i) for i, n in enumerate(notes)]
+    if len(first) == len(notes):
+        return _render_notes(notes, method, model, fallback, source, releases, windows)
+    uniq = sorted(first.values())
+    rs = dict(zip(uniq, _render_notes([notes[i] for i in uniq], method, model, fallback, source, releases, windows)))
+    return [rs[i] if i == j else repeat(rs[j], notes[i]) for i, j in enumerate(which)]
+
+
+def same_note(n: Note) -> tuple:
+    """What a note's samples depend on."""
+    return n.scene, n.hold, n.release
+
+
+def repeat(r: Render, note: Note) -> Render:
+    """A copy of r for another note with the same samples (its own arrays: a release is written in place)."""
+    info = dataclasses.replace(r.info, notes=list(r.info.notes), chain=list(r.info.chain) if r.info.chain else None)
+    return Render(note.scene, r.t, r.q.copy(), r.p.copy(), r.method, 0.0, info, r.controls)
+
+
+def _render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
+                  source=None, releases: str = "auto", windows: str = "locked") -> list[Render]:
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
     of the sustains, each bow stop then by a model that covers it (the sustain's own, whole; or one handed the
     sustain's state at the hold), else by the FDM from there. releases 'fdm': every bow stop by the FDM from the hold,
