@@ -107,6 +107,13 @@ def test_a_range_render_says_how_long_its_model_was_validated(tmp_path, monkeypa
         code, out, err = run_main(["render", "--f0", "440", "--fb", fb, "--vb", vb, "-d", "0.2", "x.wav", "--force"],
                                   capsys, monkeypatch)
         assert code == 0 and f"its validation ({secs} s from rest on a 3 x 3 grid" in out + err, out + err
+    # the phrase train printed, from the model's own record (one rule for both: cli.app.range_validation_text)
+    from bowsynth.cli.app import range_validation_text
+    from bowsynth.engines.operator.choose import find_model
+    from bowsynth.scene import Scene
+
+    v = find_model(Scene(f0=440, fb=300, vb=0.2, duration=0.2)).meta.validation
+    assert f"its {range_validation_text(v, 'its')}" in out + err and "FDM x100, where the note speaks" in out + err
 
 
 def test_model_by_name(tmp_path, tiny_model, monkeypatch, capsys):

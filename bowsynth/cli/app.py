@@ -94,3 +94,12 @@ def console_for(output) -> Console:
 
 def fmt_num(v, fmt: str) -> str:
     return num(v, fmt)
+
+
+def range_validation_text(v: dict, whose: str = "the") -> str:
+    """A range model's validation record (training.validate_range) as train and render state it."""
+    g = v.get("grid")
+    return (f"validation ({v.get('seconds') or 1:g} s from rest on a {g} x {g} grid of {whose} box vs FDM "
+            f"x{v.get('ref_oversample') or 100}, where the note speaks): harmonics "
+            f"{fmt_num(v.get('harm_db_median'), '.2g')} dB median, pitch {fmt_num(v.get('cents_abs_max'), '.2g')} cents "
+            f"worst; median NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, worst {fmt_num(v.get('nmse_max'), '.3g')}")

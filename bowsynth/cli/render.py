@@ -26,8 +26,8 @@ from .app import (
     WindowsOpt,
     app,
     console_for,
-    fmt_num,
     pitch_hz,
+    range_validation_text,
     scene_from_flags,
     tell,
 )
@@ -102,9 +102,5 @@ def render(
             say.print(note, soft_wrap=True)
         rv = r.info.range_validation
         if rv and rv.get("nmse") is not None:
-            say.print(f"note: a range model; its validation ({rv.get('seconds', 1):g} s from rest on a {rv.get('grid')} x "
-                      f"{rv.get('grid')} grid of its box vs FDM x100): harmonics {fmt_num(rv.get('harm_db_median'), '.2g')} dB median, pitch "
-                      f"{fmt_num(rv.get('cents_abs_max'), '.2g')} cents worst; median NMSE(p) {rv['nmse']:.2g}, worst "
-                      f"{fmt_num(rv.get('nmse_max'), '.2g')}; `bowsynth compare "
-                      f"{output if str(output) != '-' else 'FILE'}` measures this render",
-                      soft_wrap=True)
+            say.print(f"note: a range model; its {range_validation_text(rv, 'its')}; `bowsynth compare "
+                      f"{output if str(output) != '-' else 'FILE'}` measures this render", soft_wrap=True)

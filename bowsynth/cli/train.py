@@ -8,7 +8,8 @@ from typing import Optional
 import typer
 
 from ..errors import UsageError
-from .app import AOpt, F0Opt, FbOpt, P0Opt, PresetOpt, Q0Opt, VbOpt, app, err, fmt_num, scene_from_flags, tell
+from .app import (AOpt, F0Opt, FbOpt, P0Opt, PresetOpt, Q0Opt, VbOpt, app, err, fmt_num, range_validation_text,
+                  scene_from_flags, tell)
 
 
 @app.command()
@@ -87,10 +88,7 @@ def train(
     if v.get("error"):
         return
     if box is not None and not box.is_point:  # a score with one bow trains a point model
-        tell(False, f"validation ({v.get('seconds', 1):g} s from rest on a {v.get('grid')} x {v.get('grid')} grid of the box vs FDM "
-                    f"x{v.get('ref_oversample')}, where the note speaks): harmonics {fmt_num(v.get('harm_db_median'), '.2g')} dB "
-                    f"median, pitch {fmt_num(v.get('cents_abs_max'), '.2g')} cents worst; median NMSE(p) "
-                    f"{fmt_num(v.get('nmse'), '.3g')}, worst {fmt_num(v.get('nmse_max'), '.3g')}")
+        tell(False, range_validation_text(v))
         return
     tell(False, f"validation (1 s from the scene's initial state vs FDM x{v.get('ref_oversample')}): "
                 f"NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, NCC {fmt_num(v.get('ncc_percent'), '.3f')} %, "

@@ -379,7 +379,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
                 v = m.meta.validation or {}
                 info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid", "harm_db_median",
-                                                               "cents_abs_max", "seconds")}
+                                                               "cents_abs_max", "seconds", "ref_oversample")}
             if i in pre:
                 info.rest_flow = pre[i][0] / sc.sample_rate
             if landed.get(i) is not None:  # a silent note, said: the physics rests there
