@@ -77,6 +77,14 @@ def onset_rate(b: float, vb: float, a: float):
     return -0.5 * b * dphi(-vb, a)
 
 
+def growth_tau(rate, offset, scale):
+    """tau for an oscillation growing at `rate` (onset_rate) to go from `offset` (its distance from the rest state at
+    the start) to `scale`: log(scale / offset) / rate, 0 where it starts that large (where rate > 0; numpy arrays
+    too). The two onset rules (training.ranges.speaks, engines.operator.onset.speak_time) differ only in the scale."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log(np.maximum(np.asarray(scale, float) / np.maximum(offset, 1e-300), 1.0)) / rate
+
+
 def rhs_tau(q, p, b: float, vb: float, a: float):
     """(dq/dtau, dp/dtau) in dimensionless time tau = w t, with b = beta = F_B / w."""
     return p, -q - b * phi(p - vb, a)

@@ -109,9 +109,7 @@ def speaks(beta, vb, a: float, f0: float = 100.0, seconds: float = 1.0) -> np.nd
     beta 0.3 / v_B 0.3 is still growing at 1 s, v_B 0.35 stays silent at beta 0.75; tests/test_ranges.py)."""
     beta, vb = np.asarray(beta, float), np.asarray(vb, float)
     rate = physics.onset_rate(beta, vb, a)
-    start = np.maximum(np.abs(beta * physics.phi(vb, a)), 1e-300)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        need = np.log(np.maximum(0.1 * vb, 1e-12) / start) / rate  # in tau
+    need = physics.growth_tau(rate, np.abs(beta * physics.phi(vb, a)), np.maximum(0.1 * vb, 1e-12))
     return (rate > 0) & (need <= physics.omega(f0) * seconds)
 
 

@@ -111,7 +111,7 @@ def speak_time(sc: Scene) -> float | None:
     if not rate > 0 or not scale > 0:
         return None
     offset = max(float(np.hypot(sc.q0 - physics.rest_linearisation(sc.beta, sc.vb, sc.a)[1], sc.p0)), 1e-12)
-    return math.log(max(scale / offset, 1.0)) / rate
+    return float(physics.growth_tau(rate, offset, scale))
 
 
 def settled_seconds(sc: Scene, after: float = 2.0, most: float = 30.0) -> float:
