@@ -3,6 +3,7 @@
     PYTHONPATH=. .venv/bin/python benchmarks/listener.py [--model PATH] [--region soft|stick|all] [--n N] [--seed S]
                                                           [--seconds 2] [--json out.json] [--box B0:B1,V0:V1]
                                                           [--windows locked|free|physics|auto]
+    PYTHONPATH=. .venv/bin/python benchmarks/listener.py --gestures [--only TEXT] [--model PATH] [--windows auto]
 
 Random bows (F_B / w log-uniform, v_B uniform) at random pitches (f0 log-uniform 65-880 Hz), drawn with a seed no
 training uses, each rendered 2 s from rest by the operator (the model the renderer picks, or --model) and by the
@@ -83,6 +84,9 @@ GESTURES = {  # name: (f0, F_B / w curve, v_B curve, seconds), curves as (t, val
     "bow stop to v_B 0": (150.0, 0.15, [(1.0, 0.2), (1.1, 0.0)], 1.6),
     "attack from F_B 0": (100.0, [(0.0, 0.0), (0.05, 0.2)], 0.2, 1.5),
     "stick-slip bow stop": (100.0, 1.0, [(1.0, 0.2), (1.1, 0.0)], 1.6),  # session 19: a stick-slip note's release
+    # session 28: the heavy forces' releases, the paper's stick-slip scene (F_B 1000 at f0 100) and near the space's edge
+    "heavy bow stop (F_B 1000)": (100.0, 1000 / (2 * math.pi * 100), [(1.0, 0.2), (1.1, 0.0)], 1.6),
+    "heaviest bow stop": (150.0, 1.9, [(1.0, 0.15), (1.05, 0.0)], 1.6),
 }
 FRAME = 0.1
 
@@ -160,6 +164,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--gestures", action="store_true", help="the gestures instead of held bows")
+    ap.add_argument("--only", default=None, metavar="TEXT", help="with --gestures: those whose name holds TEXT")
     ap.add_argument("--json", default=None)
     ap.add_argument("--windows", default="locked", choices=["locked", "free", "physics", "auto"],
                     help="the operator's windows (render --windows; gestures play free windows either way)")
@@ -176,7 +181,7 @@ def main(argv=None):
         print("| gesture | engine | frames | harmonics median / worst frame (dB) | pitch median (cents) |")
         print("|---|---|---|---|---|")
         out["gestures"] = []
-        for name in GESTURES:
+        for name in [g for g in GESTURES if a.only is None or a.only in g]:
             row = gesture(name, model)
             out["gestures"].append(row)
             for key, label in (("op", "operator"), ("fdm", "audio-rate FDM")):
