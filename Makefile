@@ -45,9 +45,11 @@ test: $(STAMP) chromium jackd
 # the soft / stick-slip border at moderate bow speeds; stick-mid, -low, -slow, -high, -stops, -heavy, -creep, -top and
 # floor-long: stick-slip tiles on quarter-period windows; soft-top and soft-high: the soft bow's top forces; soft-fast
 # its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long, fast-long and
-# corner-long learnt from renders of 6, 6 and 16 s: their notes take seconds to settle) (BENCHMARKS.md).
-# A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch.
-RECIPES := $(wildcard bowsynth/models/*.toml)
+# corner-long learnt from renders of 6, 6 and 16 s: their notes take seconds to settle); stick-halt the heavy bow
+# stops, refined in stages (bowsynth/models/stages: models a render never picks, kept to rebuild it) (BENCHMARKS.md).
+# A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch,
+# the stages first.
+RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)
 REFINED := $(shell grep -l '^from *=' $(RECIPES) 2>/dev/null)
 models: $(STAMP)
 	for r in $(filter-out $(REFINED),$(RECIPES)) $(REFINED); do $(BOW) train --config $$r --update || exit 1; done

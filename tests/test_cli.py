@@ -188,9 +188,12 @@ def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
     models = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
     recipes = sorted(models.glob("*.toml"))
     assert {r.stem for r in recipes} == {m.stem for m in models.glob("*.safetensors")}
+    # the stages a shipped refinement was made through (stick-halt), kept to rebuild it and never picked by a render
+    stages = sorted((models / "stages").glob("*.toml"))
+    assert {r.stem for r in stages} == {m.stem for m in (models / "stages").glob("*.safetensors")} and stages
     from bowsynth.cli.train import recipe_status
 
-    for r in recipes:
+    for r in recipes + stages:
         rec = load_recipe(r)
         assert rec["out"] == r.with_suffix(".safetensors") and 0 < rec["minutes"] <= 45
         # every shipped model is what its recipe makes (a refinement: from its base as shipped, its window kept)

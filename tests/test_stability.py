@@ -23,7 +23,9 @@ SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.ends
 # (tests/test_grid.py); held bows there are stick-low's, it plays the bow stops and the slowest bows
 # floor-long (session 27), -5.42 cents at its centre bow (F_B / w 1.880, v_B 0.088) in free windows: its own period
 # there, where v_B 0.1 % off moves the truth 2.7 cents; auto windows lock it to the physics' (BENCHMARKS.md)
-LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3, "slow-bow": 1.3, "floor-long": 6.0}
+# stick-halt (session 28), -5.02 cents at its centre bow (F_B / w 1.497, v_B 0.125) in free windows (-4.85 in its
+# validation): it plays the heavy bow stops; a held bow there is stick-slow's, deeper in a smaller box
+LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3, "slow-bow": 1.3, "floor-long": 6.0, "stick-halt": 5.5}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
@@ -108,7 +110,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                "soft-fast": (4, 5e-3, 0.3), "stick-creep": (32, 5e-3, 1.8),
                "stick-top": (32, 3e-3, 0.6), "loud-mid": (12, 1.8e-2, 2.7),
                "corner-long": (2, 2.5e-3, 0.12), "floor-long": (40, 6e-3, 7.0),
-               "fast-long": (2, 4e-3, 0.1)}
+               "fast-long": (2, 4e-3, 0.1),
+               # session 28: 29 of 64 leave, the rest within 2.28 % and 5.59 cents of the truth at its centre bow
+               # (F_B / w 1.497, v_B 0.125), where it plays -5 cents in free windows; held bows there are stick-slow's
+               "stick-halt": (34, 3e-2, 6.0)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
