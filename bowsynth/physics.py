@@ -81,6 +81,8 @@ def growth_tau(rate, offset, scale):
     """tau for an oscillation growing at `rate` (onset_rate) to go from `offset` (its distance from the rest state at
     the start) to `scale`: log(scale / offset) / rate, 0 where it starts that large (where rate > 0; numpy arrays
     too). The two onset rules (training.ranges.speaks, engines.operator.onset.speak_time) differ only in the scale."""
+    if type(rate) is float and type(offset) is float and type(scale) is float:  # a render's note: math, as _exp
+        return math.log(max(scale / max(offset, 1e-300), 1.0)) / rate
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.log(np.maximum(np.asarray(scale, float) / np.maximum(offset, 1e-300), 1.0)) / rate
 
