@@ -1,4 +1,6 @@
+import atexit
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -8,7 +10,11 @@ from bowsynth.cli.main import main as _main
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 # measured pitch ratios are cached on disk (bowsynth.io.cache): the tests keep theirs out of the user's ~/.cache
-os.environ.setdefault("BOWSYNTH_CACHE", tempfile.mkdtemp(prefix="bowsynth-test-cache-"))
+# (made once, by the process that starts the run: xdist's workers inherit it; setdefault's argument would make an
+# unused directory in every worker) and removed when that process ends, so runs leave nothing in the temp dir
+if "BOWSYNTH_CACHE" not in os.environ:
+    os.environ["BOWSYNTH_CACHE"] = tempfile.mkdtemp(prefix="bowsynth-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["BOWSYNTH_CACHE"], ignore_errors=True)
 
 # the authors' reference data the tests use, in the repository (see tests/data/README.md for provenance)
 ANCHORS = Path(__file__).resolve().parent / "data"
