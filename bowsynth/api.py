@@ -28,14 +28,15 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     voice in windows locked to the period its playing model sounds at (the model's own, measured once per model and
     bow and cached: `music.engine_tuning.operator_sounding`); 'physics' in windows that divide the physics' period at
     its bow, which pulls the note onto the physical pitch where the model holds it (`engine_tuning.lock_ratio`);
-    'auto' per model and bow 'free' or 'physics', whichever sounds truest at f0 100 against the FDM (harmonics' dB
-    and cents over the issue's worst-case targets; measured once, cached: `engine_tuning.auto_lock`). A note whose
-    bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture rolls free.
-    Free windows spread the network's error into faint lines between and below the harmonics (60 dB down), locked
-    ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics truer free, a
-    chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked (`score`'s default); a
-    held note at a given f0 sounds the physical pitch with 'physics' (0.0005 cents median for stick-slip bows against
-    1.3 locked), after a pull-in a short note sounds. See `engines.operator.windows.locked_window`.
+    'auto' per model, bow and pitch 'free' or 'physics', whichever sounds truest against the FDM (harmonics' dB and
+    cents over the issue's worst-case targets; measured once per model and bow, cached: `engine_tuning.auto_lock`).
+    A note whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture
+    rolls free. Free windows spread the network's error into faint lines between and below the harmonics (60 dB
+    down), locked ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics
+    truer free, a chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked
+    (`score`'s default); a held note at a given f0 sounds the physical pitch with 'physics' (0.0005 cents median for
+    stick-slip bows against 1.3 locked), after a pull-in a short note sounds. See
+    `engines.operator.windows.locked_window`.
     A request estimated past minutes of FDM work or gigabytes of memory is refused with the estimate (a UsageError)
     unless force=True; see `bowsynth.engines.limits`."""
     from .engines import Engine, parse_choice

@@ -86,7 +86,9 @@ class Stream(VoiceBank):
             if model is None:
                 model = Tuning.default_model(available_models(), self.a)
             model = as_model(model)
-            ratio_for = lambda sc: ratio_for_engine(sc, "operator", model, windows=self.windows)[0]  # noqa: E731
+            # auto windows: one choice per velocity for every pitch, as its notes' locks below
+            ratio_for = lambda sc: ratio_for_engine(sc, "operator", model, windows=self.windows,  # noqa: E731
+                                                    by_pitch=False)[0]
         self.tuning = t = Tuning(self.a, self.a4, sample_rate, ratio_for)
         # the longest window a note may need: the lowest MIDI note (12; r < 1 raises f0), bent down, at the bottom
         # of its vibrato
