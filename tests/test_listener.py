@@ -26,6 +26,29 @@ def test_harmonic_levels_are_recovered_at_the_signals_own_pitch():
     assert np.allclose(got, LEVELS, atol=0.01)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_the_harmonic_fit_without_a_design_matrix_is_the_least_squares_fit_with_one(seed):
+    """harmonic_amplitudes solves the normal equations from phasors and closed-form sums; the oracle is lstsq on
+    the matrix of cosines and sines. Random pitches (also near Nyquist for harmonic 10), lengths, a DC offset, noise
+    and a fitting pitch 0.1 % off the signal's."""
+    from bowsynth.analysis.metrics import harmonic_amplitudes
+
+    rng = np.random.default_rng(seed)
+    f0 = [40.0, 2150.0, 210.0, 1000.0, 77.7, 440.0][seed] * rng.uniform(0.99, 1.01)
+    n = int(rng.uniform(0.1, 1.5) * SR)
+    t = np.arange(n)
+    x = 0.3 + 0.01 * rng.standard_normal(n) + sum(
+        rng.uniform(0, 1) * np.sin(2 * np.pi * f0 * k * t / SR + rng.uniform(0, 6)) for k in range(1, 14))
+    fit = f0 * (1 + rng.uniform(-1e-3, 1e-3))
+    got = harmonic_amplitudes(x, SR, f0=fit)
+    m = min(10, int((SR / 2) // fit))
+    ph = 2 * np.pi * fit * t[:, None] / SR * np.arange(1, m + 1)[None, :]
+    c, *_ = np.linalg.lstsq(np.concatenate([np.ones((n, 1)), np.cos(ph), np.sin(ph)], axis=1), x, rcond=None)
+    want = np.hypot(c[1:m + 1], c[m + 1:])
+    assert np.isnan(got[m:]).all()
+    assert np.allclose(got[:m], want, rtol=1e-8, atol=1e-10)
+
+
 def test_a_pitch_offset_does_not_read_as_a_timbre_error():
     # at a shared pitch a 0.16 % difference smears harmonic 10 (GUIDE section 9); each at its own pitch it does not
     e = listener_errors(tone(100.0 * 2 ** (3 / 1200), phase_seed=1), tone(100.0), SR)
