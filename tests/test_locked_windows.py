@@ -296,6 +296,28 @@ def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does()
     assert abs(1200 * math.log2(f0_estimate(tail, sc.sample_rate) / (110.0 * truth))) < 2 * LOCK_HOLDS_CENTS
 
 
+def test_a_slow_heavy_bow_holds_the_physics_period_in_two_windows_more():
+    """floor-long at F_B / w 1.919, v_B 0.0849 (a held-out bow of its box, sounding ~3 octaves below f0): 9.5 cents
+    flat in free windows at 807 Hz, 1.65 / 0.54 cents in the fewest windows and one more (measured); two more hold the
+    physics' period. lock_ratio takes them (LOCK_MORE), and the note plays within 0.1 cent of a x100 FDM in physics
+    windows and in auto windows."""
+    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.engines.operator.choose import as_model
+    from bowsynth.music.model_ratio import lock_ratio
+    from bowsynth.music.tuning import sounding_ratio
+
+    m, beta, vb = as_model("floor-long"), 1.919373352550227, 0.08490201157334584
+    lock = lock_ratio(m, beta, vb, 100.0)
+    assert lock == sounding_ratio(beta, vb).r and lock.more == 2
+    sc = Scene(f0=807.4, fb=beta * 2 * math.pi * 807.4, vb=vb, duration=2.0)
+    truth = render(sc, engine="fdm", oversample=100)
+    for windows in ("physics", "auto"):
+        e = listener_errors(render(sc, windows=windows).p, truth.p, sc.sample_rate)
+        assert abs(e["cents"]) < 0.1 and e["harm_db_max"] < 0.2, (windows, e)
+    e = listener_errors(render(sc, model=m, windows="free").p, truth.p, sc.sample_rate)
+    assert abs(e["cents"]) > 5.0, e
+
+
 def test_a_note_with_a_bow_stop_locks_its_windows_to_the_bow_it_holds():
     """A held note that ends in a bow stop (`render --vb 0.2@0,0.2@1.8,0@1.9`) is a score's note: its windows lock to
     its held bow. stick-stops at F_B / w 1.0, v_B 0.2, 220 Hz, in physics windows: within a hundredth of a cent of

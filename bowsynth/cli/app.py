@@ -76,8 +76,9 @@ WINDOWS_HELP = ("Operator: free: windows of the trained length (the network's er
                 "model sounds, so the error lands on its harmonics instead (truer chords and mixes; ~1.7-2x the "
                 "work); physics: they divide the physics' period at the bow, which pulls the note onto the physical "
                 "pitch over its first tens of periods where the model holds it (the truest pitch at a given f0); "
-                "auto: per model, bow and pitch the one of free and physics that sounds truest against the "
-                "FDM (harmonics' dB and cents, measured once per model and bow and cached; docs/BENCHMARKS.md).")
+                "auto: per model, bow and pitch free or physics windows (in the fewest that hold the lock or up "
+                "to three more a period), whichever sounds truest against the FDM (harmonics' dB and cents, "
+                "measured once per model and bow and cached; docs/BENCHMARKS.md).")
 WindowsOpt = typer.Option("free", "--windows", help=WINDOWS_HELP + " Default: free.")
 ScoreWindowsOpt = typer.Option("locked", "--windows", help=WINDOWS_HELP + " Default for a score: locked.")
 

@@ -59,8 +59,10 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
 # windows locked to each model's own period, so a score keeps those (--windows locked, its default).
 LOCK_HOLDS_CENTS = 0.05
 # Windows a period beyond the fewest, tried in turn: windows of nearly T do not always pull the cycle (stick-stops at
-# F_B / w 0.719, v_B 0.08: 17 windows of 0.994 T leave it 5.3-5.8 cents off, 18 hold it within 0.01; windows.Lock)
-LOCK_MORE = (0, 1)
+# F_B / w 0.719, v_B 0.08: 17 windows of 0.994 T leave it 5.3-5.8 cents off, 18 hold it within 0.01; windows.Lock).
+# Up to three more (session 29): floor-long's slowest heavy bows hold it in two more only (F_B / w 1.919, v_B 0.0849
+# at 807 Hz: -1.65 / -0.54 / -0.008 cents in the fewest / one more / two more, -9.5 free; benchmarks/lock_more.py).
+LOCK_MORE = (0, 1, 2, 3)
 
 
 def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
