@@ -46,7 +46,8 @@ test: $(STAMP) chromium jackd
 # floor-long: stick-slip tiles on quarter-period windows; soft-top and soft-high: the soft bow's top forces; soft-fast
 # its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long, fast-long and
 # corner-long learnt from renders of 6, 6 and 16 s: their notes take seconds to settle); stick-halt the heavy bow
-# stops, refined in stages (bowsynth/models/stages: models a render never picks, kept to rebuild it) (BENCHMARKS.md).
+# stops and stick-gap the fast bows between stick-fast and stick-high, refined in stages (bowsynth/models/stages:
+# models a render never picks, kept to rebuild them) (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch,
 # the stages first.
 RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)
