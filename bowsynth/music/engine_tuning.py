@@ -9,6 +9,7 @@ from .. import physics
 from ..engines.operator.windows import Lock, lock_more
 from ..errors import DomainError, UsageError
 from ..scene import Scene
+from .auto_windows import auto_lock
 from .model_ratio import lock_ratio, operator_ratio, own_ratio
 from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
 
@@ -40,8 +41,6 @@ def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float |
     auto_lock's for a note at f0 (None: for every pitch); None where they lock to nothing (free windows, or no period
     known)."""
     if windows == "auto":
-        from .auto_windows import auto_lock
-
         return auto_lock(model, beta, vb, a, f0)
     how = {"locked": own_ratio, "physics": lock_ratio}.get(windows)
     return None if how is None else how(model, beta, vb, a)
