@@ -233,6 +233,17 @@ def onset_limit_ms(ref_ms: float) -> float:
     return max(5.0, 0.02 * ref_ms)
 
 
+def harmonic_errors(levels, ref_levels) -> tuple[np.ndarray, bool]:
+    """(|dB| per harmonic, NaN where not scored: harmonic 1, the reference level in both by construction, and those
+    of the reference below AUDIBLE_DB; whether a scored harmonic is missing from `levels` entirely: NaN where the
+    reference has one, as bad as it gets)."""
+    heard = ref_levels >= AUDIBLE_DB
+    heard[0] = False
+    err = np.abs(levels - ref_levels)
+    err[~heard] = np.nan
+    return err, bool((np.isnan(levels) & heard).any())
+
+
 def listener_errors(x, ref, sample_rate: float, steady_seconds: float = 1.0) -> dict:
     """What a listener hears of x against ref, both from the same start: pitch (cents), harmonics 1-10 (dB, those
     of ref above AUDIBLE_DB; each signal fitted at its own pitch) over the last `steady_seconds` (at most the last
@@ -244,20 +255,14 @@ def listener_errors(x, ref, sample_rate: float, steady_seconds: float = 1.0) -> 
     k = min(int(steady_seconds * sample_rate), n // 2)
     sx, sr = x[n - k:], ref[n - k:]
     fx, fr = f0_estimate(sx, sample_rate, tail=1.0), f0_estimate(sr, sample_rate, tail=1.0)
-    lx, lr = harmonic_levels(sx, sample_rate, f0=fx), harmonic_levels(sr, sample_rate, f0=fr)
-    err = np.abs(lx - lr)
-    err[~(lr >= AUDIBLE_DB)] = np.nan
-    err[0] = np.nan  # harmonic 1 is the reference level: 0 dB in both by construction
+    err, missing = harmonic_errors(harmonic_levels(sx, sample_rate, f0=fx), harmonic_levels(sr, sample_rate, f0=fr))
     scored = err[np.isfinite(err)]
     ox, orf = onset_time(x, sample_rate), onset_time(ref, sample_rate)
-    # a harmonic the render lacks entirely (NaN level where the truth has one) is as bad as it gets: say so
-    missing = np.isnan(lx) & (lr >= AUDIBLE_DB)
-    missing[0] = False
     return {
         "cents": cents(fx, fr),
         "harm_db": err.tolist(),
-        "harm_db_median": float(np.median(scored)) if len(scored) else (float("inf") if missing.any() else 0.0),
-        "harm_db_max": float("inf") if missing.any() else (float(np.max(scored)) if len(scored) else 0.0),
+        "harm_db_median": float(np.median(scored)) if len(scored) else (float("inf") if missing else 0.0),
+        "harm_db_max": float("inf") if missing else (float(np.max(scored)) if len(scored) else 0.0),
         "onset_ms": 1e3 * ox,
         "onset_ref_ms": 1e3 * orf,
         "onset_err_ms": 1e3 * (ox - orf),

@@ -127,11 +127,9 @@ def _span_errors(p, truth_p, spans, sample_rate: float, truth_hz: float) -> list
     span lies within it, else the physics' sounding frequency: the truth has settled by then) and its harmonics'
     worst |dB| over their last FIT_SECONDS at most against the truth's there (else its render's last second: its
     limit cycle), each over its target; inf where p has no pitch or lacks a harmonic the truth has."""
-    from ..analysis.metrics import AUDIBLE_DB, f0_estimate, harmonic_levels
+    from ..analysis.metrics import f0_estimate, harmonic_errors, harmonic_levels
 
-    n = int(sample_rate)
-    tail = np.asarray(truth_p[-n:], float)
-    settled = harmonic_levels(tail, sample_rate, f0=f0_estimate(tail, sample_rate, tail=1.0))
+    settled = harmonic_levels(truth_p[-int(sample_rate):], sample_rate)
     out = []
     for a, b in spans:
         i, j = int(a * sample_rate), int(b * sample_rate)
@@ -142,15 +140,9 @@ def _span_errors(p, truth_p, spans, sample_rate: float, truth_hz: float) -> list
             out.append(math.inf)
             continue
         k = max(i, j - int(FIT_SECONDS * sample_rate))
-        levels = harmonic_levels(p[k:j], sample_rate, f0=f0_estimate(p[k:j], sample_rate, tail=1.0))
-        ref_levels = settled
-        if inside:
-            seg = np.asarray(truth_p[k:j], float)
-            ref_levels = harmonic_levels(seg, sample_rate, f0=f0_estimate(seg, sample_rate, tail=1.0))
-        heard = ref_levels >= AUDIBLE_DB
-        heard[0] = False  # the fundamental is the reference: 0 dB in both
-        err = np.abs(levels - ref_levels)[heard]
-        harm = math.inf if np.isnan(err).any() else float(err.max(initial=0.0))
+        ref_levels = harmonic_levels(truth_p[k:j], sample_rate) if inside else settled
+        err, missing = harmonic_errors(harmonic_levels(p[k:j], sample_rate), ref_levels)
+        harm = math.inf if missing else float(np.nanmax(err, initial=0.0))
         out.append(max(abs(1200.0 * math.log2(f / ref)) / TARGET_CENTS, harm / TARGET_HARMONIC_DB))
     return out
 
