@@ -99,7 +99,8 @@ def same_note(n: Note) -> tuple:
 
 def repeat(r: Render, note: Note) -> Render:
     """A copy of r for another note with the same samples (its own arrays: a release is written in place)."""
-    info = dataclasses.replace(r.info, notes=list(r.info.notes), chain=None if r.info.chain is None else list(r.info.chain))
+    chain = None if r.info.chain is None else list(r.info.chain)
+    info = dataclasses.replace(r.info, notes=list(r.info.notes), chain=chain)
     return Render(note.scene, r.t, r.q.copy(), r.p.copy(), r.method, 0.0, info, r.controls)
 
 
