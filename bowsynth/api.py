@@ -21,13 +21,13 @@ class Interrupted(BowsynthError):
 
 
 def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1,
-           force: bool = False, windows: str = "free"):
+           force: bool = False, windows: str | None = None):
     """Render a Scene (or a list of Scenes) with engine 'operator' or 'fdm'; see `bowsynth.engines.render`.
 
-    windows (operator): 'free' (default) rolls each voice in windows of the trained length; 'locked' a held bow's
-    voice in windows locked to the period its playing model sounds at (the model's own, measured once per model and
-    bow and cached: `music.engine_tuning.operator_sounding`); 'physics' in windows that divide the physics' period at
-    its bow, which pulls the note onto the physical pitch where the model holds it (`model_ratio.lock_ratio`);
+    windows (operator; None: 'auto', `music.engine_tuning.RENDER_WINDOWS`): 'free' rolls each voice in windows of
+    the trained length; 'locked' a held bow's voice in windows locked to the period its playing model sounds at (the
+    model's own, measured once per model and bow and cached: `music.engine_tuning.operator_sounding`); 'physics' in
+    windows that divide the physics' period at its bow, which pulls the note onto the physical pitch where the model holds it (`model_ratio.lock_ratio`);
     'auto' per model, bow and pitch 'free' or 'physics', whichever sounds truest against the FDM (harmonics' dB and
     cents over the issue's worst-case targets; measured once per model and bow, cached: `engine_tuning.auto_lock`).
     A note whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture
@@ -52,7 +52,7 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample, sounding=sounding)
 
 
-def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, windows: str = "free"):
+def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, windows: str | None = None):
     """(ratio, what): the sounding ratio of the engine that will play the scene in these windows (render's), for
     `make_scene(pitch=..., ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
     from .music.engine_tuning import ratio_for_engine

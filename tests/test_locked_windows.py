@@ -81,7 +81,7 @@ def test_locked_windows_keep_the_error_off_the_lines_below_the_note():
     from bowsynth.analysis.metrics import f0_estimate, harmonic_levels
 
     sc = Scene(f0=299.1011833723276, fb=530.0139512674551, vb=0.2192929, duration=1.5)
-    free = render(sc, model="velocity-soft")  # free: the default
+    free = render(sc, model="velocity-soft", windows="free")
     locked = render(sc, model="velocity-soft", windows="locked")
     fs = f0_estimate(free.p, sc.sample_rate)
     assert 240 < fs < 255
@@ -112,8 +112,35 @@ def test_render_says_when_its_windows_were_locked(tmp_path, capsys, monkeypatch)
     code, out, err = run_main(["render", str(tmp_path / "l.wav"), "--fb", "100", "--vb", "0.2", "--windows", "locked"],
                               capsys, monkeypatch)
     assert code == 0 and "windows locked to the note (2 a period)" in out, out + err
-    code, out, err = run_main(["render", str(tmp_path / "f.wav"), "--fb", "100", "--vb", "0.2"], capsys, monkeypatch)
+    code, out, err = run_main(["render", str(tmp_path / "f.wav"), "--fb", "100", "--vb", "0.2", "--windows", "free"],
+                              capsys, monkeypatch)
     assert code == 0 and "windows locked" not in out, out + err
+
+
+def test_a_render_plays_auto_windows_unless_told_and_a_score_locked_ones(tmp_path, capsys, monkeypatch):
+    """F_B / w 1.43, v_B 0.2 (stick-mid): free windows leave it on the tile's own cycle, cents sharp; the default
+    render is auto's (here the lock, which the line names), bit for bit; a score keeps windows locked to each note."""
+    import soundfile as sf
+
+    bow = ["--fb", "900", "--vb", "0.2", "-d", "0.5"]
+    outs = {}
+    for w in ("default", "auto", "free"):
+        f = tmp_path / f"{w}.wav"
+        code, out, err = run_main(["render", str(f), *bow] + ([] if w == "default" else ["--windows", w]),
+                                  capsys, monkeypatch)
+        assert code == 0, out + err
+        outs[w] = (out, sf.read(f)[0])
+    assert "windows locked to the physics' period" in outs["default"][0], outs["default"][0]
+    assert np.array_equal(outs["default"][1], outs["auto"][1])
+    assert not np.array_equal(outs["default"][1], outs["free"][1])
+    mixes = {}
+    for w in ("default", "locked", "free"):
+        f = tmp_path / f"mix-{w}.wav"
+        code, out, err = run_main(["score", "--presets", "paper-fb100", "--mix", str(f)]
+                                  + ([] if w == "default" else ["--windows", w]), capsys, monkeypatch)
+        assert code == 0, out + err
+        mixes[w] = sf.read(f)[0]
+    assert np.array_equal(mixes["default"], mixes["locked"]) and not np.array_equal(mixes["default"], mixes["free"])
 
 
 def test_windows_locked_to_the_physics_period_play_the_physical_pitch_at_the_asked_f0():
@@ -163,7 +190,7 @@ def test_physics_windows_hold_the_physical_pitch_over_30_s():
     beta, vb = 1.28, 0.12
     sc = Scene(f0=100.0, fb=beta * 2 * math.pi * 100.0, vb=vb, duration=30.0)
     truth, sr = 100.0 * sounding_ratio(beta, vb).r, sc.sample_rate
-    free = render(sc, model="stick-slow")
+    free = render(sc, model="stick-slow", windows="free")
     phys = render(sc, model="stick-slow", windows="physics")
 
     def cents(p, s):
@@ -353,7 +380,7 @@ def test_a_note_with_a_bow_stop_locks_its_windows_to_the_bow_it_holds():
     sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=[(1.8, vb), (1.9, 0.0)], duration=2.5)
     truth, sr = f0 * sounding_ratio(beta, vb).r, sc.sample_rate
     phys = render(sc, model="stick-stops", windows="physics")
-    free = render(sc, model="stick-stops")
+    free = render(sc, model="stick-stops", windows="free")
     assert phys.info.windows and not free.info.windows
     held = slice(sr // 2, int(1.8 * sr))
     assert abs(1200 * math.log2(f0_estimate(phys.p[held], sr) / truth)) < 0.01

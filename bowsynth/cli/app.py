@@ -79,8 +79,11 @@ WINDOWS_HELP = ("Operator: free: windows of the trained length (the network's er
                 "auto: per model, bow and pitch free or physics windows (in the fewest that hold the lock or up "
                 "to three more a period), whichever sounds truest against the FDM (harmonics' dB and cents, "
                 "measured once per model and bow and cached; docs/BENCHMARKS.md).")
-WindowsOpt = typer.Option("free", "--windows", help=WINDOWS_HELP + " Default: free.")
-ScoreWindowsOpt = typer.Option("locked", "--windows", help=WINDOWS_HELP + " Default for a score: locked.")
+# None: the default of each (music.engine_tuning's RENDER_WINDOWS, SCORE_WINDOWS, LIVE_WINDOWS)
+WindowsOpt = typer.Option(None, "--windows", help=WINDOWS_HELP + " Default: auto (a first render of a bow measures "
+                                                                 "its choice, 0.5-3 s; later ones read the cache).")
+ScoreWindowsOpt = typer.Option(None, "--windows", help=WINDOWS_HELP + " Default for a score: locked.")
+LiveWindowsOpt = typer.Option(None, "--windows", help=WINDOWS_HELP + " Default live: free.")
 
 
 GainOpt = typer.Option(None, "--gain", help="Fixed gain in dB instead of peak normalisation: samples = signal (m or "

@@ -26,7 +26,7 @@ def bench(
     model: Optional[str] = typer.Option(None, "--model", help="map: this model (a path, or a name in ./models or the shipped ones) plays every cell it covers, instead of the renderer's pick: a candidate before it ships."),
     windows: str = typer.Option("free", "--windows",
                                 help="map and equal: the operator's windows, as render's (free, locked, physics "
-                                     "or auto)."),
+                                     "or auto); default free, the trained windows (render's default is auto)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json

@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from ..errors import UsageError
-from .app import WindowsOpt, app
+from .app import LiveWindowsOpt, app
 
 
 @app.command()
@@ -30,7 +30,7 @@ def play(
                                                               "(default -12: x0.25)."),
     bend_range: float = typer.Option(2.0, "--bend-range", help="Semitones at full pitch bend. CC1 (modulation) is "
                                                                "vibrato depth, +-50 cents at 127, at 5.5 Hz."),
-    windows: str = WindowsOpt,
+    windows: Optional[str] = LiveWindowsOpt,
 ):
     """Play live: a JACK client taking MIDI on NAME:midi_in and sounding on NAME:out, until Ctrl-C or SIGTERM.
 
@@ -46,9 +46,9 @@ def play(
         raise UsageError(f"--voices must be >= 1, got {voices}")
     if not 0 <= bend_range <= 24:
         raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
-    from ..music.engine_tuning import check_windows
+    from ..music.engine_tuning import LIVE_WINDOWS, check_windows
 
-    check_windows(windows)
+    windows = check_windows(windows, LIVE_WINDOWS)
     amp = None if gain is None else 10.0 ** (gain / 20.0)
     run(name=name, server=server, connect=connect or (), voices=voices, engine=method, model=model,
         a4=A4_HZ if a4 is None else a4, amp=amp, bend_range=bend_range, windows=windows)

@@ -48,7 +48,7 @@ def render(
                                                                "them). Default: the model covering the scene."),
     signal: str = typer.Option("u", "--signal", help="Signal to write: u (displacement, as the paper) or p (velocity)."),
     fallback: str = typer.Option("none", "--fallback", help="If the operator leaves its domain: none (stop) or fdm."),
-    windows: str = WindowsOpt,
+    windows: Optional[str] = WindowsOpt,
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
@@ -66,7 +66,7 @@ def render(
         raise UsageError(f"--oversample must be >= 1, got {oversample}")
     check_dc(dc)
     check_gain_db(gain)
-    check_windows(windows)
+    windows = check_windows(windows)
     scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4)
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
@@ -94,7 +94,8 @@ def render(
     say = console_for(output)
     if not quiet:
         if r.info.windows:
-            model_note += f", windows locked to the note ({r.info.windows} a period)"
+            to = "the note" if windows == "locked" else "the physics' period"  # physics, or auto's lock
+            model_note += f", windows locked to {to} ({r.info.windows} a period)"
         say.print(f"wrote {'standard output' if str(output) == '-' else output}: {scene.duration:g} s at "
                   f"{scene.sample_rate} Hz, method {r.method}{model_note}; rendered in {r.seconds * 1e3:.1f} ms "
                   f"({r.realtime_factor:.0f}x real time){setup_note}", soft_wrap=True)

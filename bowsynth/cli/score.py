@@ -30,7 +30,7 @@ def score(
     releases: str = typer.Option("auto", "--releases", help="Who plays the bow stops: auto (a model that covers the bow stop, else the FDM) or fdm (the FDM from each hold, as the live engine plays them: to compare with a `play` recording)."),
     fallback: str = typer.Option("none", "--fallback", help="A note no model covers, or that leaves its model's domain: "
                                                             "none (stop before rendering) or fdm (render it with the FDM)."),
-    windows: str = ScoreWindowsOpt,
+    windows: Optional[str] = ScoreWindowsOpt,
     dc: str = DcOpt, gain: Optional[float] = GainOpt, force: bool = ForceOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ):
@@ -59,9 +59,9 @@ def score(
 
     method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
     check_releases(releases)  # before the score is read and tuned
-    from ..music.engine_tuning import check_windows
+    from ..music.engine_tuning import SCORE_WINDOWS, check_windows
 
-    check_windows(windows)
+    windows = check_windows(windows, SCORE_WINDOWS)
     check_dc(dc)
     check_gain_db(gain)
     if stems is not None and not mix:

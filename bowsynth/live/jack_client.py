@@ -47,11 +47,13 @@ def percentiles_ms(times: np.ndarray) -> tuple[float, float, float]:
 
 def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: int = 16, engine: str = "operator",
          model=None, a4: float = 440.0, amp: float | None = None, bend_range: float = 2.0, status=None,
-         status_every: float = 1.0, windows: str = "free") -> int:
+         status_every: float = 1.0, windows: str | None = None) -> int:
     """Run the instrument until a signal (KeyboardInterrupt / Terminated propagate, after the summary) or until the
     server goes away (ServerGone). status: a function taking one line (the status line, then the summary)."""
+    from ..music.engine_tuning import LIVE_WINDOWS, check_windows
     from .stream import AMP, Stream
 
+    windows = check_windows(windows, LIVE_WINDOWS)
     if isinstance(voices, bool) or not isinstance(voices, int) or voices < 1:
         raise UsageError(f"--voices must be a whole number >= 1, got {voices!r}")
     say = status or (lambda line: print(line, file=sys.stderr, flush=True))

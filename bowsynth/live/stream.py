@@ -61,7 +61,7 @@ class Stream(VoiceBank):
     def __init__(self, sample_rate: int = 44100, block: int = 512, voices: int = 16, engine: str = "operator",
                  model=None, a4: float = 440.0, release: float | None = None, amp: float = AMP,
                  busy_fraction: float = 0.5, dc_hz: float = DC_HZ, bend_range: float = M.BEND_RANGE,
-                 windows: str = "free"):
+                 windows: str | None = None):
         if isinstance(voices, bool) or not isinstance(voices, int) or voices < 1:
             raise UsageError(f"--voices must be a whole number >= 1, got {voices!r}")
         if engine not in ("operator", "fdm"):
@@ -70,10 +70,10 @@ class Stream(VoiceBank):
             raise UsageError(f"block must be >= 1 frame, got {block}")
         if not (math.isfinite(bend_range) and 0 <= bend_range <= 24):
             raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
-        from ..music.engine_tuning import check_windows
+        from ..music.engine_tuning import LIVE_WINDOWS, check_windows
 
         # free: the trained windows; locked: a note held at its pitch in windows locked to it, as `score` renders it
-        self.windows = check_windows(windows)
+        self.windows = check_windows(windows, LIVE_WINDOWS)
         self.a4, self.bend_range = check_a4(a4), float(bend_range)
         self.release_s = RELEASE if release is None else float(release)
         self.amp, self.busy_fraction = float(amp), float(busy_fraction)

@@ -47,7 +47,7 @@ def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float |
 
 
 def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None,
-                     windows: str = "free", by_pitch: bool = True):
+                     windows: str | None = None, by_pitch: bool = True):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
     scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it: its own
     pitch, or in windows locked to the physics the period it holds there), so that the asked note sounds there
@@ -63,7 +63,8 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     m, why = _playing_model(scene, model, models)
     if m is None:
         return None, why
-    held = check_windows(windows) in ("physics", "auto") and scene.held_bow() is not None  # else free
+    windows = check_windows(windows)
+    held = windows in ("physics", "auto") and scene.held_bow() is not None  # else free
 
     def ratio(beta, vb, a, f0):
         try:
@@ -109,21 +110,28 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
 
 
 WINDOWS = ("locked", "free", "physics", "auto")  # how an operator voice's windows lie against its note (api.render's)
+# A render's default (session 30): what a listener hears. Free windows left the stick-slip tiles' own cycles, 0.5-11
+# cents off (`render --fb 900 --vb 0.2`: +10.6 cents free, auto's lock within 0.1); auto measures once per model and
+# bow (~1 s, cached). A score keeps locked windows (a mix's voices fill each other's gaps; docs/BENCHMARKS.md), the
+# live engine free ones (its windows are fixed when a voice starts).
+RENDER_WINDOWS, SCORE_WINDOWS, LIVE_WINDOWS = "auto", "locked", "free"
 
 
-def check_windows(windows: str) -> str:
+def check_windows(windows: str | None, default: str = RENDER_WINDOWS) -> str:
+    """The windows' name, `default` for None; a UsageError naming the choices for anything else."""
+    windows = default if windows is None else windows
     if windows not in WINDOWS:
         raise UsageError(f"--windows must be {', '.join(WINDOWS[:-1])} or {WINDOWS[-1]}, got {windows!r}")
     return windows
 
 
-def sounding_for(scene, windows: str = "free", model=None, held=None):
+def sounding_for(scene, windows: str | None = None, model=None, held=None):
     """What `engines.render(sounding=...)` takes for `api.render(windows=...)`: None for free windows; else per scene
     the frequency its windows are locked to (operator_sounding; None where unknown: that voice rolls in free
     windows). scene: one, or a list; held: the scene (or list) whose held bow each note sounds with (a score's note:
     its sustain, while the whole note with its bow stop renders); None: each scene's Scene.held_bow (a note with an
-    attack or a stop locks to the bow it holds; a gesture rolls free)."""
-    check_windows(windows)
+    attack or a stop locks to the bow it holds; a gesture rolls free). windows None: RENDER_WINDOWS."""
+    windows = check_windows(windows)
     if windows == "free":
         return None
     many = isinstance(scene, (list, tuple))

@@ -80,7 +80,7 @@ def check_releases(releases: str) -> str:
 
 
 def render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
-                 source=None, releases: str = "auto", windows: str = "locked") -> list[Render]:
+                 source=None, releases: str = "auto", windows: str | None = None) -> list[Render]:
     """_render_notes of the distinct notes, each repeat a copy of its first (a note's samples depend only on its
     scene, hold and release, not on when it starts: 79 distinct among a chorale's 172 notes)."""
     first: dict = {}
@@ -105,7 +105,7 @@ def repeat(r: Render, note: Note) -> Render:
 
 
 def _render_notes(notes: list[Note], method: str = "operator", model=None, fallback: str = "none",
-                  source=None, releases: str = "auto", windows: str = "locked") -> list[Render]:
+                  source=None, releases: str = "auto", windows: str | None = None) -> list[Render]:
     """Render every note: with the FDM whole (it follows the curves), or with the operator in one batched rollout
     of the sustains, each bow stop then by a model that covers it (the sustain's own, whole; or one handed the
     sustain's state at the hold), else by the FDM from there. releases 'fdm': every bow stop by the FDM from the hold,
@@ -113,7 +113,7 @@ def _render_notes(notes: list[Note], method: str = "operator", model=None, fallb
     compared sample for sample. Notes no model covers are refused before anything renders (fallback 'fdm': rendered
     by the FDM instead, noted in info.notes). windows 'locked': each note's windows locked to the period its model
     sounds at with the note's held bow (`api.render`'s windows: the pitch it was tuned to sound at, where tuned with
-    that model), 'free': the trained windows."""
+    that model), 'free': the trained windows; None: engine_tuning.SCORE_WINDOWS."""
     from ..engines import Engine, Fallback, parse_choice, render
 
     engine = parse_choice(Engine, method, "--method")
@@ -137,10 +137,10 @@ def _render_notes(notes: list[Note], method: str = "operator", model=None, fallb
     pool = available_models() if model is None else None  # one look at the model directories for all the notes
     by_model = releases == "auto"
     whole = [i for i in op if by_model and notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
-    from .engine_tuning import sounding_for
+    from .engine_tuning import SCORE_WINDOWS, check_windows, sounding_for
 
     def hints(scenes, held=None):  # each note's lock: its model's own period at the bow it holds until its stop
-        return sounding_for(scenes, windows, model, held=held)
+        return sounding_for(scenes, check_windows(windows, SCORE_WINDOWS), model, held=held)
 
     if whole:
         scenes = [notes[i].scene for i in whole]
