@@ -27,7 +27,8 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     windows (operator; None: 'auto', `music.engine_tuning.RENDER_WINDOWS`): 'free' rolls each voice in windows of
     the trained length; 'locked' a held bow's voice in windows locked to the period its playing model sounds at (the
     model's own, measured once per model and bow and cached: `music.engine_tuning.operator_sounding`); 'physics' in
-    windows that divide the physics' period at its bow, which pulls the note onto the physical pitch where the model holds it (`model_ratio.lock_ratio`);
+    windows that divide the physics' period at its bow, which pulls the note onto the physical pitch where the model
+    holds it (`model_ratio.lock_ratio`);
     'auto' per model, bow and pitch 'free' or 'physics', whichever sounds truest against the FDM (harmonics' dB and
     cents over the issue's worst-case targets; measured once per model and bow, cached: `engine_tuning.auto_lock`).
     A note whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture
@@ -71,7 +72,8 @@ def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):
 
 
 def render_operator(scene, model=None, fallback: str = "none"):
-    """Render a Scene (or a list of Scenes, batched) with the operator; see `bowsynth.engines.operator.engine.render_operator`."""
+    """Render a Scene (or a list of Scenes, batched) with the operator, in render's default windows (auto); see
+    `bowsynth.engines.operator.engine.render_operator`."""
     return render(scene, engine="operator", model=model, fallback=fallback)
 
 

@@ -110,10 +110,10 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
 
 
 WINDOWS = ("locked", "free", "physics", "auto")  # how an operator voice's windows lie against its note (api.render's)
-# A render's default (session 30): what a listener hears. Free windows left the stick-slip tiles' own cycles, 0.5-11
-# cents off (`render --fb 900 --vb 0.2`: +10.6 cents free, auto's lock within 0.1); auto measures once per model and
-# bow (~1 s, cached). A score keeps locked windows (a mix's voices fill each other's gaps; docs/BENCHMARKS.md), the
-# live engine free ones (its windows are fixed when a voice starts).
+# A render's default (session 30): what a listener hears. Free windows play the stick-slip tiles' own cycles, cents off
+# (held-out stick-slip bows 0.54-1.22 cents median, 2.3-3.9 worst; auto 0.0004-0.0018 / 0.003-0.28); auto measures
+# once per model and bow (0.5-3 s, cached). A score keeps locked windows (a mix's voices fill each other's gaps;
+# docs/BENCHMARKS.md), the live engine free ones (its windows are fixed when a voice starts).
 RENDER_WINDOWS, SCORE_WINDOWS, LIVE_WINDOWS = "auto", "locked", "free"
 
 
