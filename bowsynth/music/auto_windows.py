@@ -90,7 +90,7 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
     AUTO_SECONDS past the time the physics speaks (onset.settled_seconds) against the FDM at x AUTO_OVERSAMPLE,
     'cents' the cached ratio's (own_ratio's, the lock's: where a long note ends up), 'ladder' per ladder_spans span
     the worse of its pitch and its harmonics (a 2 s note's last second at each pitch of PITCH_LADDER)."""
-    from ..analysis.metrics import listener_errors, onset_limit_ms
+    from ..analysis.metrics import cents, listener_errors, onset_limit_ms
     from ..engines.fdm import render_fdm
     from ..engines.operator.choose import as_model
     from ..engines.operator.engine import render_operator
@@ -122,9 +122,9 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
         # no onset in the truth: nothing to score; one in the truth and none in the note: the worst
         onset = 0.0 if not math.isfinite(ref_ms) else (abs(err_ms) / onset_limit_ms(ref_ms) if math.isfinite(err_ms)
                                                        else math.inf)
-        cents = math.inf if ratio is None else abs(1200.0 * math.log2(ratio / truth_r))
+        off = math.inf if ratio is None else abs(cents(ratio, truth_r))
         ladder = _span_errors(r.p, truth.p, spans, sc.sample_rate, RATIO_F0 * truth_r)
-        out[name] = {"base": _finite(max(harm / TARGET_HARMONIC_DB, onset)), "cents": _finite(cents / TARGET_CENTS),
+        out[name] = {"base": _finite(max(harm / TARGET_HARMONIC_DB, onset)), "cents": _finite(off / TARGET_CENTS),
                      "ladder": [_finite(x) for x in ladder]}
     return out
 
@@ -134,7 +134,7 @@ def _span_errors(p, truth_p, spans, sample_rate: float, truth_hz: float) -> list
     span lies within it, else the physics' sounding frequency: the truth has settled by then) and its harmonics'
     worst |dB| over their last FIT_SECONDS at most against the truth's there (else its render's last second: its
     limit cycle), each over its target; inf where p has no pitch or lacks a harmonic the truth has."""
-    from ..analysis.metrics import f0_estimate, harmonic_errors, harmonic_levels
+    from ..analysis.metrics import cents, f0_estimate, harmonic_errors, harmonic_levels
 
     settled = harmonic_levels(truth_p[-int(sample_rate):], sample_rate)
     out = []
@@ -150,7 +150,7 @@ def _span_errors(p, truth_p, spans, sample_rate: float, truth_hz: float) -> list
         ref_levels = harmonic_levels(truth_p[k:j], sample_rate) if inside else settled
         err, missing = harmonic_errors(harmonic_levels(p[k:j], sample_rate), ref_levels)
         harm = math.inf if missing else float(np.nanmax(err, initial=0.0))
-        out.append(max(abs(1200.0 * math.log2(f / ref)) / TARGET_CENTS, harm / TARGET_HARMONIC_DB))
+        out.append(max(abs(cents(f, ref)) / TARGET_CENTS, harm / TARGET_HARMONIC_DB))
     return out
 
 

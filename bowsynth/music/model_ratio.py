@@ -4,8 +4,6 @@ holds it (`lock_ratio`). engine_tuning tunes notes with them; auto_windows choos
 
 from __future__ import annotations
 
-import math
-
 from .. import physics
 from ..engines.operator.windows import Lock
 from ..errors import DomainError
@@ -70,6 +68,8 @@ def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
     (a Lock, with the windows a period it holds it in: the fewest that fill the period, else one more), else the
     model's own (own_ratio); None where neither is known (the physics settles on no period: a bow at or below v_B =
     1 / sqrt(2a); or the model cannot hold the bow from rest for the measurement)."""
+    from ..analysis.metrics import cents
+
     try:
         truth = sounding_ratio(beta, vb, a).r
     except SilentNoteError:
@@ -77,7 +77,7 @@ def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
     for more in LOCK_MORE:
         try:
             held = operator_ratio(model, locked=True, more=more)(beta, vb, a, RATIO_F0)
-            if abs(1200.0 * math.log2(held / truth)) <= LOCK_HOLDS_CENTS:
+            if abs(cents(held, truth)) <= LOCK_HOLDS_CENTS:
                 return Lock(truth, more)
         except (DomainError, SilentNoteError):
             pass
