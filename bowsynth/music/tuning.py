@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import physics
+from ..analysis import metrics
 from ..errors import SceneError, UsageError
 from ..io.cache import DiskTable
 from .notes import A4_HZ, parse_pitch
@@ -93,10 +94,8 @@ class _Run:
 
     def r(self, first_period: int, last_period: int) -> float:
         """Sounding frequency / f0 over free periods [first, last), by interpolated zero crossings."""
-        from ..analysis.metrics import f0_estimate
-
         u = np.concatenate(self.u)[first_period * self.spp:last_period * self.spp]
-        return 2 * math.pi * f0_estimate(u, 1.0 / self.k, tail=1.0)  # cycles per unit tau, as an angular rate
+        return 2 * math.pi * metrics.f0_estimate(u, 1.0 / self.k, tail=1.0)  # cycles per unit tau, as a rate
 
 
 def _why_silent(beta, vb, a, amp_end, grows) -> str:
@@ -231,8 +230,8 @@ class Tuning:
 
     @property
     def cents(self) -> float:
-        """Solved residual: 1200 log2(f0 r / pitch)."""
-        return 1200.0 * math.log2(self.f0 * self.ratio.r / self.pitch)
+        """Solved residual: the sounding pitch f0 r against the asked one, in cents."""
+        return metrics.cents(self.f0 * self.ratio.r, self.pitch)
 
 
 def held_value(control, duration: float | None = None) -> float:
@@ -278,7 +277,7 @@ def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, 
 
     def h(logf):  # cents from the asked pitch; increasing in f0 (a lighter beta sounds nearer f0)
         f0 = math.exp(logf)
-        return 1200.0 * math.log2(f0 * ratio(f0).r / p)
+        return metrics.cents(f0 * ratio(f0).r, p)
 
     # friction only lowers the pitch (r <= 1) and lowers it less at a smaller beta: [p, p / r(beta(p))] brackets
     lo = math.log(p)
@@ -337,7 +336,7 @@ def _tune_with(p: float, fb, vb: float, a: float, beta, ratio) -> Tuning:
     def err(x):  # cents from the asked pitch at f0 = e^x
         f0 = math.exp(x)
         b = float(beta) if beta is not None else physics.beta(float(fb), f0)
-        return 1200.0 * math.log2(f0 * ratio(b, vb, a, f0) / p)
+        return metrics.cents(f0 * ratio(b, vb, a, f0), p)
 
     x0 = math.log(first.f0)
     e0 = err(x0)
