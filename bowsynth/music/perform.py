@@ -139,8 +139,10 @@ def _render_notes(notes: list[Note], method: str = "operator", model=None, fallb
     whole = [i for i in op if by_model and notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
     from .engine_tuning import SCORE_WINDOWS, check_windows, sounding_for
 
+    windows = check_windows(windows, SCORE_WINDOWS)
+
     def hints(scenes, held=None):  # each note's lock: its model's own period at the bow it holds until its stop
-        return sounding_for(scenes, check_windows(windows, SCORE_WINDOWS), model, held=held)
+        return sounding_for(scenes, windows, model, held=held)
 
     if whole:
         scenes = [notes[i].scene for i in whole]
