@@ -211,3 +211,18 @@ def test_the_cycle_shape_error_reads_the_shape_not_the_phase():
     assert cycle_shape_error(drifting, ref, 200)[0] == 1.0
     with pytest.raises(ValueError):
         cycle_shape_error(ref[:100], ref[:100], 200)
+
+
+def test_the_cycle_shape_error_reads_a_phase_between_samples_on_a_finer_reference():
+    from bowsynth.analysis.metrics import cycle_shape_error
+
+    sr, f, os_ = 8000, 97.0, 10
+    fine = np.tanh(20 * np.sin(2 * np.pi * f * np.arange(os_ * sr) / (os_ * sr)))  # steep edges, like a slip's
+    early = fine[os_ * 20 + 3::os_][:sr - 50]  # the cycle 20.3 samples early (the period is 82.5)
+    coarse_err, coarse_shift = cycle_shape_error(early, fine[::os_][:len(early)], 30)
+    assert coarse_err > 0.05 and coarse_shift == -20  # whole samples: 0.3 of a sample at the edges read as shape
+    err, shift = cycle_shape_error(early, fine, 30, oversample=os_)
+    assert err < 1e-12 and shift == pytest.approx(-20.3)
+    assert cycle_shape_error(early * 1.02, fine, 30, oversample=os_)[0] == pytest.approx(0.01, abs=1e-9)
+    with pytest.raises(ValueError):
+        cycle_shape_error(early, fine[:os_ * (len(early) - 2)], 30, oversample=os_)
