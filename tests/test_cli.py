@@ -322,6 +322,30 @@ def test_a_range_recipe_with_a_longer_band_is_judged_as_long_and_its_band_is_par
         assert code == 2 and "--band-seconds must be > 0 and at most 30" in err and "Traceback" not in err, err
 
 
+def test_a_point_recipe_names_its_derivative_weight_and_the_model_trains_with_it(tmp_path, capsys, monkeypatch):
+    from bowsynth.cli.train import recipe_status
+    from bowsynth.engines.operator.modelfile import load_model
+
+    rec = tmp_path / "r.toml"
+    rec.write_text('fb = 100\nsteps = 2\nbatch = 64\nwidth = 8\nout = "m.safetensors"\n')
+    code, out, err = run_main(["train", "--config", str(rec), "--n-data", "64", "-q"], capsys, monkeypatch)
+    assert code == 0, err
+    assert "deriv" not in load_model(tmp_path / "m.safetensors").meta.training["weights"]  # a point model's default
+    assert recipe_status(rec) is None
+    rec.write_text(rec.read_text() + "deriv = 0.05\n")
+    assert "stale: trained with deriv 0.0, the recipe asks for 0.05" in recipe_status(rec)
+    code, out, err = run_main(["train", "--config", str(rec), "--n-data", "64", "-q", "--force"], capsys, monkeypatch)
+    assert code == 0, err
+    m = load_model(tmp_path / "m.safetensors")
+    assert m.meta.training["weights"]["deriv"] == 0.05 and m.meta.training["deriv"] == 0.05
+    assert recipe_status(rec) is None
+    rec.write_text(rec.read_text().replace("deriv = 0.05", "deriv = 0"))
+    assert "stale: trained with deriv 0.05, the recipe asks for 0" in recipe_status(rec)
+    for bad in ("-0.1", "101", "nan"):
+        code, out, err = run_main(["train", "--fb", "100", "--steps", "1", "--deriv", bad], capsys, monkeypatch)
+        assert code == 2 and "--deriv must be in [0, 100]" in err and "Traceback" not in err, err
+
+
 @pytest.mark.parametrize("args, needle", [(["--device", "gpu"], "--device must be auto, cpu or cuda"),
                                           (["--batch", "0"], "--batch must be in"),
                                           (["--device", "cuda"], "torch sees no CUDA GPU")])

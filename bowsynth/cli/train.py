@@ -31,6 +31,7 @@ def train(
     batch: Optional[int] = typer.Option(None, "--batch", help="Window starts per optimiser step (default 1024); a GPU takes more per second."),
     device: Optional[str] = typer.Option(None, "--device", help="auto (a CUDA GPU where torch sees one, default), cpu or cuda; the model records which."),
     band_seconds: Optional[float] = typer.Option(None, "--band-seconds", help="Seconds (at --f0) of the renders from rest the training data comes from, and of a range model's selection and validation rollouts (default 1; up to 30): longer for bows whose notes take seconds to grow."),
+    deriv: Optional[float] = typer.Option(None, "--deriv", help="Weight of the loss that matches the network's time derivative to the ODE's on the true trajectories (default 0.1 for range models, 0 for point models): it sharpens the stick capture's knee (docs/BENCHMARKS.md)."),
     n_data: Optional[int] = typer.Option(None, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band (default 4096)."),
     checkpoint_every: Optional[float] = typer.Option(None, "--checkpoint-every", help="Seconds between checkpoints (default 60)."),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Model file (default ./models/<name>.safetensors)."),
@@ -52,7 +53,8 @@ def train(
     if config is not None:
         given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
                      rest_linear=rest_linear or None, out=out_path,
-                     batch=batch, width=width, device=device, window_ms=window_ms, band_seconds=band_seconds)
+                     batch=batch, width=width, device=device, window_ms=window_ms, band_seconds=band_seconds,
+                     deriv=deriv)
         given["from"] = from_model
         r = load_recipe(config)
         merged = {k: (v if v is not None else r.get(k)) for k, v in given.items()}
@@ -60,12 +62,12 @@ def train(
         minutes, steps, seed, out_path = merged["minutes"], merged["steps"], merged["seed"], merged["out"]
         rest_linear = bool(merged["rest_linear"])
         batch, width, device, window_ms = merged["batch"], merged["width"], merged["device"], merged["window_ms"]
-        from_model, band_seconds = merged["from"], merged["band_seconds"]
+        from_model, band_seconds, deriv = merged["from"], merged["band_seconds"], merged["deriv"]
     scene, box = _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4)
     cfg = _train_config(scene, box, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs,
                         hybrid=hybrid, window_ms=window_ms, width=width, depth=depth, n_data=n_data,
                         checkpoint_every=checkpoint_every, rest_linear=rest_linear, batch=batch, device=device,
-                        band_seconds=band_seconds)
+                        band_seconds=band_seconds, deriv=deriv)
     if update:
         if config is None or out_path is None:
             raise UsageError("--update compares a model file with its recipe: give --config (a recipe with `out`)")
@@ -112,7 +114,7 @@ def _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4):
 
 def _train_config(scene, box, minutes=None, steps=None, seed=None, optimizer=None, lbfgs=None, hybrid=True,
                   window_ms=None, width=None, depth=None, n_data=None, checkpoint_every=None, rest_linear=False,
-                  batch=None, device=None, band_seconds=None):
+                  batch=None, device=None, band_seconds=None, deriv=None):
     """The TrainConfig of train's flags (a recipe's keys are those flags' names): the one mapping of flags to its
     fields, for a training and for `recipe_status`'s comparison alike."""
     from .. import api
@@ -122,7 +124,7 @@ def _train_config(scene, box, minutes=None, steps=None, seed=None, optimizer=Non
                                  n_data=n_data if box is None else None,
                                  range_n_data=n_data if box is not None else None,
                                  checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
-                                 batch_states=batch, device=device, band_seconds=band_seconds)
+                                 batch_states=batch, device=device, band_seconds=band_seconds, deriv=deriv)
 
 
 def recipe_status(recipe: Path) -> str | None:
@@ -135,7 +137,8 @@ def recipe_status(recipe: Path) -> str | None:
     scene, box = _scene_and_box(r.get("preset"), r.get("f0"), r.get("fb"), r.get("vb"), r.get("a"), None, None,
                                 None, None)
     cfg = _train_config(scene, box, **{k: r.get(k) for k in ("minutes", "steps", "seed", "width", "batch", "device",
-                                                             "rest_linear", "window_ms", "band_seconds")})
+                                                             "rest_linear", "window_ms", "band_seconds",
+                                                             "deriv")})
     return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box, init=r.get("from"))
 
 

@@ -14,6 +14,7 @@ MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
 MAX_STEPS = 10_000_000
 # a range's band at 30 s: 320 runs of 30 s at 44.1 kHz, every 4th state kept, ~3.4 GB of states
 MAX_BAND_SECONDS = 30.0
+MAX_DERIV = 100.0  # the derivative term's weight: 0.02-0.1 measured; beyond 100 it is the whole loss
 
 
 @dataclass
@@ -44,6 +45,8 @@ class TrainConfig:
     batch_states: int = 1024
     batch_times: int = 64
     weights: dict | None = None  # None: chosen from the scene's stiffness (losses.default_weights)
+    # the derivative term's weight (losses: deriv); None: losses.DERIV_WEIGHT for range models, none for point models
+    deriv: float | None = None
     checkpoint_seconds: float = 60.0
     # keep the weights that roll out best: from this share of the budget on, every select_every seconds (0: off)
     select_every: float = 15.0
@@ -107,6 +110,8 @@ class TrainConfig:
                              f"{self.range_points}, {self.range_gestures}")
         if not (math.isfinite(self.band_seconds) and 0 < self.band_seconds <= MAX_BAND_SECONDS):
             raise UsageError(f"--band-seconds must be > 0 and at most {MAX_BAND_SECONDS:g}, got {self.band_seconds:g}")
+        if self.deriv is not None and not (math.isfinite(self.deriv) and 0 <= self.deriv <= MAX_DERIV):
+            raise UsageError(f"--deriv must be in [0, {MAX_DERIV:g}], got {self.deriv:g}")
         if not (math.isfinite(self.checkpoint_seconds) and self.checkpoint_seconds > 0):
             raise UsageError(f"--checkpoint-every must be > 0 s, got {self.checkpoint_seconds:g}")
         return self

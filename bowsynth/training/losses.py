@@ -29,17 +29,20 @@ def stiffness(scene: Scene, beta: float | None = None) -> float:
     return physics.stiffness(scene.beta if beta is None else beta, scene.a)
 
 
-def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None) -> dict:
+def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None, deriv: float | None = None) -> dict:
     """The loss weights. beta_max: a range model's top F_B / w. A range model drops the friction residual: trained
     with it (0.03) over the soft box for 40 min, its weighted term ended 20x the data term and the validation's median
-    NMSE(p) was 0.080; without it, 30 min, 0.019 (docs/BENCHMARKS.md, range models)."""
+    NMSE(p) was 0.080; without it, 30 min, 0.019 (docs/BENCHMARKS.md, range models). deriv: the derivative term's
+    weight (None: DERIV_WEIGHT for a range model, none for a point model; 0: none)."""
     if not hybrid:
         return {"kin": 1.0, "fric": 1.0}
     w = {"data": 1.0, "end": 1.0, "kin": 1.0}
     if beta_max is None and stiffness(scene) < STIFF:
         w["fric"] = FRIC_WEIGHT
-    if beta_max is not None:
-        w["deriv"] = DERIV_WEIGHT
+    if deriv is None:
+        deriv = DERIV_WEIGHT if beta_max is not None else 0.0
+    if deriv > 0:
+        w["deriv"] = float(deriv)
     return w
 
 

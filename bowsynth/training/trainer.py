@@ -52,7 +52,8 @@ class Trainer:
             cfg.net = dataclasses.replace(cfg.net, rest_linear=True)
         self.scene, self.cfg, self.name = scene, cfg, name
         self.weights = cfg.weights or default_weights(scene, cfg.hybrid,
-                                                      beta_max=None if self.box is None else self.box.beta_hi)
+                                                      beta_max=None if self.box is None else self.box.beta_hi,
+                                                      deriv=cfg.deriv)
         self.window = cfg.window or 2 * math.pi
         self.rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
