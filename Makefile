@@ -38,8 +38,8 @@ test: $(STAMP) chromium jackd
 	$(PY) -m pytest
 
 # The shipped operators: each is trained by its recipe beside it (bowsynth/models/NAME.toml: the flags of
-# `bowsynth train`), on a 2-core CPU at most 15 minutes for each point model (40 for paper-fb1000-half, the paper's
-# stick-slip scene on half-period windows) and 45 for a range model. Only what is missing, unreadable or stale
+# `bowsynth train`), on a 2-core CPU at most 15 minutes for each point model (40 for paper-fb1000-half and -knee, the
+# paper's stick-slip scene on half-period windows) and 45 for a range model. Only what is missing, unreadable or stale
 # against its recipe is trained (`train --update`); an interrupted run continues from its checkpoint, so `make
 # models` can be stopped and run again. A wide stick-slip range failed its validation and is
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops, loud-mid

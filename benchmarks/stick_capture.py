@@ -28,8 +28,8 @@ from bowsynth.engines.operator.engine import render_operator
 from bowsynth.music.engine_tuning import sounding_for
 from bowsynth.scene import Scene
 
-DEFAULT = ["paper-fb1000-half:auto", "paper-fb1000:free", "paper-fb1000:physics", "stick-mid:free", "stick-mid:physics",
-           "stick-high:physics"]
+DEFAULT = ["paper-fb1000-half:auto", "paper-fb1000-knee:auto", "paper-fb1000:free", "paper-fb1000:physics",
+           "stick-mid:free", "stick-mid:physics", "stick-high:physics"]
 
 
 def main() -> None:
