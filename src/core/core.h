@@ -157,6 +157,8 @@ void voices_trunk_basis(Voices& V, int64_t v, double dtau, int64_t n_lo, int64_t
 double voices_ramp(double a, double b, double t0, double length, double s);
 int64_t pick_slot(const int64_t* mode, const int64_t* end, const int64_t* pos, const int64_t* start, int64_t nv);
 void dc_block(const double* x, int64_t n, double r, double* state, float* y);
+void polyphase(const double* x, int64_t rows, int64_t n_in, const double* w, int64_t up, int64_t K, int64_t down,
+               float* y, int64_t n_out);
 void highpass_zero_phase(double* x, int64_t n, double K);
 
 // the rollout's own tanh, cos / sin and window rule, one value at a time (for the tests)

@@ -474,17 +474,7 @@ NB_MODULE(_core, mod) {
         const double* ws = w.data();
         float* ys = y.data();
         nb::gil_scoped_release nogil;
-        // output sample outer, rows inner: the phase's weights (scattered over the table) are read once for all rows
-        for (int64_t j = 0; j < n_out; ++j) {
-            const int64_t pos = j * down, base = pos / up;
-            const double* wk = ws + (pos - base * up) * K;
-            for (int64_t r = 0; r < rows; ++r) {
-                const double* xk = xs + r * n_in + base;
-                double acc = 0.0;
-                for (int64_t k = 0; k < K; ++k) acc += wk[k] * xk[k];
-                ys[r * n_out + j] = static_cast<float>(acc);
-            }
-        }
+        bowsynth::polyphase(xs, rows, n_in, ws, up, K, down, ys, n_out);
     }, "x"_a.noconvert(), "w"_a.noconvert(), "up"_a, "down"_a, "y"_a.noconvert(),
        "y[r, j] = sum_k w[(j down) mod up, k] x[r, (j down) div up + k]: resampling by up / down, the filter per "
        "phase.");
