@@ -83,6 +83,12 @@ def roll(batch: bool, *args) -> None:
     (core.roll_batch if batch else core.roll_voices)(*args)
 
 
+def resample_rows(x, w, k0: int, up: int, down: int, y) -> None:
+    """`_core.resample_rows`: float32 rows held, continued and resampled into y in one pass; see
+    engines.operator.grid.to_output."""
+    load().resample_rows(x, w, k0, up, down, y)
+
+
 def polyphase(x, w, up: int, down: int, y) -> None:
     """`_core.polyphase`: rows of x resampled by up / down into y, the filter w given per phase; see
     engines.operator.grid.to_output."""

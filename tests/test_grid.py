@@ -199,3 +199,27 @@ def test_a_voice_stopped_on_the_grid_is_finished_by_the_fdm_from_an_output_sampl
     assert abs(float(r.p[cut + 1]) - float(r.p[cut])) <= 1.5 * step
     # the FDM's continuation stays on the stick-slip cycle's scale
     assert np.ptp(r.p[-4410:]) == pytest.approx(np.ptp(whole.p[-4410:]), rel=0.1)
+
+
+def test_the_one_pass_resampler_holds_continues_and_filters_as_numpy_does():
+    ratio, n = Fraction(735, 748), 3000
+    up, down = ratio.numerator, ratio.denominator
+    rng = np.random.default_rng(3)
+    x = np.cumsum(rng.standard_normal((3, math.ceil((n + grid.PAD) / float(ratio)))), axis=1).astype(np.float32)
+    x[1, 2000:] = np.nan  # a voice stopped on the grid: held at its last finite sample
+    x[2, 0] = np.inf  # not finite from its first sample on: zeros
+    w, k0 = grid._phases(up, down)
+    # the same in numpy: the row held, an odd continuation of k0 samples at both ends, in float64; then the filter
+    ref = x.astype(np.float64)
+    for r in ref:
+        lost = np.flatnonzero(~np.isfinite(r))
+        if lost.size:
+            r[lost[0]:] = r[lost[0] - 1] if lost[0] else 0.0
+    xp = np.concatenate([2 * ref[:, :1] - ref[:, k0:0:-1], ref, 2 * ref[:, -1:] - ref[:, -2:-k0 - 2:-1]], axis=1)
+    want = np.empty((3, n), np.float32)
+    core.polyphase(np.ascontiguousarray(xp), w, up, down, want)
+    got = grid.to_output(x, ratio, n)
+    np.testing.assert_array_equal(got, want)
+    assert np.all(got[2] == 0.0) and np.isfinite(got).all()
+    with pytest.raises(ValueError, match="too short"):
+        core.resample_rows(x, w, k0, up, down, np.empty((3, 2 * n), np.float32))

@@ -159,6 +159,8 @@ int64_t pick_slot(const int64_t* mode, const int64_t* end, const int64_t* pos, c
 void dc_block(const double* x, int64_t n, double r, double* state, float* y);
 void polyphase(const double* x, int64_t rows, int64_t n_in, const double* w, int64_t up, int64_t K, int64_t down,
                float* y, int64_t n_out);
+void resample_rows(const float* x, int64_t rows, int64_t n_in, const double* w, int64_t up, int64_t K, int64_t k0,
+                   int64_t down, float* y, int64_t n_out);
 void highpass_zero_phase(double* x, int64_t n, double K);
 
 // the rollout's own tanh, cos / sin and window rule, one value at a time (for the tests)

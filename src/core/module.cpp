@@ -478,6 +478,24 @@ NB_MODULE(_core, mod) {
     }, "x"_a.noconvert(), "w"_a.noconvert(), "up"_a, "down"_a, "y"_a.noconvert(),
        "y[r, j] = sum_k w[(j down) mod up, k] x[r, (j down) div up + k]: resampling by up / down, the filter per "
        "phase.");
+    mod.def("resample_rows", [](In<float, 2> x, In<double, 2> w, int64_t k0, int64_t up, int64_t down,
+                                Out<float, 2> y) {
+        const int64_t rows = x.shape(0), n_in = x.shape(1), n_out = y.shape(1), K = w.shape(1);
+        need(up >= 1 && down >= 1, "resample_rows: up and down must be >= 1");
+        need(k0 >= 0 && K == 2 * k0 + 1, "resample_rows: w must have 2 k0 + 1 taps");
+        need(n_in >= k0 + 2, "resample_rows: x needs at least k0 + 2 samples a row");
+        shape("resample_rows", "w", w, {up, K});
+        shape("resample_rows", "y", y, {rows, n_out});
+        need(n_out == 0 || ((n_out - 1) * down) / up + K <= n_in + 2 * k0,
+             "resample_rows: x is too short for n_out samples");
+        const float* xs = x.data();
+        const double* ws = w.data();
+        float* ys = y.data();
+        nb::gil_scoped_release nogil;
+        bowsynth::resample_rows(xs, rows, n_in, ws, up, K, k0, down, ys, n_out);
+    }, "x"_a.noconvert(), "w"_a.noconvert(), "k0"_a, "up"_a, "down"_a, "y"_a.noconvert(),
+       "Rows of float32 grid samples held at their last finite sample, continued oddly by k0 samples at both ends and "
+       "resampled by up / down (engines.operator.grid.to_output).");
     mod.def("rest_coefficients", [](In<double, 1> d, In<double, 1> qs, In<double, 1> dtau, Out<double, 2> c) {
         const int64_t n = d.shape(0);
         shape("rest_coefficients", "qs", qs, {n});
