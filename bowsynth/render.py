@@ -82,7 +82,8 @@ class Render:
     """A rendered scene: one value per output sample at the scene's sample rate (float64 from the FDM, float32 from
     the operator, the network's precision).
 
-    q = w u and p = u_t (m/s); u the mass displacement (m); t in s. `seconds` is the wall time the engine took.
+    q = w u and p = u_t (m/s); u the mass displacement (m); t in s (an engine may pass None: the sample times are
+    then made on first use, as few callers read them and they cost a render of 5 s ~1 ms of fresh memory). `seconds` is the wall time the engine took.
     `controls` holds the bow force fb (m/s^2) and speed vb (m/s) the engine applied, one value per output sample
     (the operator holds them per window, so they may differ from the scene's curves between windows).
     """
@@ -98,8 +99,7 @@ class Render:
 
     def __post_init__(self):
         if self.controls is None:  # an engine that applies the scene's controls as given
-            sc, t = self.scene, self.t
-            self.controls = LazyControls(lambda: {"fb": sc.fb_at(t), "vb": sc.vb_at(t)})
+            self.controls = LazyControls(lambda: {"fb": self.scene.fb_at(self.t), "vb": self.scene.vb_at(self.t)})
 
     @property
     def u(self) -> np.ndarray:
@@ -117,3 +117,18 @@ class Render:
         if name not in ("u", "p", "q"):
             raise ValueError(f"signal must be u, p or q, got {name!r}")
         return getattr(self, name)
+
+
+def _time_axis(r: Render) -> np.ndarray:
+    t = r.__dict__.get("_t")
+    if t is None:
+        t = r.__dict__["_t"] = np.arange(len(r.p)) / r.scene.sample_rate
+    return t
+
+
+def _set_time_axis(r: Render, t) -> None:
+    r.__dict__["_t"] = t
+
+
+# after the dataclass is made: its __init__ assigns t through this property, so None can stand for "made later"
+Render.t = property(_time_axis, _set_time_axis, doc="The sample times (s), float64.")

@@ -201,8 +201,11 @@ def test_a_voice_stopped_on_the_grid_is_finished_by_the_fdm_from_an_output_sampl
     assert np.ptp(r.p[-4410:]) == pytest.approx(np.ptp(whole.p[-4410:]), rel=0.1)
 
 
-def test_the_one_pass_resampler_holds_continues_and_filters_as_numpy_does():
-    ratio, n = Fraction(735, 748), 3000
+@pytest.mark.parametrize("ratio", [Fraction(735, 748), Fraction(3, 5), Fraction(5, 4)])
+def test_the_one_pass_resampler_holds_continues_and_filters_as_numpy_does(ratio):
+    # a grid's own ratio (23 taps, eight outputs a product between the phase's wraps), one with 35 taps, and one
+    # that reads no eight consecutive inputs (upsampling: every output on its own)
+    n = 3000
     up, down = ratio.numerator, ratio.denominator
     rng = np.random.default_rng(3)
     x = np.cumsum(rng.standard_normal((3, math.ceil((n + grid.PAD) / float(ratio)))), axis=1).astype(np.float32)
@@ -219,7 +222,42 @@ def test_the_one_pass_resampler_holds_continues_and_filters_as_numpy_does():
     want = np.empty((3, n), np.float32)
     core.polyphase(np.ascontiguousarray(xp), w, up, down, want)
     got = grid.to_output(x, ratio, n)
-    np.testing.assert_array_equal(got, want)
+    # the one-pass loop sums in float32 (the network's precision), the oracle in float64: a few float32 roundings
+    # of the row's scale apart, at every sample, the ends and the held stretch included (a tap's weight lost or
+    # shifted by one sample would be ~1e-2 of it)
+    scale = np.max(np.abs(ref), axis=1, keepdims=True)
+    assert np.all(np.abs(got - want) <= 2e-6 * scale)
     assert np.all(got[2] == 0.0) and np.isfinite(got).all()
     with pytest.raises(ValueError, match="too short"):
         core.resample_rows(x, w, k0, up, down, np.empty((3, 2 * n), np.float32))
+
+
+@pytest.mark.parametrize("ratio", [Fraction(441, 442), Fraction(735, 748), Fraction(3, 5)])
+def test_the_resampler_in_place_writes_what_it_writes_elsewhere(ratio):
+    # a render's rows are resampled over themselves (no fresh array): the same bits as into a new one, a stopped
+    # row's hold and both ends included, over more than one of the loop's chunks of 4096 outputs
+    n = 9000
+    rng = np.random.default_rng(5)
+    x = np.cumsum(rng.standard_normal((2, math.ceil((n + grid.PAD) / float(ratio)))), axis=1).astype(np.float32)
+    x[1, 7000:] = np.nan
+    want = grid.to_output(x, ratio, n)
+    rows = [x[0].copy(), x[1].copy()]
+    got = grid.to_output_in_place(rows, ratio, n)
+    for g, r, wnt in zip(got, rows, want):
+        assert np.shares_memory(g, r)
+        np.testing.assert_array_equal(g, wnt)
+
+
+def test_the_resampler_refuses_an_overlap_it_cannot_compute_in_place():
+    w, k0 = grid._phases(5, 4)  # upsampling: an output reads inputs behind its own index
+    x = np.zeros((1, 400), np.float32)
+    with pytest.raises(ValueError, match="overlap"):
+        core.resample_rows(x, w, k0, 5, 4, x[:, :300])
+    w, k0 = grid._phases(3, 4)
+    flat = np.zeros(800, np.float32)
+    with pytest.raises(ValueError, match="overlap"):  # two rows: the second row's outputs land on the first's inputs
+        core.resample_rows(flat.reshape(2, 400), w, k0, 3, 4, flat[:580].reshape(2, 290))
+    with pytest.raises(ValueError, match="overlap"):  # one row, its output a sample later than its input
+        core.resample_rows(flat[:399].reshape(1, 399), w, k0, 3, 4, flat[1:291].reshape(1, 290))
+    core.resample_rows(flat[:400].reshape(1, 400), w, k0, 3, 4, flat[400:690].reshape(1, 290))  # apart: fine
+    core.resample_rows(flat[:400].reshape(1, 400), w, k0, 3, 4, flat[:290].reshape(1, 290))  # its own row: fine

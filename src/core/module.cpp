@@ -491,11 +491,16 @@ NB_MODULE(_core, mod) {
         const float* xs = x.data();
         const double* ws = w.data();
         float* ys = y.data();
+        // in place only as the loop can do it: y the start of x's one row, the ratio at most 1 (an output reads
+        // no input before its own index, less k0); any other overlap would read samples already overwritten
+        const bool overlap = ys < xs + rows * n_in && xs < ys + rows * n_out;
+        need(!overlap || (ys == xs && rows == 1 && down >= up),
+             "resample_rows: y may overlap x only as x's own single row (y = x[:, :n_out]) with down >= up");
         nb::gil_scoped_release nogil;
         bowsynth::resample_rows(xs, rows, n_in, ws, up, K, k0, down, ys, n_out);
     }, "x"_a.noconvert(), "w"_a.noconvert(), "k0"_a, "up"_a, "down"_a, "y"_a.noconvert(),
        "Rows of float32 grid samples held at their last finite sample, continued oddly by k0 samples at both ends and "
-       "resampled by up / down (engines.operator.grid.to_output).");
+       "resampled by up / down (engines.operator.grid.to_output); in place where y = x[:, :n_out] of one row.");
     mod.def("rest_coefficients", [](In<double, 1> d, In<double, 1> qs, In<double, 1> dtau, Out<double, 2> c) {
         const int64_t n = d.shape(0);
         shape("rest_coefficients", "qs", qs, {n});

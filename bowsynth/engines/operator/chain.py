@@ -138,5 +138,5 @@ def render_chain(scene: Scene, plan: list[tuple[int, OperatorModel]], play, voic
     info = RenderInfo(model_id=" + ".join(m.id for _, m in plan), notes=[f"note: {voice}no one model covers this "
                       f"bow; played by {len(plan)} models in turn: {said}"] + notes, loop=parts[0][2].info.loop,
                       chain=chain)
-    return Render(scene, np.arange(n) / sr, q, p, method=Played("operator", fdm_fallback=fdm), seconds=secs,
+    return Render(scene, None, q, p, method=Played("operator", fdm_fallback=fdm), seconds=secs,
                   info=info, controls=LazyControls(controls))

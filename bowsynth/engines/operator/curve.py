@@ -67,7 +67,7 @@ def render_curve(scene, model):
     secs = time.perf_counter() - t0
     notes = ["note: the rollout left the model's trained states; finished with the FDM from there"] \
         if bank.why[0] == V.WHY_FALLBACK else []
-    return Render(scene, np.arange(n) / sr, q.astype(np.float32), p.astype(np.float32),
+    return Render(scene, None, q.astype(np.float32), p.astype(np.float32),
                   method=Played("operator", fdm_fallback=bool(notes)), seconds=secs,
                   info=RenderInfo(model_id=m.id, model_path=str(m.path) if m.path else None, notes=notes,
                                   loop="per-window pitch"))

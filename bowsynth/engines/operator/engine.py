@@ -19,7 +19,7 @@ from .basis import _operator
 from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_verdict
 from .choose import (_bow_exit, as_model, available_models, covering_model, find_model, first_bow_outside,
                      partial_model, train_hint, unreadable_notes)
-from .grid import from_grid, needs_whole_windows, to_grid, to_output, whole_window_scene
+from .grid import from_grid, needs_whole_windows, to_grid, to_output_in_place, whole_window_scene
 from .modelfile import OperatorModel
 from .onset import mute_from, rest_onset, ring_down
 from .rollout import applied_controls, length_buckets, rollout_states, scene_bows
@@ -86,6 +86,12 @@ def _box_exit(m: OperatorModel, sc: Scene, q, p, window: float | None = None) ->
     span), or None. window: the voice's window in tau (None: the model's T)."""
     d = m.domain
     sq, sp = BOX_SLACK * (d.q_hi - d.q_lo), BOX_SLACK * (d.p_hi - d.p_lo)
+    # four reductions first (a note inside its box, the usual case: 0.02 ms, where the masks below take 0.3 ms for
+    # 5 s); they propagate NaN, and a voice with a NaN (stopped) takes the masks, which skip it
+    bounds = np.array([np.min(q), np.max(q), np.min(p), np.max(p)], dtype=float) if len(q) else np.zeros(4)
+    if (np.isfinite(bounds).all() and bounds[0] >= d.q_lo - sq and bounds[1] <= d.q_hi + sq
+            and bounds[2] >= d.p_lo - sp and bounds[3] <= d.p_hi + sp):
+        return None
     with np.errstate(invalid="ignore"):
         out = (q < d.q_lo - sq) | (q > d.q_hi + sq) | (p < d.p_lo - sp) | (p > d.p_hi + sp)
     j = np.flatnonzero(out)
@@ -319,7 +325,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             else:
                 if stop[0] >= 0:  # the grid's samples from the stop on are not the model's: the filter must not see them
                     q[row][stop[0]:] = p[row][stop[0]:] = np.nan
-                qv, pv = to_output(np.stack([q[row][:g.n_samples], p[row][:g.n_samples]]), ratio, ns)
+                qv, pv = to_output_in_place([q[row][:g.n_samples], p[row][:g.n_samples]], ratio, ns)
                 stop[0] = from_grid(stop[0], ratio)
             if stop[0] >= 0:
                 qv[stop[0]:] = np.nan
@@ -365,15 +371,11 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         notes = {i: _finish(scenes[i], qv, pv, stop, fallback, voice="" if _single else f"voice {labels[i]}: ")
                  + checked for row, (i, (qv, pv, stop)) in enumerate(zip(idx, voices)) if row not in again}
         secs = (time.perf_counter() - t0) / len(idx)
-        t_all = {}  # one time axis per sample rate, shared (views) by the voices that use it
         for row, i in enumerate(idx):
             if row in again:
                 continue
             sc = scenes[i]
-            ns = sc.n_samples
             qv, pv, _ = voices[row]
-            if sc.sample_rate not in t_all:
-                t_all[sc.sample_rate] = np.arange(max(s.n_samples for s in scenes)) / sc.sample_rate
             info = RenderInfo(model_id=m.id, model_path=str(m.path) if m.path else None, notes=notes[i], loop=loop,
                               setup_seconds=t0 - t_setup, batched=None if _single else len(idx))
             if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
@@ -392,7 +394,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 info.windows = round(2 * math.pi * sc.f0 / sounding[i] / win[i])
             # constant controls: the scene's own (Render's lazy default) are what ran
             ctrl = LazyControls(ctrl_of[i]) if sc.varying else None
-            out[i] = Render(sc, t_all[sc.sample_rate][:ns], qv, pv,
+            out[i] = Render(sc, None, qv, pv,
                             method=Played("operator", fdm_fallback=len(notes[i]) > len(checked)), seconds=secs,
                             info=info, **({"controls": ctrl} if ctrl is not None else {}))
     return out
