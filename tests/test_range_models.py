@@ -401,3 +401,17 @@ def test_live_leaves_a_stick_slip_models_notes_to_the_fdm(range_model, scaled_ra
     assert stick.domain.box_contains(0.9, 0.15) and soft.domain.box_contains(0.2, 0.2)
     assert not Stream._plays(SimpleNamespace(model=stick), 0.9, 0.15)
     assert Stream._plays(SimpleNamespace(model=soft), 0.2, 0.2)
+
+
+def test_validation_plays_the_windows_a_render_plays():
+    # paper-fb1000-knee at its own bow, 1 s from rest against the x100 FDM: a render plays it in auto windows, locked
+    # to the physics' period (7 a period), where it is exact; in free windows it plays its own period, 0.23 cents
+    # flat. The validation record (what picks a model, or not) is the render's
+    from bowsynth.engines.operator.choose import as_model
+    from bowsynth.training.selection import validate
+
+    m = as_model("paper-fb1000-knee")
+    sc = Scene(**m.meta.scene)
+    auto, free = validate(m, sc), validate(m, sc, windows="free")
+    assert auto["windows"].endswith("a period") and abs(auto["heard_cents"]) < 0.1
+    assert free["windows"] == "free" and abs(free["heard_cents"]) > 0.15
