@@ -97,9 +97,10 @@ def test_one_voice_failing_stops_only_that_voice(tiny_model, loop, voices):
 
 
 def test_voices_split_over_threads_roll_as_on_one(tiny_model):
-    """A render's voices in groups by pitch over several threads (whole groups per thread; a group of rows that are
-    not neighbours rolled into its own arrays and copied back) give the bits of one thread, failures included, in
-    whichever group the failing voice falls; and each voice as the same loop gives it alone, to float32 rounding."""
+    """A render's voices in groups by pitch over several threads (whole groups, taken from one queue as each thread
+    is free; the voices' inputs put in the groups' order, so a group of rows that are not neighbours is a slice)
+    give the bits of one thread, failures included, in whichever group the failing voice falls; and each voice as
+    the same loop gives it alone, to float32 rounding."""
     m = load_model(tiny_model)
     voices, n = 9, 40_000
     f0 = np.array([400.0, 90.0, 250.0, 130.0, 330.0, 170.0, 210.0, 110.0, 290.0])  # groups of rows far apart
@@ -108,7 +109,7 @@ def test_voices_split_over_threads_roll_as_on_one(tiny_model):
     x0[6] = [np.nan, 0.0]  # fails at once
     x0[2] = [m.domain.q_hi * 50, 0.0]  # starts far outside the trained states: a domain failure
     groups = voice_groups(2 * np.pi / dtau)
-    assert any(g.max() - g.min() + 1 > len(g) for g in groups)  # the copy-back path is taken
+    assert any(g.max() - g.min() + 1 > len(g) for g in groups)  # the inputs are put in the groups' order
     runs = voice_runs(np.array([(n * (1 + 245 * dtau[g] / (2 * np.pi))).sum() for g in groups]), 2)
     assert len(runs) == 2  # the work is split, else this test tests nothing
     one = rollout_states(m, x0, n, dtau, loop="core-1")  # the same groups, on one thread
