@@ -6,7 +6,6 @@ from __future__ import annotations
 import functools
 import math
 import time
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -292,7 +291,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         wins = [win[i] for i in idx]
         # each voice on the grid its model needs (grid.py: whole windows for stick-slip models), and back
         grids = [whole_window_scene(sc, op.samples_per_window(sc.dtau, w))
-                 if needs_whole_windows(m.domain, sc.beta_range[1]) else (sc, Fraction(1)) for sc, w in zip(rs, wins)]
+                 if needs_whole_windows(m.domain, sc.beta_range[1]) else (sc, 1) for sc, w in zip(rs, wins)]
         group = [g for g, _ in grids]
         x0 = np.array([[sc.q0, sc.p0] for sc in group]).reshape(-1, 2)
         dtau = np.array([sc.dtau for sc in group])

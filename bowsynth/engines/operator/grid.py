@@ -24,14 +24,17 @@ from __future__ import annotations
 
 import copy
 import math
-from fractions import Fraction
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ... import physics
 from ...scene import Scene
 from ... import compiled as core
+
+if TYPE_CHECKING:
+    from fractions import Fraction
 
 MAX_DENOMINATOR = 2000
 KAISER_BETA = 12.0
@@ -51,7 +54,7 @@ def needs_whole_windows(domain, beta_max: float | None = None) -> bool:
     return physics.stiffness(beta, domain.a) >= physics.STIFF
 
 
-def whole_window_scene(scene: Scene, spw: float) -> tuple[Scene, Fraction]:
+def whole_window_scene(scene: Scene, spw: float) -> tuple[Scene, Fraction | int]:
     """The scene on the grid where a window of spw samples (at the scene's rate) holds a whole number N of them, with
     PAD output samples more at its end, and the ratio (output rate / grid rate) that brings it back. A window that is
     already a whole number of samples (up to 1e-7) gives the scene itself and ratio 1.
@@ -60,7 +63,8 @@ def whole_window_scene(scene: Scene, spw: float) -> tuple[Scene, Fraction]:
     engine's loops (which read sample_rate, n_samples, dtau and the curves) and is never rebuilt or validated."""
     n0 = math.ceil(spw * (1 - 1e-7))
     if abs(n0 - spw) <= 1e-7 * spw:
-        return scene, Fraction(1)
+        return scene, 1
+    from fractions import Fraction  # here, not at import: 2.4 ms of every render's process, most of which need none
     best = None  # (error, n, ratio): the whole window whose rate ratio a fraction holds best (the module's docstring)
     for n in range(n0, n0 + GRID_TRIES + 1):
         ratio = Fraction(spw / n).limit_denominator(MAX_DENOMINATOR)

@@ -7,7 +7,6 @@ loops run compiled (`bowsynth.compiled`: src/core/rollout.cpp), or in numpy (`_r
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -40,7 +39,7 @@ MAX_THREADS = 8
 MIN_THREAD_SAMPLES = 100_000
 WINDOW_SAMPLES = 245.0
 PER_VOICE = (0, 4, 9, 10, 12, 13)  # the loops' per-voice inputs: x0, vidx, center, halfrange, pin, gain
-_pool: ThreadPoolExecutor | None = None
+_pool = None  # a ThreadPoolExecutor, made (and concurrent.futures imported: 4 ms with logging) when first needed
 
 
 def threads() -> int:
@@ -129,6 +128,8 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
             run(k)
 
     if _pool is None:
+        from concurrent.futures import ThreadPoolExecutor
+
         _pool = ThreadPoolExecutor(max_workers=MAX_THREADS, thread_name_prefix="bowsynth-roll")
     others = [_pool.submit(worker) for _ in range(n_run - 1)]
     worker()  # this thread takes groups too, while the pool's take the others
