@@ -83,7 +83,8 @@ class Render:
     the operator, the network's precision).
 
     q = w u and p = u_t (m/s); u the mass displacement (m); t in s (an engine may pass None: the sample times are
-    then made on first use, as few callers read them and they cost a render of 5 s ~1 ms of fresh memory). `seconds` is the wall time the engine took.
+    then made on first use, as few callers read them and they cost a render of 5 s ~1 ms of fresh memory).
+    `seconds` is the wall time the engine took.
     `controls` holds the bow force fb (m/s^2) and speed vb (m/s) the engine applied, one value per output sample
     (the operator holds them per window, so they may differ from the scene's curves between windows).
     """

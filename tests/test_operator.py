@@ -327,3 +327,14 @@ def test_voices_of_very_different_lengths_roll_in_groups_and_each_is_its_own_ren
         alone = render_operator(sc, model=model)
         assert len(r.p) == sc.n_samples
         np.testing.assert_allclose(r.p, alone.p, rtol=0, atol=1e-6 * np.abs(alone.p).max())
+
+
+def test_an_operator_render_makes_its_time_axis_when_it_is_read():
+    # the engine passes no time axis (1 ms of fresh pages for 5 s, which few callers read); the render makes the
+    # sample times on first use, and the controls of a moving bow are read at them
+    sc = Scene(fb=[(0.0, 50.0), (0.3, 120.0)], duration=0.4)
+    r = render_operator(sc)
+    assert r.__dict__.get("_t") is None  # not made yet
+    np.testing.assert_array_equal(r.t, np.arange(len(r.p)) / sc.sample_rate)
+    assert r.t.dtype == np.float64 and r.t is r.t
+    assert len(r.controls["fb"]) == len(r.p)
