@@ -12,7 +12,6 @@
 // Compiled without fused multiply-adds (as fdm.cpp): the hand-over's start must round as fdm.taylor_start does.
 #include <algorithm>
 #include <cmath>
-#include <vector>
 
 #include "core.h"
 

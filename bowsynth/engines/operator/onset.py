@@ -98,7 +98,6 @@ def rest_onset(sc: Scene, m, spw: float):
 # not speak.
 MUTE_FRACTION = 0.25
 MUTE_SAFETY = 1.5
-DAMP_SHARE = 0.5
 MUTE_PERIODS = 8
 
 
@@ -137,6 +136,11 @@ def mute_from(sc: Scene, p) -> int | None:
     lo, hi = float(tail.min()), float(tail.max())  # NaN propagates: a stopped voice is not called mute here
     scale = sc.vb - physics.vb_stop(sc.a)
     return at if math.isfinite(lo) and math.isfinite(hi) and hi - lo < MUTE_FRACTION * scale else None
+
+
+# ring_down: the share of the width where the friction's slope stays positive over a swing (|p| < vb_stop - v_B)
+# within which a bow held from the note's start, whose state never enters the linearised radius, plays the decay
+DAMP_SHARE = 0.5
 
 
 def ring_down(sc: Scene, q, p) -> int | None:

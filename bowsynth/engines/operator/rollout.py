@@ -7,7 +7,6 @@ loops run compiled (`bowsynth.compiled`: src/core/rollout.cpp), or in numpy (`_r
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from ...scene import Scene
