@@ -166,9 +166,9 @@ inline void row_body(const float* x, const float* wt, int64_t ld, int64_t up, in
 // .to_output did in numpy: each row held at its last finite sample from its first non-finite one (0 if that is its
 // first), with an odd continuation of k0 samples at both ends (computed in float64), summed in float32. Only the
 // outputs that reach past either end of x's finite samples read that padded row (HeldRow); the rest read x where it
-// lies. Before, the row was first
-// copied to a float64 buffer (3.5 MB for 5 s at 100 Hz, on fresh pages in every render: to_output took 2.9 ms in a
-// render where it took 1.6 ms on warm memory) and each output was one 23-tap dot product.
+// lies. Before, the row was first copied to a float64 buffer (3.5 MB for 5 s at 100 Hz, on fresh pages in every
+// render: to_output took 2.9 ms in a render where it took 1.6 ms on warm memory) and each output was one 23-tap dot
+// product.
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 __attribute__((target_clones("arch=x86-64-v3", "default"), flatten))
 #endif
