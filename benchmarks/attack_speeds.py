@@ -1,5 +1,5 @@
 """An attack from F_B = 0 at fast bows (issue 21): F_B / w 0 -> 0.2 over 50 ms at f0 100, v_B 0.23 / 0.25 / 0.28,
-1.5 s, scored per 100 ms frame against a x100 FDM driven by the same curve (listener.py's frame_errors), played by the
+1.5 s, scored per 100 ms frame against a x100 FDM driven by the same curve (metrics.frame_errors), played by the
 renderer's pick and by each named model, in auto windows.
 
     PYTHONPATH=. .venv/bin/python benchmarks/attack_speeds.py [--models soft-range,soft-fast]
@@ -9,15 +9,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import warnings
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from listener import frame_errors  # noqa: E402
-
-from bowsynth import BowsynthError, Scene  # noqa: E402
-from bowsynth.api import render  # noqa: E402
+from bowsynth import BowsynthError, Scene
+from bowsynth.analysis.metrics import frame_errors
+from bowsynth.api import render
 
 
 def main(argv=None) -> None:

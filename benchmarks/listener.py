@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 
 from bowsynth import BowsynthError, Scene
-from bowsynth.analysis.metrics import listener_errors, nmse, onset_limit_ms
+from bowsynth.analysis.metrics import frame_errors, listener_errors, nmse, onset_limit_ms
 from bowsynth.api import render
 
 REGIONS = {  # (F_B / w lo, hi), (v_B lo, hi): the issue's soft-bow and stick-slip spaces
@@ -88,32 +88,6 @@ GESTURES = {  # name: (f0, F_B / w curve, v_B curve, seconds), curves as (t, val
     "heavy bow stop (F_B 1000)": (100.0, 1000 / (2 * math.pi * 100), [(1.0, 0.2), (1.1, 0.0)], 1.6),
     "heaviest bow stop": (150.0, 1.9, [(1.0, 0.15), (1.05, 0.0)], 1.6),
 }
-FRAME = 0.1
-
-
-def frame_errors(x, ref, sample_rate: float, frame: float = FRAME) -> dict:
-    """Harmonic dB and pitch cents of x against ref per `frame`-second frame (all of it), over frames where ref
-    sounds (RMS above 1 % of its loudest frame's) and the first 100 ms (the attack) excluded; each frame fitted at its
-    own pitch."""
-    n = int(frame * sample_rate)
-    frames = [(i, i + n) for i in range(n, min(len(x), len(ref)) - n + 1, n)]
-    rms = np.array([np.std(ref[a:b]) for a, b in frames])
-    harm, cents = [], []
-    for (a, b), r in zip(frames, rms):
-        if not r > 0.01 * rms.max():
-            continue
-        # the frame before it too, so that listener_errors' steady part (at most the last half) is the whole frame:
-        # stick-slip at high force sounds 2-4 periods a frame (42 Hz at f0 100, F_B / w 1.1): half a frame has too
-        # few for a pitch
-        e = listener_errors(x[a - n:b], ref[a - n:b], sample_rate, steady_seconds=frame)
-        harm.append(e["harm_db_median"])
-        cents.append(abs(e["cents"]))
-    return {"frames": len(harm), "harm_db_median": float(np.median(harm)) if harm else float("nan"),
-            "harm_db_worst_frame": float(np.max(harm)) if harm else float("nan"),
-            "cents_median": float(np.nanmedian(cents)) if np.isfinite(cents).any() else float("nan"),
-            "unpitched_frames": int(np.sum(~np.isfinite(cents)))}
-
-
 def gesture(name: str, model=None) -> dict:
     f0, beta, vb, seconds = GESTURES[name]
     w = 2 * math.pi * f0

@@ -72,6 +72,23 @@ def test_onset_is_where_the_tone_starts():
     assert math.isnan(onset_time(np.zeros(SR), SR))
 
 
+def test_frame_errors_find_the_frame_whose_pitch_wanders_and_skip_the_silent_ones():
+    """Per 100 ms frame, as a gesture is scored: a tone 5 cents sharp over 0.4-0.5 s reads 5 cents in that frame
+    and none elsewhere; the frames where the reference is silent (its last 0.3 s) are not scored."""
+    from bowsynth.analysis.metrics import frame_errors
+
+    f0, t = 110.0, np.arange(int(1.5 * SR)) / SR
+    ref = np.cos(2 * np.pi * f0 * t) * (t < 1.2)
+    sharp = np.where((t >= 0.4) & (t < 0.5), 2 ** (5 / 1200), 1.0)
+    x = np.cos(2 * np.pi * np.cumsum(f0 * sharp) / SR) * (t < 1.2)
+    e = frame_errors(x, ref, SR)
+    assert e["frames"] == 11 and e["t"][0] == pytest.approx(0.1) and e["t"][-1] == pytest.approx(1.1)
+    c = dict(zip(np.round(e["t"], 1), e["cents"]))
+    assert c[0.4] == pytest.approx(5.0, abs=0.3), c
+    assert all(v < 0.05 for k, v in c.items() if k != 0.4), c
+    assert e["cents_median"] < 0.05 and e["harm_db_median"] < 0.05
+
+
 def test_the_audio_rate_fdm_is_close_to_the_truth_as_a_listener_hears_it():
     sc = Scene(f0=100, fb=100, vb=0.2, duration=1.0)
     e = listener_errors(render_fdm(sc).p, render_fdm(sc, oversample=20).p, SR, steady_seconds=0.5)

@@ -24,11 +24,10 @@ from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..errors import BowsynthError
 from ..music.engine_tuning import sounding_for
 from ..scene import Scene
-from .metrics import listener_errors, nmse
+from .metrics import listener_errors, nmse, note_sounds
 
 BETA_RANGE = (0.02, 2.0)  # F_B / w across the issue's playing space (0 is a lifted bow: silence, nothing to map)
 VB_RANGE = (0.0, 0.28)  # v_B from a stopped bow to the fastest the issue asks for
-SILENT = 1e-4  # a note whose p over its last half has RMS below this (m/s; notes play at 0.05-0.6) is silence
 
 
 def grid(n_beta: int, n_vb: int, beta_range=BETA_RANGE, vb_range=VB_RANGE) -> tuple[list[float], list[float]]:
@@ -41,22 +40,16 @@ def grid(n_beta: int, n_vb: int, beta_range=BETA_RANGE, vb_range=VB_RANGE) -> tu
     return [float(b) for b in betas], [float(v) for v in vbs]
 
 
-def _sounds(p, n: int) -> bool:
-    tail = np.asarray(p[len(p) - n:], float)
-    return bool(np.std(tail) > SILENT)
-
-
 def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None, windows: str = "free") -> dict:
     """One cell: the truth (x100 FDM), the audio-rate FDM and the operator (`model`, or the renderer's pick; its
     windows as `api.render`'s) at (f0, F_B / w, v_B)."""
     sc = Scene(f0=f0, fb=beta * 2.0 * math.pi * f0, vb=vb, duration=seconds)
-    half = sc.n_samples // 2
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         truth = render(sc, engine="fdm", oversample=TRUTH_OVERSAMPLE)
         fdm = render(sc, engine="fdm")
     cell = {"f0": f0, "beta": beta, "vb": vb}
-    sounds = _sounds(truth.p, half)
+    sounds = note_sounds(truth.p)
     if sounds:
         cell["fdm"] = {**listener_errors(fdm.p, truth.p, sc.sample_rate), "nmse": nmse(fdm.p, truth.p)}
     t0 = time.perf_counter()
@@ -71,7 +64,7 @@ def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None
     cell["model"] = op.info.model_id
     cell["model_name"] = Path(op.info.model_path).stem if op.info.model_path else op.info.model_id
     if not sounds:
-        cell.update(status="silent", op_silent=not _sounds(op.p, half))
+        cell.update(status="silent", op_silent=not note_sounds(op.p))
         return cell
     cell.update(status="played", op={**listener_errors(op.p, truth.p, sc.sample_rate), "nmse": nmse(op.p, truth.p)})
     return cell
