@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 
-from ..analysis.metrics import compare_signals, listener_errors, nmse
+from ..analysis.metrics import SILENT, compare_signals, listener_errors, nmse, note_sounds
 from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import BowsynthError, DomainError
 from ..scene import Scene
@@ -75,7 +75,12 @@ TARGET_HARM_MEDIAN_DB, TARGET_HARM_MAX_DB, TARGET_CENTS = 0.2, 1.0, 0.2
 
 def listener_score(x, ref, sample_rate: float) -> float:
     """The selection's score of one rollout against its reference (both from rest): the listener errors over their
-    targets, summed (0 is perfect; inf when the render has no pitch or lacks a harmonic the truth has)."""
+    targets, summed (0 is perfect; inf when the render has no pitch or lacks a harmonic the truth has). Where the
+    truth rests (a bow that damps the mass), what a listener hears is whether the render rests too: its RMS over its
+    last half in units of SILENT."""
+    if not note_sounds(ref):
+        x = np.asarray(x, float)
+        return float(np.std(x[len(x) - len(x) // 2:]) / SILENT)
     e = listener_errors(x, ref, sample_rate)
     s = (e["harm_db_median"] / TARGET_HARM_MEDIAN_DB + e["harm_db_max"] / TARGET_HARM_MAX_DB
          + abs(e["cents"]) / TARGET_CENTS)
@@ -122,7 +127,8 @@ class RangeSelector(Selector):
 def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
                    ref_oversample: int = TRUTH_OVERSAMPLE) -> dict:
     """validate() at the n x n grid of the box (from rest, the scene's pitch) where the note speaks: the median
-    NMSE(p) is the model's score ('nmse'), the worst beside it; the silent corners must stay finite."""
+    NMSE(p) is the model's score ('nmse'), the worst beside it; the silent corners must stay finite, and
+    'silent_sounding' counts the grid bows where the truth rests and the model does not (metrics.note_sounds)."""
     from .ranges import distinct, speaks
 
     pts = distinct(box.grid(n))  # a side of zero width (a score's held v_B, a refined point) repeats points
@@ -135,7 +141,8 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
     spk = [r for r in rows if r["speaks"]]
     errs = [r for r in rows if r.get("error")]
     vals = [r["nmse"] for r in spk if isinstance(r.get("nmse"), float)]
-    out = {"points": rows, "seconds": seconds, "ref_oversample": ref_oversample, "grid": n}
+    out = {"points": rows, "seconds": seconds, "ref_oversample": ref_oversample, "grid": n,
+           "silent_sounding": sum(1 for r in rows if r.get("truth_sounds") is False and r.get("op_sounds"))}
     if errs:
         out["error"] = f"{len(errs)} of {len(rows)} grid points failed: {errs[0]['error']}"
     if vals:
@@ -172,6 +179,7 @@ def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = TR
     m.update(heard_cents=heard["cents"], harm_db_median=heard["harm_db_median"], harm_db_max=heard["harm_db_max"],
              onset_err_ms=heard["onset_err_ms"])
     m["nmse_q"] = float(np.mean((r.q - ref.q) ** 2) / np.var(ref.q))
+    m["truth_sounds"], m["op_sounds"] = note_sounds(ref.p), note_sounds(r.p)
     m["seconds"] = seconds
     m["ref_oversample"] = ref_oversample
     m["windows"] = "free" if r.info.windows is None else f"{r.info.windows} a period"

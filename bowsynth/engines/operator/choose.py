@@ -180,7 +180,8 @@ def preference(m: OperatorModel, depth: float) -> tuple:
     slow-bow, which plays it 0.035 dB and 3.9 cents off). min() over it keeps the first of equals (./models before
     the shipped)."""
     shallow = depth < EDGE
-    return shallow, -depth if shallow else m.domain.bow_extent, m.meta.validation["nmse"]
+    # a box where every grid bow rests has no NMSE on record: last among equals
+    return shallow, -depth if shallow else m.domain.bow_extent, m.meta.validation.get("nmse", math.inf)
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:

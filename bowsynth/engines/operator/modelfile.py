@@ -91,11 +91,14 @@ def _finite(v) -> bool:
 
 def validation_failure(meta: ModelMeta) -> str | None:
     """Why a model's validation rollout disqualifies it from being picked by default (None when it passed): it
-    failed; a range model with listener errors on record (its grid's median harmonic dB and worst |cents|) exceeds
-    MAX_VALIDATION_HARM_DB or MAX_VALIDATION_CENTS; any other has no finite NMSE(p) or exceeds MAX_VALIDATION_NMSE."""
+    failed; a range model sounds at a grid bow where the truth rests; one with listener errors on record (its grid's
+    median harmonic dB and worst |cents|) exceeds MAX_VALIDATION_HARM_DB or MAX_VALIDATION_CENTS; one whose grid
+    all rests passes; any other has no finite NMSE(p) or exceeds MAX_VALIDATION_NMSE."""
     v = meta.validation or {}
     if v.get("error"):
         return f"validation failed: {v['error']}"
+    if v.get("silent_sounding"):
+        return f"validation: it sounds at {v['silent_sounding']} grid bow(s) where the truth rests"
     harm, cents = v.get("harm_db_median"), v.get("cents_abs_max")
     if v.get("points") is not None and _finite(harm) and _finite(cents):
         if harm > MAX_VALIDATION_HARM_DB:
@@ -103,6 +106,8 @@ def validation_failure(meta: ModelMeta) -> str | None:
         if cents > MAX_VALIDATION_CENTS:
             return f"validation pitch {cents:.3g} cents (worst) > {MAX_VALIDATION_CENTS:g}"
         return None
+    if v.get("points") and v.get("silent_sounding") == 0 and not any(p.get("speaks") for p in v["points"]):
+        return None  # a box where every grid bow damps the mass (the heavy bow stops' corner): it rests at each
     n = v.get("nmse")
     if not _finite(n):
         return "no validation score"
