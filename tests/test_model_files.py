@@ -536,6 +536,33 @@ def test_range_models_are_judged_by_what_a_listener_hears():
     assert loud.meta.validation["nmse"] > 0.1 and loud.failure is None
 
 
+def test_a_range_model_must_rest_where_the_truth_rests_and_a_grid_that_all_rests_passes_by_that():
+    """Where the bow damps the mass the truth rests, and a model that hums there plays a wrong note: such a grid bow
+    fails the validation ('silent_sounding'). A box where every grid bow rests (the heavy bow stops at the space's
+    edge) has no pitch or NMSE to score: it passes if the model rests at each. The selection scores a resting truth
+    by the render's RMS in units of the silence threshold."""
+    from dataclasses import replace
+
+    from bowsynth.analysis.metrics import SILENT
+    from bowsynth.engines.operator.modelfile import validation_failure
+    from bowsynth.training.selection import listener_score
+
+    meta = load_model(SHIPPED_DIR / "soft-range.safetensors").meta
+    v = meta.validation
+    assert "rest" in validation_failure(replace(meta, validation={**v, "silent_sounding": 1}))
+    assert validation_failure(replace(meta, validation={**v, "silent_sounding": 0})) is None
+    resting = [{"beta": 2.0, "vb": x, "speaks": False, "truth_sounds": False, "op_sounds": False} for x in (0, 0.04)]
+    silent_box = {"points": resting, "grid": 2, "seconds": 1.0, "ref_oversample": 100, "silent_sounding": 0}
+    assert validation_failure(replace(meta, validation=silent_box)) is None
+    assert "rest" in validation_failure(replace(meta, validation={**silent_box, "silent_sounding": 2}))
+    assert validation_failure(replace(meta, validation={k: x for k, x in silent_box.items()
+                                                        if k != "silent_sounding"})) == "no validation score"
+    t = np.arange(44100) / 44100
+    rest, hum = np.zeros_like(t), 1e-3 * np.sin(2 * np.pi * 55 * t)
+    assert listener_score(rest, rest, 44100) == 0.0
+    assert listener_score(hum, rest, 44100) == pytest.approx(1e-3 / np.sqrt(2) / SILENT, rel=1e-3)
+
+
 def test_a_stick_slip_tile_is_told_from_a_mislabelled_file_over_a_longer_span():
     from bowsynth.engines.operator.check import NEIGHBOURS, PHYSICS_MAX_ERROR, claim_fits_best, physics_error
 

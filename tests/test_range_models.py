@@ -415,3 +415,17 @@ def test_validation_plays_the_windows_a_render_plays():
     auto, free = validate(m, sc), validate(m, sc, windows="free")
     assert auto["windows"].endswith("a period") and abs(auto["heard_cents"]) < 0.1
     assert free["windows"] == "free" and abs(free["heard_cents"]) > 0.15
+
+
+def test_validation_tells_a_model_that_rests_where_the_truth_rests_from_one_that_hums():
+    # held bows below vb_stop from rest, where the truth rests: stick-halt rests at F_B / w 1.5, v_B 0.03 and hums
+    # at 1.7, 0.065 (p RMS ~1e-3 over the last half, measured in session 33: its state settles 0.024 off the rest
+    # point); a grid bow like the second fails a validation (modelfile.validation_failure: 'silent_sounding')
+    from bowsynth.engines.operator.choose import as_model
+    from bowsynth.training.selection import validate
+
+    m = as_model("stick-halt")
+    rests, hums = (validate(m, Scene(f0=100.0, fb=b * 2 * math.pi * 100.0, vb=v)) for b, v in ((1.5, 0.03),
+                                                                                                (1.7, 0.065)))
+    assert rests["truth_sounds"] is False and rests["op_sounds"] is False
+    assert hums["truth_sounds"] is False and hums["op_sounds"] is True
