@@ -552,7 +552,8 @@ def test_a_range_model_must_rest_where_the_truth_rests_and_a_grid_that_all_rests
     assert "rest" in validation_failure(replace(meta, validation={**v, "silent_sounding": 1}))
     assert validation_failure(replace(meta, validation={**v, "silent_sounding": 0})) is None
     resting = [{"beta": 2.0, "vb": x, "speaks": False, "truth_sounds": False, "op_sounds": False} for x in (0, 0.04)]
-    silent_box = {"points": resting, "grid": 2, "seconds": 1.0, "ref_oversample": 100, "silent_sounding": 0}
+    silent_box = {"points": resting, "grid": 2, "seconds": 1.0, "ref_oversample": 100, "speaking": 0,
+                  "resting": 2, "silent_sounding": 0}
     assert validation_failure(replace(meta, validation=silent_box)) is None
     assert "rest" in validation_failure(replace(meta, validation={**silent_box, "silent_sounding": 2}))
     assert validation_failure(replace(meta, validation={k: x for k, x in silent_box.items()

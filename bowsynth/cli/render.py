@@ -102,6 +102,6 @@ def render(
         for note in r.info.notes:
             say.print(note, soft_wrap=True)
         rv = r.info.range_validation
-        if rv and rv.get("nmse") is not None:
+        if rv and (rv.get("nmse") is not None or rv.get("speaking") == 0):
             say.print(f"note: a range model; its {range_validation_text(rv, 'its')}; `bowsynth compare "
                       f"{output if str(output) != '-' else 'FILE'}` measures this render", soft_wrap=True)

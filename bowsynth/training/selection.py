@@ -128,7 +128,8 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
                    ref_oversample: int = TRUTH_OVERSAMPLE) -> dict:
     """validate() at the n x n grid of the box (from rest, the scene's pitch) where the note speaks: the median
     NMSE(p) is the model's score ('nmse'), the worst beside it; the silent corners must stay finite, and
-    'silent_sounding' counts the grid bows where the truth rests and the model does not (metrics.note_sounds)."""
+    'resting' counts the grid bows where the truth rests, 'silent_sounding' those of them where the model does not
+    (metrics.note_sounds), 'speaking' those where the note speaks."""
     from .ranges import distinct, speaks
 
     pts = distinct(box.grid(n))  # a side of zero width (a score's held v_B, a refined point) repeats points
@@ -142,6 +143,7 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
     errs = [r for r in rows if r.get("error")]
     vals = [r["nmse"] for r in spk if isinstance(r.get("nmse"), float)]
     out = {"points": rows, "seconds": seconds, "ref_oversample": ref_oversample, "grid": n,
+           "speaking": len(spk), "resting": sum(1 for r in rows if r.get("truth_sounds") is False),
            "silent_sounding": sum(1 for r in rows if r.get("truth_sounds") is False and r.get("op_sounds"))}
     if errs:
         out["error"] = f"{len(errs)} of {len(rows)} grid points failed: {errs[0]['error']}"

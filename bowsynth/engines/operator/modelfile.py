@@ -106,7 +106,7 @@ def validation_failure(meta: ModelMeta) -> str | None:
         if cents > MAX_VALIDATION_CENTS:
             return f"validation pitch {cents:.3g} cents (worst) > {MAX_VALIDATION_CENTS:g}"
         return None
-    if v.get("points") and v.get("silent_sounding") == 0 and not any(p.get("speaks") for p in v["points"]):
+    if v.get("speaking") == 0 and v.get("silent_sounding") == 0:
         return None  # a box where every grid bow damps the mass (the heavy bow stops' corner): it rests at each
     n = v.get("nmse")
     if not _finite(n):
