@@ -87,6 +87,8 @@ GESTURES = {  # name: (f0, F_B / w curve, v_B curve, seconds), curves as (t, val
     # session 28: the heavy forces' releases, the paper's stick-slip scene (F_B 1000 at f0 100) and near the space's edge
     "heavy bow stop (F_B 1000)": (100.0, 1000 / (2 * math.pi * 100), [(1.0, 0.2), (1.1, 0.0)], 1.6),
     "heaviest bow stop": (150.0, 1.9, [(1.0, 0.15), (1.05, 0.0)], 1.6),
+    # session 34: at the space's edge, where the stop crosses three tiles (stick-heavy, floor-long, halt-edge)
+    "bow stop at the edge (F_B / w 2)": (440.0, 2.0, [(1.0, 0.12), (1.05, 0.0)], 1.6),
 }
 def gesture(name: str, model=None) -> dict:
     f0, beta, vb, seconds = GESTURES[name]

@@ -112,7 +112,7 @@ def test_a_stretch_that_fails_says_where_and_fallback_fdm_finishes_the_note(monk
     sc = crescendo(seconds=1.2)
     plan = chain_plan(sc, available_models())
 
-    def refuse(seg, m):  # a model that leaves its states in its stretch: the engine's error, in the stretch's times
+    def refuse(seg, m, lock=None):  # a model that leaves its states in its stretch: the engine's error, in its times
         raise DomainError("the rollout left the model's trained states at t = 0.0100 s")
     with pytest.raises(DomainError, match=rf"{plan[0][1].path.stem}, in its stretch from t = 0.000 s: the rollout"):
         chain.render_chain(sc, plan, refuse)
@@ -182,3 +182,23 @@ def test_the_papers_stick_slip_note_stops_on_the_operator():
         got, ref = np.std(r.p[a:a + n]), np.std(truth.p[a:a + n])
         assert abs(20 * np.log10(got / ref)) < 1.0, (a / 44100, got, ref)
     assert np.abs(r.p[-441:]).max() < 1e-3 * np.abs(truth.p).max()
+
+
+def test_a_held_note_that_stops_at_the_space_edge_plays_through_the_tiles_and_locks_its_held_stretch():
+    """F_B / w 2.0 held at v_B 0.12, stopped over 50 ms, at 440 Hz: no one model covers it (the stop ends in
+    halt-edge, below stick-heavy's and floor-long's v_B), so it chains; refused before halt-edge. The held bow's model
+    locks its stretch to the physics' period (free, it played 5.0 cents off per 100 ms frame, measured) and the note
+    rests after the stop, as the truth does."""
+    from bowsynth.api import render
+
+    f0 = 440.0
+    sc = Scene(f0=f0, fb=2.0 * 2 * math.pi * f0, vb=[(1.0, 0.12), (1.05, 0.0)], duration=1.6)
+    r = render(sc, windows="auto")
+    assert r.info.chain and r.info.chain[0][1] == "stick-heavy" and r.info.chain[-1][1] == "halt-edge"
+    truth = render_fdm(sc, oversample=20)
+    fe = frame_errors(r.p, truth.p, sc.sample_rate)
+    assert fe["cents_median"] < 0.2 and fe["harm_db_median"] < 0.2, fe
+    free = frame_errors(render(sc, windows="free").p, truth.p, sc.sample_rate)
+    assert free["cents_median"] > 1.0, free
+    tail = r.p[int(1.3 * sc.sample_rate):]
+    assert np.ptp(tail) < 1e-3 * np.ptp(r.p)  # at rest (a creep of the mass to the bow's rest point, no sound)

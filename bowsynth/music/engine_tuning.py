@@ -103,6 +103,8 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
     if held is None or scene.pitch_varies:
         return None
     m, _ = _playing_model(scene, model, models)
+    if m is None and model is None:  # no one model covers it (a stop at the space's edge: a chain of models); the
+        m, _ = _playing_model(held, None, models)  # held bow's model locks its own stretches (chain.render_chain)
     if m is None:
         return None
     r = held_lock(m, windows, held.beta, held.vb, held.a, held.f0)

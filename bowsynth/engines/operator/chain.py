@@ -95,12 +95,21 @@ def _name(m: OperatorModel) -> str:
     return m.path.stem if m.path else m.meta.name
 
 
-def render_chain(scene: Scene, plan: list[tuple[int, OperatorModel]], play, voice: str = "") -> Render:
+def render_chain(scene: Scene, plan: list[tuple[int, OperatorModel]], play, voice: str = "",
+                 sounding=None) -> Render:
     """Render a scene with the models of chain_plan, each on its samples; each next one starts from the last sample
-    of the one before (which it plays again as its first). play(scene, model) -> Render renders a stretch with one
-    model (the engine's render, with its fallback). A model that cannot take the state it is handed (outside its
-    trained states) stops the render (DomainError) as a voice that leaves its model does."""
+    of the one before (which it plays again as its first). play(scene, model, sounding) -> Render renders a stretch
+    with one model (the engine's render, with its fallback). A model that cannot take the state it is handed (outside
+    its trained states) stops the render (DomainError) as a voice that leaves its model does. sounding: a held
+    note's lock (music.engine_tuning.operator_sounding: its held bow's model's), which the stretches of that model
+    play; the others roll free.
+
+    Why: a held note that stops at the space's edge (F_B / w 2.0, v_B 0.12 stopped at 440 Hz) holds its bow with
+    stick-heavy and stops through floor-long into halt-edge; with the held stretch in free windows it played 5.0 cents
+    off (median per 100 ms frame), with it locked to the physics' period 0.019 (session 34)."""
     n, sr = scene.n_samples, scene.sample_rate
+    held = scene.held_bow() if sounding is not None else None
+    held_model = covering_model(held) if held is not None else None
     q, p = np.empty(n, np.float32), np.empty(n, np.float32)
     ends = [s for s, _ in plan[1:]] + [n]
     q0, p0 = scene.q0, scene.p0
@@ -117,7 +126,7 @@ def render_chain(scene: Scene, plan: list[tuple[int, OperatorModel]], play, voic
         # what the engine says of a stretch, it says with the stretch's own times: name the stretch
         where = f"{_name(m)}, in its stretch from t = {t0:.3f} s: "
         try:
-            r = play(seg, m)
+            r = play(seg, m, sounding if m is held_model else None)
         except DomainError as err:
             raise DomainError(f"{voice}{where}{err}") from None
         q[a:e], p[a:e] = r.q[:e - a], r.p[:e - a]

@@ -254,10 +254,10 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             from .chain import chain_plan, render_chain  # a bow crossing from one box into another
             plan = chain_plan(sc, models)  # None where one model covers it (or none can)
             if plan is not None:
-                def play(seg, m):
-                    return render_operator_batch([seg], model=m, fallback=fallback, _single=True)[0]
+                def play(seg, m, lock=None):
+                    return render_operator_batch([seg], model=m, fallback=fallback, _single=True, sounding=[lock])[0]
                 try:
-                    out[i] = render_chain(sc, plan, play, voice="" if _single else f"voice {labels[i]}: ")
+                    out[i] = render_chain(sc, plan, play, "" if _single else f"voice {labels[i]}: ", sounding[i])
                     continue
                 except DomainError:  # a model that cannot take the state it is handed: with --fallback fdm, the FDM
                     if fallback != "fdm":  # ends the note
@@ -380,7 +380,8 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
             if m.domain.is_range:  # a range model is not equally good everywhere in its box: say how good
                 v = m.meta.validation or {}
                 info.range_validation = {k: v.get(k) for k in ("nmse", "nmse_max", "grid", "harm_db_median",
-                                                               "cents_abs_max", "seconds", "ref_oversample")}
+                                                               "cents_abs_max", "seconds", "ref_oversample",
+                                                               "speaking", "resting", "silent_sounding")}
             if i in pre:
                 info.rest_flow = pre[i][0] / sc.sample_rate
             if landed.get(i) is not None:  # a silent note, said: the physics rests there
