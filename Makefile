@@ -47,7 +47,8 @@ test: $(STAMP) chromium jackd
 # floor-long: stick-slip tiles on quarter-period windows; soft-top and soft-high: the soft bow's top forces; soft-fast
 # its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long, fast-long and
 # corner-long learnt from renders of 6, 6 and 16 s: their notes take seconds to settle); stick-halt the heavy bow
-# stops (stick-halt-high those above F_B / w 1.72) and stick-gap the fast bows between stick-fast and stick-high,
+# stops (stick-halt-high those above F_B / w 1.72, halt-edge the damped bows at the space's edge, F_B / w 1.9-2.02 x
+# v_B 0-0.08) and stick-gap the fast bows between stick-fast and stick-high,
 # refined in stages (bowsynth/models/stages:
 # models a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner
 # (BENCHMARKS.md).

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bowsynth import Scene, render_fdm
-from bowsynth.analysis.metrics import cents, f0_estimate, nmse
+from bowsynth.analysis.metrics import cents, f0_estimate, nmse, note_sounds
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
@@ -37,6 +37,9 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
     sc = Scene(**{**m.meta.scene, "duration": 30.0})
     r = render_operator(sc, model=m)  # raises if the rollout leaves the domain or turns non-finite
     ref = render_fdm(sc.replace(duration=settled_seconds(sc, after=5.0)), oversample=8)
+    if not note_sounds(ref.p):  # a model of bows that damp the mass (halt-edge): the truth rests, and so must it
+        assert not note_sounds(r.p[-5 * sc.sample_rate:])
+        return
     # pitch of the last seconds of the 30 s operator render against the FDM's steady state
     f_op = f0_estimate(r.q[-5 * sc.sample_rate:], sc.sample_rate, tail=1.0)
     f_ref = f0_estimate(ref.q, sc.sample_rate)
@@ -131,7 +134,12 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                "paper-fb1000-knee": (12, 5e-3, 0.8),
                # session 33: the heavy bow stops above stick-halt's forces (F_B / w 1.72-1.98 x v_B 0-0.25): 25 / 28 /
                # 25 of 64 leave (seeds 1-3), the rest within 0.79 % and 2.37 cents at its centre bow in free windows
-               "stick-halt-high": (34, 2e-2, 3.5)}
+               "stick-halt-high": (34, 2e-2, 3.5),
+               # session 34: the heaviest bows below vb_stop at the space's edge (F_B / w 1.9-2.02 x v_B 0-0.08), whose
+               # centre bow (1.96, 0.04) damps the mass: 32 / 25 / 31 of 64 leave (seeds 1-3; after 110-441 windows,
+               # near rest, where a render from rest has rung down by the flow at rest long before), the rest come
+               # to rest (p's RMS over the last 0.5 s 8.2e-5 at most)
+               "halt-edge": (36, 0.0, 0.0)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
@@ -151,6 +159,9 @@ def test_random_states_in_domain_converge_to_the_limit_cycle(path):
     # the FDM's limit cycle: its last 0.5 s once the note has spoken (a light fast bow takes seconds)
     ref = render_fdm(sc.replace(duration=settled_seconds(sc)), oversample=8)
     tail = slice(-sc.sample_rate // 2, None)
+    if not note_sounds(ref.p):  # the truth rests (a bow that damps the mass): every voice that stays must rest too
+        assert not any(note_sounds(v[tail]) for v in p[ok])
+        return
     amp = np.abs(p[ok][:, tail]).max(1) / np.abs(ref.p[tail]).max() - 1
     assert np.abs(amp).max() < amp_tol
     f_ref = f0_estimate(ref.q[tail], sc.sample_rate, tail=1.0)
