@@ -63,8 +63,9 @@ def main() -> None:
             for k in order:
                 tree, args = procs[k]
                 t0 = time.perf_counter()
-                r = subprocess.run([sys.executable, "-c", RUNNER, str(tree), *args], cwd=d, env=env,
-                                   capture_output=True, text=True)
+                cache = str(Path(d) / ("cache" + str(tree).replace("/", "_")))  # each tree its own (process_trees.py)
+                r = subprocess.run([sys.executable, "-c", RUNNER, str(tree), *args], cwd=d,
+                                   env={**env, "BOWSYNTH_CACHE": cache}, capture_output=True, text=True)
                 if r.returncode != 0:
                     raise SystemExit(f"{k} failed: {r.stderr.strip()}")
                 if i:
