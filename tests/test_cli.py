@@ -266,6 +266,18 @@ def test_models_names_a_shipped_unit_that_is_missing_or_stale_and_lists_the_rest
     assert sum("fb100_f0100_vb0.2_a100@" in ln for ln in lines) == 1  # the current unit is listed as usual
 
 
+def test_a_model_of_damped_bows_says_it_rests_where_render_and_models_state_its_validation(tmp_path, capsys,
+                                                                                           monkeypatch):
+    # halt-edge's grid bows all damp the mass: no pitch or NMSE to state ("n/a" before), but whether it rests
+    code, out, err = run_main(["models"], capsys, monkeypatch)
+    line = next(ln for ln in out.splitlines() if "halt-edge" not in ln and "F_B/w 1.9..2.02" in ln)
+    assert code == 0 and "the model rests at 9 of 9" in line and "n/a" not in line, line
+    fb = 2.0 * 2 * math.pi * 110
+    code, out, err = run_main(["render", "--f0", "110", "--fb", f"{fb:.1f}", "--vb", "0.04", "-d", "0.5",
+                               str(tmp_path / "rest.wav")], capsys, monkeypatch)
+    assert code == 0 and "halt-edge" in out and "the model rests at 9 of 9" in out and "n/a" not in out, out + err
+
+
 def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monkeypatch):
     bad = tmp_path / "bad.toml"
     for text, what in [("fb = 100\nminute = 5\n", "unknown key 'minute'"), ("minutes = \"ten\"\n", "minutes must be"),

@@ -100,13 +100,21 @@ def fmt_num(v, fmt: str) -> str:
     return num(v, fmt)
 
 
+def resting_grid_text(v: dict) -> str | None:
+    """What a validation record whose grid bows all damp the mass says (a model of the heavy bows' stops, halt-edge),
+    or None for any other: it has no pitch or NMSE, only whether the model rests where the truth does."""
+    if v.get("speaking") == 0 and v.get("resting") is not None and v.get("silent_sounding") is not None:
+        return (f"the bow damps the mass at every grid bow, where the truth rests; the model rests at "
+                f"{v['resting'] - v['silent_sounding']} of {v['resting']}")
+    return None
+
+
 def range_validation_text(v: dict, whose: str = "the") -> str:
     """A range model's validation record (training.validate_range) as train and render state it."""
     g = v.get("grid")
-    if v.get("speaking") == 0 and v.get("resting") is not None and v.get("silent_sounding") is not None:
+    if resting_grid_text(v):
         return (f"validation ({v.get('seconds') or 1:g} s from rest on a {g} x {g} grid of {whose} box vs FDM "
-                f"x{v.get('ref_oversample') or 100}): the bow damps the mass at every grid bow, where the truth "
-                f"rests; the model rests at {v['resting'] - v['silent_sounding']} of {v['resting']}")
+                f"x{v.get('ref_oversample') or 100}): {resting_grid_text(v)}")
     return (f"validation ({v.get('seconds') or 1:g} s from rest on a {g} x {g} grid of {whose} box vs FDM "
             f"x{v.get('ref_oversample') or 100}, where the note speaks): harmonics "
             f"{fmt_num(v.get('harm_db_median'), '.2g')} dB median, pitch {fmt_num(v.get('cents_abs_max'), '.2g')} cents "

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .app import app, err, fmt_num, out
+from .app import app, err, fmt_num, out, resting_grid_text
 
 
 @app.command()
@@ -77,11 +77,13 @@ def models(
             from .. import physics  # numpy: not for every command's start (`--help` took 0.13 s longer)
 
             w = physics.omega(sc["f0"])
+            heard = resting_grid_text(v) or (
+                f"harmonics {fmt_num(v.get('harm_db_median'), '.2g')} dB median, pitch "
+                f"{fmt_num(v.get('cents_abs_max'), '.2g')} cents worst, median NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, "
+                f"worst {fmt_num(v.get('nmse_max'), '.3g')}")
             what = (f"range model: F_B/w {b0:.4g}..{b1:.4g} (F_B {b0 * w:.4g}..{b1 * w:.4g} at f0 {sc['f0']:g}), "
                     f"vb {v0:g}..{v1:g}, a={d.a:g}, any pitch, follows gestures; window {d.window:.3g} tau; validation "
-                    f"harmonics {fmt_num(v.get('harm_db_median'), '.2g')} dB median, pitch "
-                    f"{fmt_num(v.get('cents_abs_max'), '.2g')} cents worst, median NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, "
-                    f"worst {fmt_num(v.get('nmse_max'), '.3g')}")
+                    f"{heard}")
         else:
             what = (f"trained for fb={sc['fb']:g} f0={sc['f0']:g} vb={d.vb:g} a={d.a:g} (F_B/w={d.beta:.4g}), window "
                     f"{d.window:.3g} tau; validation NMSE(p) {fmt_num(v.get('nmse'), '.3g')}")
