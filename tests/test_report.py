@@ -240,6 +240,19 @@ def test_models_report(browser, tmp_path, capsys, monkeypatch):
     assert "pitch error" in info["plots"][0]["caption"]
 
 
+def test_a_validation_grid_says_whether_the_model_rests_where_the_truth_rests():
+    # validate_range's records since session 34 say, per grid bow, whether the truth and the model sound
+    from bowsynth.report.models_page import _validation_table
+
+    pts = [{"beta": 2.0, "vb": 0.04, "speaks": False, "truth_sounds": False, "op_sounds": False},
+           {"beta": 1.7, "vb": 0.065, "speaks": False, "truth_sounds": False, "op_sounds": True},
+           {"beta": 1.7, "vb": 0.2, "speaks": True, "truth_sounds": True, "op_sounds": True, "nmse": 0.01},
+           {"beta": 0.3, "vb": 0.0, "speaks": False}]  # an older record: the column as before
+    html = _validation_table({"grid": 2, "seconds": 1.0, "ref_oversample": 100, "points": pts})
+    assert html.count("no; the model rests") == 1 and html.count("no; the model sounds") == 1
+    assert html.count(">yes<") == 1 and html.count(">no<") == 1, html
+
+
 # ------------------------------------------------------------------------------------------- output rules, bad input
 
 def test_report_path_rules_before_any_work(tmp_path, capsys, monkeypatch):

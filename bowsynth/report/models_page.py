@@ -116,9 +116,12 @@ def _validation_table(v: dict) -> str:
     cols = [("nmse", "NMSE(p)", ".3g"), ("ncc_percent", "NCC (%)", ".4f"), ("cents", "pitch (cents)", "+.3f"),
             ("harmonic_error_db", "harmonic error (dB)", ".3f"), ("lsd_db", "log-spectral distance (dB)", ".3f")]
     if "points" in v:
-        rows = [[f"{p.get('beta', float('nan')):.4g}", f"{p.get('vb', float('nan')):.4g}",
-                 "yes" if p.get("speaks") else "no", *[H.num(p.get(k), f) for k, _, f in cols]]
-                for p in v["points"]]
+        def speaks(p) -> str:  # where the truth rests (session 34's records say), whether the model does too
+            if p.get("speaks") or p.get("truth_sounds") is not False or "op_sounds" not in p:
+                return "yes" if p.get("speaks") else "no"
+            return "no; the model " + ("sounds" if p["op_sounds"] else "rests")
+        rows = [[f"{p.get('beta', float('nan')):.4g}", f"{p.get('vb', float('nan')):.4g}", speaks(p),
+                 *[H.num(p.get(k), f) for k, _, f in cols]] for p in v["points"]]
         t = H.table(["F_B / w", "v_B", "speaks", *[c for _, c, _ in cols]], rows, set(range(3, 8)))
         return (f'<p class="why">{v.get("grid")} x {v.get("grid")} grid of the box (cell centres), '
                 f'{v.get("seconds")} s from rest at the model\'s f0 vs FDM x{v.get("ref_oversample")}: median NMSE(p) '
