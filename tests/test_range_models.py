@@ -429,3 +429,22 @@ def test_validation_tells_a_model_that_rests_where_the_truth_rests_from_one_that
                                                                                                 (1.7, 0.065)))
     assert rests["truth_sounds"] is False and rests["op_sounds"] is False
     assert hums["truth_sounds"] is False and hums["op_sounds"] is True
+
+
+def test_a_held_bow_that_damps_the_mass_is_played_by_a_model_validated_to_rest():
+    # F_B / w 1.45, v_B 0.07 (just below vb_stop = 0.0707), 110 Hz, 2 s from rest: the truth rests. It lies deep in
+    # stick-halt's box, which plays it as a note (p RMS 0.22, measured in session 34), and at the top edge of
+    # halt-floor's, validated to rest at every grid bow: that one plays it (choose.rests_throughout), and rests
+    from bowsynth.analysis.metrics import note_sounds
+    from bowsynth.engines.fdm import render_fdm
+    from bowsynth.engines.operator.choose import as_model, find_model, rests_throughout
+
+    f0 = 110.0
+    sc = Scene(f0=f0, fb=1.45 * 2 * math.pi * f0, vb=0.07, duration=2.0)
+    assert not note_sounds(render_fdm(sc, oversample=20).p)
+    m = find_model(sc)
+    assert m.path.stem == "halt-floor" and rests_throughout(m) and not rests_throughout(as_model("stick-halt"))
+    assert not note_sounds(render_operator(sc).p)
+    assert note_sounds(render_operator(sc, model="stick-halt").p)
+    # above vb_stop the rule does not apply: a sounding bow there is the deepest box's, as before
+    assert find_model(sc.replace(vb=0.09)).path.stem != "halt-floor"

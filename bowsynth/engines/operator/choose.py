@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ... import physics
 from ...controls import Curve
 from ...errors import DomainError, ModelFileError
 from ...scene import Scene
@@ -164,11 +165,23 @@ def covering_model(scene: Scene, models: list[OperatorModel] | None = None) -> O
         return _PICKS[key]
     good = [m for m, fine in zip(pool, ok) if fine and m.covers(scene)]
     b, v = scene.beta_range, scene.vb_range
+    if v[1] < physics.vb_stop(scene.a):  # every bow damps the mass: the truth rests, and so did the resting boxes' models
+        good = [m for m in good if rests_throughout(m)] or good
     pick = min(good, key=lambda m: preference(m, m.domain.edge_depth(b, v))) if good else None
     if len(_PICKS) >= MAX_PICKS:
         _PICKS.clear()
     _PICKS[key] = pick
     return pick
+
+
+def rests_throughout(m: OperatorModel) -> bool:
+    """Whether a model was validated to rest at every grid bow of its box (training.selection.validate_range: the bow
+    damps the mass at each, and it rests there). Where a scene's bows all damp the mass, such a model plays before
+    any other that covers them, however deep: session 34 found stick-halt playing held heavy bows just below vb_stop
+    as notes (p RMS 0.22 at F_B / w 1.3-1.65, v_B 0.068-0.07) where the truth rests, bows that lie at the top edge of
+    halt-floor's box and deep in stick-halt's."""
+    v = m.meta.validation or {}
+    return v.get("speaking") == 0 and v.get("silent_sounding") == 0 and bool(v.get("resting"))
 
 
 def preference(m: OperatorModel, depth: float) -> tuple:
