@@ -285,11 +285,15 @@ def listener_errors(x, ref, sample_rate: float, steady_seconds: float = 1.0) -> 
 SILENT = 1e-4  # a note whose p over its last half has RMS below this (m/s; notes play at 0.05-0.6) is silence
 
 
-def note_sounds(p) -> bool:
-    """Whether a note sounds: its p over its last half has RMS above SILENT (bench map's rule, and validation's where
-    the truth rests)."""
+def late_rms(p) -> float:
+    """p's RMS about its mean over its last half: how loud a note still is once its onset has passed."""
     p = np.asarray(p, float)
-    return bool(np.std(p[len(p) - len(p) // 2:]) > SILENT)
+    return float(np.std(p[len(p) - len(p) // 2:]))
+
+
+def note_sounds(p) -> bool:
+    """Whether a note sounds: late_rms above SILENT (bench map's rule, and validation's where the truth rests)."""
+    return late_rms(p) > SILENT
 
 
 FRAME_SECONDS = 0.1  # a gesture is scored per 100 ms frame (issue 21)

@@ -112,9 +112,10 @@ def resting_grid_text(v: dict) -> str | None:
 def range_validation_text(v: dict, whose: str = "the") -> str:
     """A range model's validation record (training.validate_range) as train and render state it."""
     g = v.get("grid")
-    if resting_grid_text(v):
+    rests = resting_grid_text(v)
+    if rests:
         return (f"validation ({v.get('seconds') or 1:g} s from rest on a {g} x {g} grid of {whose} box vs FDM "
-                f"x{v.get('ref_oversample') or 100}): {resting_grid_text(v)}")
+                f"x{v.get('ref_oversample') or 100}): {rests}")
     return (f"validation ({v.get('seconds') or 1:g} s from rest on a {g} x {g} grid of {whose} box vs FDM "
             f"x{v.get('ref_oversample') or 100}, where the note speaks): harmonics "
             f"{fmt_num(v.get('harm_db_median'), '.2g')} dB median, pitch {fmt_num(v.get('cents_abs_max'), '.2g')} cents "

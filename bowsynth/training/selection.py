@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 
-from ..analysis.metrics import SILENT, compare_signals, listener_errors, nmse, note_sounds
+from ..analysis.metrics import SILENT, compare_signals, late_rms, listener_errors, nmse, note_sounds
 from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import BowsynthError, DomainError
 from ..scene import Scene
@@ -79,8 +79,7 @@ def listener_score(x, ref, sample_rate: float) -> float:
     truth rests (a bow that damps the mass), what a listener hears is whether the render rests too: its RMS over its
     last half in units of SILENT."""
     if not note_sounds(ref):
-        x = np.asarray(x, float)
-        return float(np.std(x[len(x) - len(x) // 2:]) / SILENT)
+        return late_rms(x) / SILENT
     e = listener_errors(x, ref, sample_rate)
     s = (e["harm_db_median"] / TARGET_HARM_MEDIAN_DB + e["harm_db_max"] / TARGET_HARM_MAX_DB
          + abs(e["cents"]) / TARGET_CENTS)

@@ -15,7 +15,7 @@ from ...errors import DomainError, ModelFileError
 from ...scene import Scene
 from .basis import _operator
 from .domain import span_text
-from .modelfile import OperatorModel, load_model
+from .modelfile import OperatorModel, grid_rests, load_model
 from .rollout import scene_bows
 from .windows import window_bounds
 
@@ -165,7 +165,7 @@ def covering_model(scene: Scene, models: list[OperatorModel] | None = None) -> O
         return _PICKS[key]
     good = [m for m, fine in zip(pool, ok) if fine and m.covers(scene)]
     b, v = scene.beta_range, scene.vb_range
-    if v[1] < physics.vb_stop(scene.a):  # every bow damps the mass: the truth rests, and so did the resting boxes' models
+    if v[1] < physics.vb_stop(scene.a):  # every bow damps the mass: the truth rests, as the resting boxes' models did
         good = [m for m in good if rests_throughout(m)] or good
     pick = min(good, key=lambda m: preference(m, m.domain.edge_depth(b, v))) if good else None
     if len(_PICKS) >= MAX_PICKS:
@@ -180,8 +180,7 @@ def rests_throughout(m: OperatorModel) -> bool:
     any other that covers them, however deep: session 34 found stick-halt playing held heavy bows just below vb_stop
     as notes (p RMS 0.22 at F_B / w 1.3-1.65, v_B 0.068-0.07) where the truth rests, bows that lie at the top edge of
     halt-floor's box and deep in stick-halt's."""
-    v = m.meta.validation or {}
-    return v.get("speaking") == 0 and v.get("silent_sounding") == 0 and bool(v.get("resting"))
+    return grid_rests(m.meta.validation or {})
 
 
 def preference(m: OperatorModel, depth: float) -> tuple:

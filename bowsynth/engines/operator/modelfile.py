@@ -89,6 +89,12 @@ def _finite(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
+def grid_rests(v: dict) -> bool:
+    """Whether a range model's validation record (training.selection.validate_range) is that of a box where the bow
+    damps the mass at every grid bow and the model rests at each: no pitch or NMSE to judge, only that."""
+    return v.get("speaking") == 0 and v.get("silent_sounding") == 0 and bool(v.get("resting"))
+
+
 def validation_failure(meta: ModelMeta) -> str | None:
     """Why a model's validation rollout disqualifies it from being picked by default (None when it passed): it
     failed; a range model sounds at a grid bow where the truth rests; one with listener errors on record (its grid's
@@ -106,7 +112,7 @@ def validation_failure(meta: ModelMeta) -> str | None:
         if cents > MAX_VALIDATION_CENTS:
             return f"validation pitch {cents:.3g} cents (worst) > {MAX_VALIDATION_CENTS:g}"
         return None
-    if v.get("speaking") == 0 and v.get("silent_sounding") == 0:
+    if grid_rests(v):
         return None  # a box where every grid bow damps the mass (the heavy bow stops' corner): it rests at each
     n = v.get("nmse")
     if not _finite(n):
