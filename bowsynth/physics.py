@@ -66,6 +66,11 @@ def dphi(eta, a: float):
     return math.sqrt(2.0 * a) * _exp(-a * eta * eta + 0.5) * (1.0 - 2.0 * a * eta * eta)
 
 
+# A note whose p over its last half has RMS below this (m/s; notes play at 0.05-0.6) is silence: bench map's rule,
+# validation's where the truth rests (analysis.metrics.note_sounds) and the ring-down's (engines/operator/onset.py)
+SILENT = 1e-4
+
+
 def vb_stop(a: float) -> float:
     """The bow speed below which friction damps the mass instead of driving it (phi' > 0 at -v_B): 1 / sqrt(2a)."""
     return 1.0 / math.sqrt(2.0 * a)

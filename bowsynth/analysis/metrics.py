@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from .. import physics
+
 
 def nmse(x, ref) -> float:
     """mean((x - ref)^2) / var(ref), the paper's definition."""
@@ -282,7 +284,7 @@ def listener_errors(x, ref, sample_rate: float, steady_seconds: float = 1.0) -> 
     }
 
 
-SILENT = 1e-4  # a note whose p over its last half has RMS below this (m/s; notes play at 0.05-0.6) is silence
+SILENT = physics.SILENT
 
 
 def late_rms(p) -> float:
