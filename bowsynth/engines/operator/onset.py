@@ -141,6 +141,38 @@ def mute_from(sc: Scene, p) -> int | None:
 # ring_down: the share of the width where the friction's slope stays positive over a swing (|p| < vb_stop - v_B)
 # within which a bow held from the note's start, whose state never enters the linearised radius, plays the decay
 DAMP_SHARE = 0.5
+# Just below vb_stop that width vanishes (1e-4 at v_B 0.0706), yet the truth comes to rest from much further: from
+# states vb_stop / 2 and vb_stop off its rest point, 8 phases each, at every one of 36 bows (F_B / w 0.05-2 x v_B
+# 0-0.0707, x20 FDM, session 35). There heavy bows' models crept to rest and on past it into a full note (p RMS
+# 0.11-0.27 where the truth rests), never entering the exact radius on the way. So a held bow's note whose state
+# passes within BASIN_SHARE vb_stop of its rest point, and leaves again before it enters the exact radius (or never
+# enters it), rings down from its closest approach on that pass, if the swing there is within BASIN_SWING vb_stop
+# (0.007, a creep's last swing; a note plays at 0.05-0.6) or the flow at rest takes it below silence (physics.SILENT)
+# by the note's last half. A light bow barely damped rings wider (F_B / w 0.05-0.2 at v_B 0.0703-0.0706 and 110 Hz:
+# 0.01-0.03 off, d 0.008, its truth ringing on at 1e-4 to 2e-3), which the linear flow would decay too slowly: the
+# operator plays it.
+BASIN_SHARE = 0.5
+BASIN_SWING = 0.1
+
+
+def _basin_entry(sc: Scene, d: float, dist2, dphase: float) -> tuple[int | None, int]:
+    """(k, end): the state's first pass within BASIN_SHARE vb_stop of the rest point ends at sample end (from the
+    note's start: where it leaves, or the note's end), and k is its closest approach within a period of the entry if
+    the swing there is within BASIN_SWING vb_stop or the flow at rest (decaying as exp(-d tau / 2)) takes it below
+    physics.SILENT by the note's last half, else None. (None, 0) where the state never comes within."""
+    basin = BASIN_SHARE * physics.vb_stop(float(sc.a))
+    near = dist2 <= basin * basin
+    if not near.any():
+        return None, 0
+    k0 = int(np.argmax(near))
+    out = np.flatnonzero(~near[k0:])
+    end = k0 + (int(out[0]) if len(out) else len(near) - k0)
+    k1 = min(end, k0 + max(1, math.ceil(2 * math.pi / dphase)))  # a period on: the pass, not a later hum
+    k = k0 + int(np.argmin(dist2[k0:k1]))
+    swing = math.sqrt(float(dist2[k]))
+    left = (len(dist2) // 2 - k) * dphase  # tau from there to the note's last half, whose RMS says it sounds
+    fine = swing <= BASIN_SWING * physics.vb_stop(float(sc.a))
+    return (k if fine or swing * math.exp(-0.5 * d * max(left, 0.0)) <= physics.SILENT else None), end
 
 
 def ring_down(sc: Scene, q, p) -> int | None:
@@ -149,8 +181,9 @@ def ring_down(sc: Scene, q, p) -> int | None:
     place in q and p. Inside the radius the swing can only shrink (d/dtau ((q - q_s)^2 + p^2) = -2 d p^2), so the
     note comes to rest as the physics does, where the operator left alone settled on a faint hum: bench map's held
     bows, p RMS 1e-4 to 3e-3 at 20 of its 36 silent cells; a bow stop to v_B 0, 6e-5 to 3e-4 after it where the truth
-    decays to 1e-15 and below. Returns that sample, or None: the bow at the end drives the mass, or the state never
-    came in."""
+    decays to 1e-15 and below. A bow held from the note's start may ring down from further out (_basin_entry: the
+    truth rests from anywhere within vb_stop of its rest point). Returns that sample, or None: the bow at the end
+    drives the mass, or the state never came in."""
     # the last breakpoint of any curve: from there pitch, force and speed hold still
     hold = max([c.points[-1][0] for c in (sc.f0, sc.fb, sc.vb) if isinstance(c, Curve)], default=0.0)
     s0, n = max(0, math.ceil(hold * sc.sample_rate)), len(q)
@@ -168,6 +201,12 @@ def ring_down(sc: Scene, q, p) -> int | None:
     with np.errstate(invalid="ignore"):
         dist2 = np.square(q[s0:] - qs) + np.square(p[s0:])
     inside = s0 + np.flatnonzero(dist2 <= r * r)
+    if hold == 0.0:
+        # the exact radius where the state reaches it on its first pass through the basin; the basin's closest
+        # approach where it leaves before (a creep that went on into a note) or never comes that near
+        k, end = _basin_entry(sc, d, dist2, w / sc.sample_rate)
+        if k is not None and not (len(inside) and inside[0] < end):
+            inside, r = np.array([k]), max(r, BASIN_SHARE * physics.vb_stop(float(sc.a)))
     if not len(inside) and hold == 0.0:
         # a bow held from the note's start: the physics rests (the truth from rest: p RMS ~1e-13 at every such bow
         # measured), and the swing shrinks wherever the friction's slope stays positive over it, |p| < vb_stop - v_B.
