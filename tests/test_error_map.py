@@ -18,6 +18,9 @@ from bowsynth.api import render
 from bowsynth.report.error_map import table
 
 SOFT = Path(bowsynth.__file__).parent / "models" / "soft-range.safetensors"
+# stick-slow as shipped in sessions 19-34 (now the stage the shipped one is refined from), whose own pitch is off: the
+# case windows locked to the physics are for
+SLOW_1 = str(Path(bowsynth.__file__).parent / "models" / "stages" / "stick-slow-1.safetensors")
 
 
 def test_grid_spans_the_playing_space_log_in_force_linear_in_speed():
@@ -42,10 +45,10 @@ def test_a_played_cell_carries_the_listener_errors_of_the_operator_against_the_t
 
 
 def test_a_cell_in_physics_windows_plays_the_physical_pitch_where_free_windows_do_not():
-    """stick-slow at F_B / w 1.324, v_B 0.149 (110 Hz): its own pitch is 2.4 cents sharp of the physics (measured);
+    """SLOW_1 at F_B / w 1.324, v_B 0.149 (110 Hz): its own pitch is 2.4 cents sharp of the physics (measured);
     the map's cell in windows locked to the physics' period, which the model holds, is within a hundredth."""
-    free = E.map_cell(110.0, 1.324, 0.149, 2.0, model="stick-slow")
-    phys = E.map_cell(110.0, 1.324, 0.149, 2.0, model="stick-slow", windows="physics")
+    free = E.map_cell(110.0, 1.324, 0.149, 2.0, model=SLOW_1)
+    phys = E.map_cell(110.0, 1.324, 0.149, 2.0, model=SLOW_1, windows="physics")
     assert free["status"] == phys["status"] == "played"
     assert abs(free["op"]["cents"]) > 0.5 and abs(phys["op"]["cents"]) < 0.01
     res = {"cells": [phys], "seconds": 2.0, "windows": "physics", "f0": [110.0], "beta": [1.324], "vb": [0.149]}

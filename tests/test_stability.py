@@ -72,7 +72,8 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
 # stick-low (session 18, the same on F_B / w 0.62-1.05 x v_B 0.09-0.26: its centre bow F_B / w 0.807, v_B 0.175; seeds
 # 1-3): 27 / 28 / 28 left, 2.62e-3, 0.84 cents; 30 s -0.42 cents.
 # stick-slow (session 19, the same on F_B / w 1.0-1.65 x v_B 0.085-0.16: its centre bow F_B / w 1.284, v_B 0.122;
-# seeds 1-3): 34 / 36 / 33 left, 4.77e-3, 1.66 / 4.50 / 4.20 cents; 30 s +0.15 cents.
+# seeds 1-3): 34 / 36 / 33 left, 4.77e-3, 1.66 / 4.50 / 4.20 cents; 30 s +0.15 cents. Refined on a GPU (session 35):
+# 31 / 35 / 32 left, 2.63e-3, 0.18 / 0.33 / 2.14 cents; 30 s +0.15 cents.
 # stick-high (session 19, the same on F_B / w 1.55-2.02 x v_B 0.075-0.285: its centre bow F_B / w 1.769, v_B 0.180;
 # seeds 1-3): 25 / 28 / 28 left, 5.35e-3, 1.47 cents; 30 s +0.10 cents.
 # stick-stops (session 19, the same on F_B / w 0.62-1.3 x v_B 0-0.25 with bow stops: its centre bow F_B / w 0.898, v_B
