@@ -50,8 +50,8 @@ test: $(STAMP) chromium jackd
 # stops (stick-halt-high those above F_B / w 1.72, halt-edge the damped bows at the space's edge, F_B / w 1.9-2.02 x
 # v_B 0-0.08, halt-floor the heavy bows held just below vb_stop) and stick-gap the fast bows between stick-fast and stick-high,
 # refined in stages (bowsynth/models/stages:
-# models a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner
-# (BENCHMARKS.md).
+# models a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner, stick-slow
+# refined on a GPU from its session-19 self (stages/stick-slow-1) (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after those that train from scratch,
 # the stages first.
 RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)
