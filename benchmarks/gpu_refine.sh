@@ -4,30 +4,25 @@
 # packages its image lacks (pytorch-optimizer, soundfile, cffi, pycparser, mido: `pip download --only-binary=:all:
 # --python-version 3.12 --platform manylinux_2_28_x86_64 --no-deps -d scratch/s35/gpu/wheels ...`) carried there:
 #     bash benchmarks/gpu_refine.sh MINUTES [cuda|cpu]      # the models and logs come back in $OUT/models.tgz
-# The core is built there by CMake for that Python. cpu (with PY=.venv/bin/python) runs the same here, for a check.
+# The core is built there by CMake for that Python. cpu (with PY=.venv/bin/python, STEPS='--steps 2') runs the same
+# here, for a check.
 MIN=${1:-7}; DEV=${2:-cuda}; PY=${PY:-python3}; OUTDIR=${OUT:-/tmp/gpuout}; M=/tmp/m; mkdir -p $M $OUTDIR
 export PYTHONPATH=$PWD OMP_NUM_THREADS=2
 if [ "$DEV" = cuda ]; then
   $PY -m pip install --no-deps --no-index -q ${WHEELS:-scratch/s35/gpu/wheels}/*.whl 2>&1 | tail -2
   rm -f bowsynth/_core*.so
-  (cmake -S . -B /tmp/core -G Ninja -DCMAKE_BUILD_TYPE=Release -DPython_EXECUTABLE=$(which python3) > /tmp/cmake.log 2>&1 && cmake --build /tmp/core -j16 >> /tmp/cmake.log 2>&1) || tail -20 /tmp/cmake.log
+  (cmake -S . -B /tmp/core -G Ninja -DCMAKE_BUILD_TYPE=Release -DPython_EXECUTABLE=$(command -v $PY) > /tmp/cmake.log 2>&1 && cmake --build /tmp/core -j16 >> /tmp/cmake.log 2>&1) || tail -20 /tmp/cmake.log
   cp $(find /tmp/core -name "_core*.so" | head -1) bowsynth/
   nvidia-smi --query-gpu=name,memory.used --format=csv
 fi
 $PY -c "import bowsynth.compiled as c; c.load(); import torch; print('core ok', torch.__version__, torch.cuda.is_available())"
-job() {  # name fb vb [extra]
-  local name=$1 fb=$2 vb=$3; shift 3
-  timeout 570 $PY -m bowsynth train --from bowsynth/models/$name.safetensors --f0 100 --fb $fb --vb $vb --width 128 \
-    --batch 4096 --seed 35 --device $DEV --minutes $MIN --out $M/$name-g.safetensors -q "$@" > $M/$name-g.log 2>&1
+job() {  # name: its recipe gives the box, width and windows; refined from its shipped weights
+  local name=$1
+  timeout 570 $PY -m bowsynth train --config bowsynth/models/$name.toml --from bowsynth/models/$name.safetensors \
+    --batch 4096 --seed 35 --device $DEV --minutes $MIN $STEPS --out $M/$name-g.safetensors -q > $M/$name-g.log 2>&1
   echo "$name rc=$?" >> $M/$name-g.log
 }
-job soft-range 6.283:282.7 0:0.3 &
-job soft-high 125.7:270.2 0.16:0.245 &
-job soft-top 157.1:270.2 0.09:0.165 &
-job slow-soft 23.88:270.2 0.09:0.165 &
-job velocity-soft 23.88:270.2 0.155:0.24 &
-job stick-low 389.6:659.7 0.09:0.26 --window-ms 2.5 &
-job stick-slow 628.3:1036.7 0.085:0.16 --window-ms 2.5 &
+for name in soft-range soft-high soft-top slow-soft velocity-soft stick-low stick-slow; do job $name & done
 sleep 60; nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv
 wait
 tail -n 3 $M/*.log

@@ -160,7 +160,8 @@ def _basin_entry(sc: Scene, d: float, dist2, dphase: float) -> tuple[int | None,
     note's start: where it leaves, or the note's end), and k is its closest approach within a period of the entry if
     the swing there is within BASIN_SWING vb_stop or the flow at rest (decaying as exp(-d tau / 2)) takes it below
     physics.SILENT by the note's last half, else None. (None, 0) where the state never comes within."""
-    basin = BASIN_SHARE * physics.vb_stop(float(sc.a))
+    stop = physics.vb_stop(float(sc.a))
+    basin = BASIN_SHARE * stop
     near = dist2 <= basin * basin
     if not near.any():
         return None, 0
@@ -171,7 +172,7 @@ def _basin_entry(sc: Scene, d: float, dist2, dphase: float) -> tuple[int | None,
     k = k0 + int(np.argmin(dist2[k0:k1]))
     swing = math.sqrt(float(dist2[k]))
     left = (len(dist2) // 2 - k) * dphase  # tau from there to the note's last half, whose RMS says it sounds
-    fine = swing <= BASIN_SWING * physics.vb_stop(float(sc.a))
+    fine = swing <= BASIN_SWING * stop
     return (k if fine or swing * math.exp(-0.5 * d * max(left, 0.0)) <= physics.SILENT else None), end
 
 
