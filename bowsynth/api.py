@@ -32,7 +32,9 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     'auto' per model, bow and pitch 'free' or 'physics', whichever sounds truest against the FDM (harmonics' dB and
     cents over the issue's worst-case targets; measured once per model and bow, cached: `engine_tuning.auto_lock`).
     A note whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture
-    rolls free. Free windows spread the network's error into faint lines between and below the harmonics (60 dB
+    rolls free. In auto windows with no model given, a held note whose renderer's pick is measured to miss the
+    targets at its bow is played by the truest model that covers it, and its notes say so (`music.auto_model`).
+    Free windows spread the network's error into faint lines between and below the harmonics (60 dB
     down), locked ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics
     truer free, a chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked
     (`score`'s default); a held note at a given f0 sounds the physical pitch with 'physics' (0.0005 cents median for
@@ -45,12 +47,26 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     from .engines.limits import check_request
 
     check_request(scene, engine, oversample, force)
-    sounding = None
-    if parse_choice(Engine, engine, "--method") is Engine.operator:
-        from .music.engine_tuning import sounding_for
+    if parse_choice(Engine, engine, "--method") is not Engine.operator:
+        return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample)
+    from .music.engine_tuning import auto_overrides, sounding_for
 
-        sounding = sounding_for(scene, windows, model)
-    return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample, sounding=sounding)
+    over = auto_overrides(scene, windows, model)  # held notes whose measured pick is not the renderer's
+
+    def play(sc, m):
+        return _r(sc, engine=engine, model=m, fallback=fallback, sounding=sounding_for(sc, windows, m))
+    if not isinstance(scene, (list, tuple)):
+        if not over:
+            return play(scene, model)
+        r = play(scene, over[0].model)
+        r.info.notes.insert(0, over[0].note)
+        return r
+    rest = [i for i in range(len(scene)) if i not in over]
+    out = dict(zip(rest, play([scene[i] for i in rest], model) if rest else []))
+    for i, pick in over.items():
+        out[i] = play(scene[i], pick.model)
+        out[i].info.notes.insert(0, pick.note)
+    return [out[i] for i in range(len(scene))]
 
 
 def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, windows: str | None = None):

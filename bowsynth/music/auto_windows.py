@@ -98,7 +98,7 @@ def ladder_spans(sc: Scene) -> list[tuple[float, float]]:
 
 def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
     """Per candidate ('free'; 'physics<k>', k windows a period beyond the fewest, from the lock's own up to
-    MORE_TRIED more) what a held note from rest at f0 100 measures against the truth, each error over its worst-case
+    MORE_TRIED more; lock None: free windows alone) what a held note from rest at f0 100 measures against the truth, each error over its worst-case
     target (None where it does not play): 'base' the worse of the harmonics' worst and the onset from a note lasting
     AUTO_SECONDS past the time the physics speaks (onset.settled_seconds) against the FDM at x AUTO_OVERSAMPLE,
     'cents' the cached ratio's (own_ratio's, the lock's: where a long note ends up), 'ladder' per ladder_spans span
@@ -118,7 +118,7 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
     spans = ladder_spans(sc)
     long = sc.replace(duration=max([sc.duration] + [b for _, b in spans]))
     plays = [("free", lambda: own_ratio(m, beta, vb, a), None)]
-    for k in range(lock_more(lock), lock_more(lock) + MORE_TRIED + 1):
+    for k in range(lock_more(lock), lock_more(lock) + MORE_TRIED + 1) if lock is not None else ():
         plays.append((f"physics{k}", lambda k=k: operator_ratio(m, locked=True, more=k)(beta, vb, a, RATIO_F0),
                       Lock(RATIO_F0 * float(lock), k)))
     out = {}
@@ -211,7 +211,8 @@ def _cached_errors(model, beta: float, vb: float, a: float, lock) -> dict:
 
     key = f"{as_model(model).id} {beta!r} {vb!r} {a!r}"
     hit = _choices.get(key)
-    if not (isinstance(hit, dict) and "free" in hit):
+    # an entry of free windows alone (auto_score's, where the model held no lock) does not answer for a lock
+    if not (isinstance(hit, dict) and "free" in hit and (lock is None or len(hit) > 1)):
         hit = candidate_errors(model, beta, vb, a, lock)
         _choices.put(key, hit)
     return hit
@@ -234,9 +235,37 @@ def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = RATIO_
     lock = lock_ratio(model, beta, vb, a)
     if lock is None or lock != truth:  # the model does not hold the physics' period: its own, in free windows
         return None
-    scores = window_scores(model, beta, vb, a, lock, f0)
+    best = _best(window_scores(model, beta, vb, a, lock, f0))
+    return None if best == "free" else Lock(truth, int(best[len("physics"):]))
+
+
+def _best(scores: dict) -> str:
+    """auto's candidate of window_scores: the lowest score; free windows where they meet the targets and no lock
+    scores AUTO_MARGIN better (a lock must earn its place where free windows do well)."""
     best = min(scores, key=lambda k: (scores[k], k != "free"))
     close = scores[best] + AUTO_MARGIN > scores["free"]
-    if best == "free" or (close and scores["free"] <= 1.0):  # a lock must earn its place where free windows do well
+    return "free" if best == "free" or (close and scores["free"] <= 1.0) else best
+
+
+def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0, measure: bool = True) -> float | None:
+    """The score (candidate_score, over the worst-case targets: 1 meets them) of what auto windows play of this model
+    at this bow for a note at f0: the lock's or free windows' that auto_lock chooses. None where nothing is judged:
+    the truth does not sound, or the model cannot hold the bow from rest to measure its pitch. measure False: where
+    the model does not hold the physics' period, only its own pitch against the truth's (the free score's cents term,
+    so a lower bound on it; both ratios are cached) instead of measuring its note (an FDM at x AUTO_OVERSAMPLE and a
+    render, 0.5-3 s, once per model and bow)."""
+    from ..analysis.metrics import cents
+
+    try:
+        truth = sounding_ratio(beta, vb, a).r
+    except SilentNoteError:
         return None
-    return Lock(truth, int(best[len("physics"):]))
+    lock = lock_ratio(model, beta, vb, a)
+    if lock is None:
+        return None
+    if lock == truth:
+        scores = window_scores(model, beta, vb, a, lock, f0)
+        return scores[_best(scores)]
+    if not measure:
+        return abs(cents(lock, truth)) / TARGET_CENTS
+    return window_scores(model, beta, vb, a, None, f0)["free"]

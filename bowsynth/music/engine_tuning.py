@@ -9,6 +9,7 @@ from .. import physics
 from ..engines.operator.windows import Lock, lock_more
 from ..errors import DomainError, UsageError
 from ..scene import Scene
+from .auto_model import AutoPick, auto_pick
 from .auto_windows import auto_lock
 from .model_ratio import lock_ratio, operator_ratio, own_ratio
 from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
@@ -60,10 +61,10 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
 
         os_ = check_oversample(scene, oversample, warn=False)
         return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
-    m, why = _playing_model(scene, model, models)
+    windows = check_windows(windows)
+    m, why = _playing_model(scene, model, models, windows)
     if m is None:
         return None, why
-    windows = check_windows(windows)
     held = windows in ("physics", "auto") and scene.held_bow() is not None  # else free
 
     def ratio(beta, vb, a, f0):
@@ -77,13 +78,16 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     return ratio, f"model {m.id}" + (f" in {windows} windows" if held else "")
 
 
-def _playing_model(scene: Scene, model=None, models=None):
-    """(the operator model that plays the scene: the one given, else find_model's pick among `models`; None) or
-    (None, why) where that model does not cover it or none does."""
+def _playing_model(scene: Scene, model=None, models=None, windows: str | None = None):
+    """(the operator model that plays the scene: the one given, else find_model's pick among `models`, in auto
+    windows auto_pick's; None) or (None, why) where that model does not cover it or none does."""
     from ..engines.operator.choose import as_model, find_model
 
     try:
-        m = find_model(scene, models) if model is None else as_model(model)
+        if model is None and windows == "auto":
+            m = auto_pick(scene, models).model or find_model(scene, models)  # none covers it: find_model says why
+        else:
+            m = find_model(scene, models) if model is None else as_model(model)
     except DomainError as e:
         return None, str(e).split(";")[0]
     if not m.covers(scene):
@@ -102,7 +106,7 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
     held = (scene if held is None else held).held_bow()
     if held is None or scene.pitch_varies:
         return None
-    m, _ = _playing_model(scene, model, models)
+    m, _ = _playing_model(scene, model, models, windows)
     if m is None and model is None:  # no one model covers it (a stop at the space's edge: a chain of models); the
         m, _ = _playing_model(held, None, models)  # held bow's model locks its own stretches (chain.render_chain)
     if m is None:
@@ -146,3 +150,16 @@ def sounding_for(scene, windows: str | None = None, model=None, held=None):
         pool = available_models()  # the model directories looked at once for all the scenes
     out = [operator_sounding(sc, model, models=pool, held=h, windows=windows) for sc, h in zip(scenes, helds)]
     return out if many else out[0]
+
+
+def auto_overrides(scene, windows: str | None = None, model=None) -> dict[int, AutoPick]:
+    """{index: AutoPick} of the scenes (one, or a list) whose model auto windows choose by measurement instead of the
+    renderer's pick (auto_model): none where a model is given or the windows are not auto."""
+    if model is not None or check_windows(windows) != "auto":
+        return {}
+    from ..engines.operator.choose import available_models
+
+    scenes = list(scene) if isinstance(scene, (list, tuple)) else [scene]
+    pool = available_models()
+    picks = {i: auto_pick(sc, pool) for i, sc in enumerate(scenes)}
+    return {i: p for i, p in picks.items() if p.note is not None}
