@@ -74,7 +74,7 @@ def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: i
     `make_scene(pitch=..., ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
     from .music.engine_tuning import ratio_for_engine
 
-    return ratio_for_engine(scene, engine, model, oversample, windows=windows)
+    return ratio_for_engine(scene, engine, model, oversample, windows=windows, listen=True)
 
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):

@@ -48,9 +48,14 @@ def test_a_held_bow_the_smallest_box_plays_off_pitch_is_played_by_a_covering_mod
     both = render([sc, soft])
     assert np.array_equal(both[0].p, auto.p) and _stem(both[0]) == _stem(auto)
     assert np.array_equal(both[1].p, render(soft).p) and _stem(both[1]) == covering_model(soft).path.stem
-    # the tuning of a note asked by pitch is the model's that plays it
+    # the tuning of a note asked by pitch is the model's that plays it; a score's or the live engine's tuning (which
+    # play the renderer's pick in any windows) the pick's
+    from bowsynth.music.engine_tuning import ratio_for_engine
+
     _, by = tuning_for(sc)
     assert auto.info.model_id in by
+    _, by_score = ratio_for_engine(sc, windows="auto")
+    assert as_model("stick-high").id in by_score
 
 
 def test_where_the_pick_meets_the_targets_no_other_model_is_measured(monkeypatch):

@@ -20,8 +20,9 @@ same periods), which is not quite a note at its own pitch. Of session 35's 48 he
 69.1 Hz, F_B / w 1.457, v_B 0.1695 scores 0.78 and measures 1.11 dB at its own pitch (stick-halt: 0.16); elsewhere
 the score read 0.6-1.4x the measured worst. Over half: 3 of those 48 bows and 2 of 48 soft ones.
 
-Scores and notes of a mix keep their own windows (locked) and so the renderer's pick; the live engine plays free
-windows and the pick too."""
+A render (api.render, `bowsynth render`, `bench map`) plays this choice and tunes `--pitch` for it. A score and the
+live engine play the renderer's pick in any windows, and tune for it (engine_tuning.ratio_for_engine's `listen`):
+their notes are batched per model, and each window's lock is the playing model's."""
 
 from __future__ import annotations
 

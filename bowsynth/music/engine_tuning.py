@@ -48,21 +48,23 @@ def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float |
 
 
 def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None,
-                     windows: str | None = None, by_pitch: bool = True):
+                     windows: str | None = None, by_pitch: bool = True, listen: bool = False):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
     scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it: its own
     pitch, or in windows locked to the physics the period it holds there), so that the asked note sounds there
     whichever engine plays. (None, why) when no model covers the scene: the note is then tuned with the truth's ratio
     (what compare scores against). models: those to choose among (default: available_models(), looked up again on
     each call). by_pitch: auto windows chosen for the note's f0 (a render's, a score's); False: one choice for every
-    pitch (the live engine's, whose windows are fixed per velocity)."""
+    pitch (the live engine's, whose windows are fixed per velocity). listen: in auto windows with no model given, the
+    model auto_model chooses (api.render's: it plays that one); else the renderer's pick (a score's, the live
+    engine's)."""
     if str(getattr(engine, "value", engine)) == "fdm":
         from ..engines.fdm import check_oversample
 
         os_ = check_oversample(scene, oversample, warn=False)
         return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
     windows = check_windows(windows)
-    m, why = _playing_model(scene, model, models, windows)
+    m, why = _playing_model(scene, model, models, listen and windows == "auto")
     if m is None:
         return None, why
     held = windows in ("physics", "auto") and scene.held_bow() is not None  # else free
@@ -78,13 +80,13 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     return ratio, f"model {m.id}" + (f" in {windows} windows" if held else "")
 
 
-def _playing_model(scene: Scene, model=None, models=None, windows: str | None = None):
-    """(the operator model that plays the scene: the one given, else find_model's pick among `models`, in auto
-    windows auto_pick's; None) or (None, why) where that model does not cover it or none does."""
+def _playing_model(scene: Scene, model=None, models=None, listen: bool = False):
+    """(the operator model that plays the scene: the one given, else find_model's pick among `models`, or with
+    `listen` auto_pick's; None) or (None, why) where that model does not cover it or none does."""
     from ..engines.operator.choose import as_model, find_model
 
     try:
-        if model is None and windows == "auto":
+        if model is None and listen:
             m = auto_pick(scene, models).model or find_model(scene, models)  # none covers it: find_model says why
         else:
             m = find_model(scene, models) if model is None else as_model(model)
@@ -106,7 +108,7 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
     held = (scene if held is None else held).held_bow()
     if held is None or scene.pitch_varies:
         return None
-    m, _ = _playing_model(scene, model, models, windows)
+    m, _ = _playing_model(scene, model, models)
     if m is None and model is None:  # no one model covers it (a stop at the space's edge: a chain of models); the
         m, _ = _playing_model(held, None, models)  # held bow's model locks its own stretches (chain.render_chain)
     if m is None:
