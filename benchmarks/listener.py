@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 
 from bowsynth import BowsynthError, Scene
-from bowsynth.analysis.metrics import frame_errors, listener_errors, nmse, onset_limit_ms
+from bowsynth.analysis.metrics import frame_errors, listener_errors, nmse, note_sounds, onset_limit_ms
 from bowsynth.api import render
 
 REGIONS = {  # (F_B / w lo, hi), (v_B lo, hi): the issue's soft-bow and stick-slip spaces
@@ -60,8 +60,11 @@ def one(f0: float, beta: float, vb: float, seconds: float, model=None) -> dict:
         warnings.simplefilter("ignore")
         truth = render(sc, engine="fdm", oversample=REF)
         fdm = render(sc, engine="fdm")
-    row = {"f0": f0, "beta": beta, "vb": vb, "fdm": listener_errors(fdm.p, truth.p, sc.sample_rate)}
+    # a bow whose truth does not sound (held below vb_stop: it rests) scores nothing but whether each engine rests too
+    row = {"f0": f0, "beta": beta, "vb": vb, "silent": not note_sounds(truth.p),
+           "fdm": listener_errors(fdm.p, truth.p, sc.sample_rate)}
     row["fdm"]["nmse"] = nmse(fdm.p, truth.p)
+    row["fdm"]["sounds"] = note_sounds(fdm.p)
     t0 = time.perf_counter()
     try:
         op = render(sc, engine="operator", model=model, windows=WINDOWS)
@@ -72,6 +75,7 @@ def one(f0: float, beta: float, vb: float, seconds: float, model=None) -> dict:
     row["op_seconds"] = time.perf_counter() - t0
     row["op"] = listener_errors(op.p, truth.p, sc.sample_rate)
     row["op"]["nmse"] = nmse(op.p, truth.p)
+    row["op"]["sounds"] = note_sounds(op.p)
     info = op.info
     row["model"] = info.get("model_id") if isinstance(info, dict) else getattr(info, "model_id", None)
     return row
@@ -111,12 +115,16 @@ def gesture(name: str, model=None) -> dict:
 
 
 def summary(rows: list[dict], key: str) -> dict:
-    done = [r for r in rows if r.get(key)]
+    """The engine's errors over the played bows whose truth sounds; 'silent' how many bows' truth rests, 'wrong' at
+    how many of those the engine sounds."""
+    silent = [r for r in rows if r.get("silent") and r.get(key)]
+    wrong = sum(1 for r in silent if r[key].get("sounds"))
+    done = [r for r in rows if r.get(key) and not r.get("silent")]
     harm = [h for r in done for h in r[key]["harm_db"] if h is not None and math.isfinite(h)]
     missing = sum(1 for r in done if not math.isfinite(r[key]["harm_db_max"]))
     cents = [abs(r[key]["cents"]) for r in done if math.isfinite(r[key]["cents"])]
     onsets = [onset_ok(r[key]["onset_err_ms"], r[key]["onset_ref_ms"]) for r in done]
-    return {"played": len(done), "of": len(rows),
+    return {"played": len(done) + len(silent), "of": len(rows), "silent": len(silent), "wrong": wrong,
             "harm_db_median": float(np.median(harm)) if harm else float("nan"),
             "harm_db_max": float("inf") if missing else (float(np.max(harm)) if harm else float("nan")),
             "cents_median": float(np.median(cents)) if cents else float("nan"),
@@ -126,8 +134,10 @@ def summary(rows: list[dict], key: str) -> dict:
 
 
 def fmt(s: dict) -> str:
-    return (f"{s['played']}/{s['of']} | {s['harm_db_median']:.3g} / {s['harm_db_max']:.3g} | "
-            f"{s['cents_median']:.3g} / {s['cents_max']:.3g} | {s['onsets_ok']}/{s['played']} | {s['nmse_median']:.2g}")
+    rests = f" ({s['silent']} rest, {s['wrong']} of them sounding)" if s["silent"] else ""
+    return (f"{s['played']}/{s['of']}{rests} | {s['harm_db_median']:.3g} / {s['harm_db_max']:.3g} | "
+            f"{s['cents_median']:.3g} / {s['cents_max']:.3g} | {s['onsets_ok']}/{s['played'] - s['silent']} | "
+            f"{s['nmse_median']:.2g}")
 
 
 def main(argv=None):
