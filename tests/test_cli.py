@@ -200,6 +200,40 @@ def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
         assert recipe_status(r) is None, (r.name, recipe_status(r))
 
 
+def test_make_models_builds_each_refinement_after_the_model_it_refines(tmp_path):
+    """build_order, what `make models` loops over: a chain of refinements (a stage, its refinement, a refinement of
+    that) in the order they must be trained, whatever order the files come in and whether or not any model file
+    exists yet; the shipped recipes likewise; a cycle refused."""
+    import subprocess
+    import sys
+
+    from bowsynth.errors import UsageError
+    from bowsynth.training.recipe import build_order
+
+    for name, parent in (("a", None), ("b", "a"), ("c", "b"), ("d", None)):
+        (tmp_path / f"{name}.toml").write_text(f'preset = "paper-fb100"\nout = "{name}.safetensors"\n'
+                                               + (f'from = "{parent}.safetensors"\n' if parent else ""))
+    given = [tmp_path / f"{n}.toml" for n in "cdba"]
+    assert [p.stem for p in build_order(given)] == ["a", "b", "c", "d"]
+    models = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
+    shipped = sorted((models / "stages").glob("*.toml")) + sorted(models.glob("*.toml"))
+    out = subprocess.run([sys.executable, "-m", "bowsynth.training.recipe", *map(str, shipped)], capture_output=True,
+                         text=True, check=True).stdout.split()
+    order = [Path(p).resolve() for p in out]
+    assert sorted(order) == sorted(p.resolve() for p in shipped)
+    from bowsynth.training.recipe import load_recipe
+
+    for i, p in enumerate(order):
+        rec = load_recipe(p)
+        if "from" in rec and (p.parent / rec["from"]).resolve().with_suffix(".toml") in order:
+            assert order.index((p.parent / rec["from"]).resolve().with_suffix(".toml")) < i, p.name
+    assert order.index(models / "stick-halt.toml") < order.index(models / "creep-mid.toml")
+    assert order.index(models / "soft-fast.toml") < order.index(models / "fast-long.toml")
+    (tmp_path / "a.toml").write_text('preset = "paper-fb100"\nout = "a.safetensors"\nfrom = "c.safetensors"\n')
+    with pytest.raises(UsageError, match="cycle"):
+        build_order(given)
+
+
 def test_train_update_builds_what_is_missing_stale_or_unreadable_and_leaves_the_rest(tmp_path, capsys, monkeypatch):
     """`make models` runs `train --config R --update` for each recipe: a model that is what its recipe asks for is
     left as it is; a missing, stale or truncated one is trained (replaced); an interrupted run's checkpoint is

@@ -9,7 +9,8 @@ benchmarks and a user who wants the same model again read one source instead of 
     out = "soft-range.safetensors"   # relative to this file
 
 `from` names the range model a recipe refines (`train --from`): a file relative to the recipe's folder (another
-recipe's `out`), else a model's name. `make models` builds those recipes after the others.
+recipe's `out`), else a model's name. `make models` builds each recipe after the one whose model it refines
+(build_order: `python -m bowsynth.training.recipe RECIPE ...` prints them so).
 """
 
 from __future__ import annotations
@@ -51,3 +52,41 @@ def load_recipe(path) -> dict:
     if "from" in out and (path.parent / out["from"]).is_file():
         out["from"] = str(path.parent / out["from"])
     return out
+
+
+def build_order(paths) -> list[Path]:
+    """The recipes in an order that builds each after the recipe whose `out` it refines (`from`), the rest as given.
+    Why: a refinement of a refinement (fast-long from soft-fast from soft-range; creep-mid from stick-halt from a
+    stage) must find its parent built, and a retrained parent must come before what refines it, else `make models`
+    refines from the old parent and leaves the child stale for the next run. A cycle is refused."""
+    paths = [Path(p) for p in paths]
+    by_out: dict[Path, Path] = {}
+    parent: dict[Path, Path | None] = {}
+    for p in paths:
+        r = load_recipe(p)
+        by_out[Path(r.get("out", p.with_suffix(".safetensors"))).resolve()] = p
+        # the parent's file need not exist yet (a fresh build): its path as the recipe names it, from its folder
+        parent[p] = (p.parent / r["from"]).resolve() if "from" in r else None
+    order: list[Path] = []
+    state: dict[Path, int] = {}  # 1: being placed, 2: placed
+
+    def place(p: Path) -> None:
+        if state.get(p) == 2:
+            return
+        if state.get(p) == 1:
+            raise UsageError(f"recipes refine each other in a cycle through {p}")
+        state[p] = 1
+        up = by_out.get(parent[p]) if parent[p] is not None else None
+        if up is not None:
+            place(up)
+        state[p] = 2
+        order.append(p)
+    for p in paths:
+        place(p)
+    return order
+
+
+if __name__ == "__main__":
+    import sys
+
+    print("\n".join(str(p) for p in build_order(sys.argv[1:])))
