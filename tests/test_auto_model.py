@@ -86,3 +86,24 @@ def test_the_cli_says_which_model_plays_and_why(tmp_path, capsys, monkeypatch):
     assert "sounds truer" in text and "stick-high" in text
     y, _ = sf.read(out)
     assert np.isfinite(y).all() and np.abs(y).max() > 0
+
+
+def test_a_covering_model_that_cannot_be_measured_is_passed_over_not_fatal(monkeypatch):
+    """A model of ./models that covers the note but fails when measured (say its file fails the physics check) is no
+    candidate; the render still gets the truest of the others."""
+    from bowsynth.errors import ModelFileError
+    from bowsynth.music import auto_model
+
+    real = auto_model.auto_score
+    first = auto_model.auto_pick(_scene())
+    broken = first.model.path.stem  # the model the miss went to: now it cannot be measured
+
+    def flaky(m, *bow, measure=True):
+        if m.path.stem == broken and measure:
+            raise ModelFileError(f"{m.path}: fails its physics check")
+        return real(m, *bow, measure=measure)
+    monkeypatch.setattr(auto_model, "auto_score", flaky)
+    monkeypatch.setattr(auto_model, "_PICKS", {})
+    again = auto_model.auto_pick(_scene())
+    assert again.model is not None and again.model.path.stem not in (broken, "stick-high")
+    assert again.note is not None

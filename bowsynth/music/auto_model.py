@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 from ..engines.operator.choose import available_models, bow_key, covering_model
 from ..engines.operator.modelfile import OperatorModel
+from ..errors import BowsynthError
 from ..scene import Scene
 from .auto_windows import AUTO_MARGIN, auto_score
 
@@ -81,7 +82,10 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
         return AutoPick(pick)
     scored = []
     for m in [pick] + [m for m in pool if m is not pick and m.failure is None and m.covers(scene)]:
-        s = auto_score(m, *bow)
+        try:
+            s = auto_score(m, *bow)
+        except BowsynthError:  # a model that cannot be measured here (a file of ./models failing its physics check)
+            continue  # is not a candidate; the pick's own failure shows when it renders
         if s is not None and math.isfinite(s):
             scored.append((s, m))
     if not scored:
