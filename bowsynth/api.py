@@ -51,20 +51,22 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
         return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample)
     from .music.engine_tuning import auto_overrides, sounding_for
 
-    over = auto_overrides(scene, windows, model)  # held notes whose measured pick is not the renderer's
+    over = auto_overrides(scene, windows, model)  # held notes whose measured pick is not the renderer's, or misses
 
     def play(sc, m):
         return _r(sc, engine=engine, model=m, fallback=fallback, sounding=sounding_for(sc, windows, m))
     if not isinstance(scene, (list, tuple)):
         if not over:
             return play(scene, model)
-        r = play(scene, over[0].model)
+        r = play(scene, over[0].model if over[0].switched else model)
         r.info.notes.insert(0, over[0].note)
         return r
-    rest = [i for i in range(len(scene)) if i not in over]
+    alone = {i: p for i, p in over.items() if p.switched}
+    rest = [i for i in range(len(scene)) if i not in alone]
     out = dict(zip(rest, play([scene[i] for i in rest], model) if rest else []))
-    for i, pick in over.items():
+    for i, pick in alone.items():
         out[i] = play(scene[i], pick.model)
+    for i, pick in over.items():
         out[i].info.notes.insert(0, pick.note)
     return [out[i] for i in range(len(scene))]
 

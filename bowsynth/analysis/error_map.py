@@ -57,7 +57,7 @@ def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             over = auto_overrides(sc, windows, model)  # api.render's choice of model in auto windows
-            m = over[0].model if over else model
+            m = over[0].model if over and over[0].switched else model
             op = render(sc, engine="operator", model=m, sounding=sounding_for(sc, windows, m))
     except BowsynthError as e:
         cell.update(status="not played", why=str(e).splitlines()[0].split(";")[0][:200])

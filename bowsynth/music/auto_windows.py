@@ -247,15 +247,12 @@ def _best(scores: dict) -> str:
     return "free" if best == "free" or (close and scores["free"] <= 1.0) else best
 
 
-def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0, measure: bool = True) -> float | None:
+def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0) -> float | None:
     """The score (candidate_score, over the worst-case targets: 1 meets them) of what auto windows play of this model
-    at this bow for a note at f0: the lock's or free windows' that auto_lock chooses. None where nothing is judged:
-    the truth does not sound, or the model cannot hold the bow from rest to measure its pitch. measure False: where
-    the model does not hold the physics' period, only its own pitch against the truth's (the free score's cents term,
-    so a lower bound on it; both ratios are cached) instead of measuring its note (an FDM at x AUTO_OVERSAMPLE and a
-    render, 0.5-3 s, once per model and bow)."""
-    from ..analysis.metrics import cents
-
+    at this bow for a note at f0: the lock's or free windows' that auto_lock chooses (where the model does not hold
+    the physics' period, its free windows' note is measured: an FDM at x AUTO_OVERSAMPLE and a render, 0.5-3 s, once
+    per model and bow). None where nothing is judged: the truth does not sound, or the model cannot hold the bow from
+    rest to measure its pitch."""
     try:
         truth = sounding_ratio(beta, vb, a).r
     except SilentNoteError:
@@ -266,6 +263,4 @@ def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0, me
     if lock == truth:
         scores = window_scores(model, beta, vb, a, lock, f0)
         return scores[_best(scores)]
-    if not measure:
-        return abs(cents(lock, truth)) / TARGET_CENTS
     return window_scores(model, beta, vb, a, None, f0)["free"]

@@ -156,7 +156,8 @@ def sounding_for(scene, windows: str | None = None, model=None, held=None):
 
 def auto_overrides(scene, windows: str | None = None, model=None) -> dict[int, AutoPick]:
     """{index: AutoPick} of the scenes (one, or a list) whose model auto windows choose by measurement instead of the
-    renderer's pick (auto_model): none where a model is given or the windows are not auto."""
+    renderer's pick (AutoPick.switched), or whose playing model was measured to miss the targets there (a note to
+    show): auto_model. None where a model is given or the windows are not auto."""
     if model is not None or check_windows(windows) != "auto":
         return {}
     from ..engines.operator.choose import available_models
