@@ -43,15 +43,15 @@ test: $(STAMP) chromium jackd
 # against its recipe is trained (`train --update`); an interrupted run continues from its checkpoint, so `make
 # models` can be stopped and run again. A wide stick-slip range failed its validation and is
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops, loud-mid
-# the soft / stick-slip border at moderate bow speeds; stick-mid, -low, -slow, -high, -stops, -heavy, -creep, -top and
-# floor-long, creep-mid: stick-slip tiles on quarter-period windows; soft-top and soft-high: the soft bow's top forces; soft-fast
-# its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long, fast-long and
-# corner-long learnt from renders of 6, 6 and 16 s, creep-mid of 6 s: their notes take seconds to settle); stick-halt the heavy bow
-# stops (stick-halt-high those above F_B / w 1.72, halt-edge the damped bows at the space's edge, F_B / w 1.9-2.02 x
-# v_B 0-0.08, halt-floor the heavy bows held just below vb_stop) and stick-gap the fast bows between stick-fast and stick-high,
-# refined in stages (bowsynth/models/stages:
-# models a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner, stick-slow
-# refined on a GPU from its session-19 self (stages/stick-slow-1) (BENCHMARKS.md).
+# the soft / stick-slip border at moderate bow speeds; stick-mid, -low, -slow, -high, -stops, -heavy, -creep, -top,
+# floor-long and creep-mid: stick-slip tiles on quarter-period windows; soft-top and soft-high: the soft bow's top
+# forces; soft-fast its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long,
+# creep-mid, fast-long and corner-long learnt from renders of 6, 6, 6 and 16 s: their notes take seconds to settle);
+# stick-halt the heavy bow stops (stick-halt-high those above F_B / w 1.72, halt-edge the damped bows at the space's
+# edge, F_B / w 1.9-2.02 x v_B 0-0.08, halt-floor the heavy bows held just below vb_stop) and stick-gap the fast bows
+# between stick-fast and stick-high, refined in stages (bowsynth/models/stages: models a render never picks, kept to
+# rebuild them), gap-top stick-gap refined on its light fast corner, stick-slow refined on a GPU from its session-19
+# self (stages/stick-slow-1) (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after the recipe of that model
 # (bowsynth.training.recipe.build_order).
 RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)

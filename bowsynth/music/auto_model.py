@@ -86,8 +86,8 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
     first = auto_score(pick, *bow)
     if first is None or first <= CHALLENGE_SCORE:
         return AutoPick(pick)
-    scored = []
-    for m in [pick] + [m for m in pool if m is not pick and m.failure is None and m.covers(scene)]:
+    scored = [(first, pick)] if math.isfinite(first) else []  # the pick measured once, above
+    for m in [m for m in pool if m is not pick and m.failure is None and m.covers(scene)]:
         try:
             s = auto_score(m, *bow)
         except BowsynthError:  # a model that cannot be measured here (a file of ./models failing its physics check)

@@ -98,12 +98,13 @@ def ladder_spans(sc: Scene) -> list[tuple[float, float]]:
 
 def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
     """Per candidate ('free'; 'physics<k>', k windows a period beyond the fewest, from the lock's own up to
-    MORE_TRIED more; lock None: free windows alone) what a held note from rest at f0 100 measures against the truth, each error over its worst-case
-    target (None where it does not play): 'base' the worse of the harmonics' worst and the onset from a note lasting
-    AUTO_SECONDS past the time the physics speaks (onset.settled_seconds) against the FDM at x AUTO_OVERSAMPLE,
-    'cents' the cached ratio's (own_ratio's, the lock's: where a long note ends up), 'ladder' per ladder_spans span
-    the worse of its pitch and its harmonics (a 2 s note's last second at each pitch of PITCH_LADDER), 'frames' per
-    pitch of PITCH_LADDER the median |cents| of the note's 100 ms frames at that pitch (_frame_errors)."""
+    MORE_TRIED more; lock None: free windows alone) what a held note from rest at f0 100 measures against the truth,
+    each error over its worst-case target (None where it does not play): 'base' the worse of the harmonics' worst and
+    the onset from a note lasting AUTO_SECONDS past the time the physics speaks (onset.settled_seconds) against the
+    FDM at x AUTO_OVERSAMPLE, 'cents' the cached ratio's (own_ratio's, the lock's: where a long note ends up),
+    'ladder' per ladder_spans span the worse of its pitch and its harmonics (a 2 s note's last second at each pitch of
+    PITCH_LADDER), 'frames' per pitch of PITCH_LADDER the median |cents| of the note's 100 ms frames at that pitch
+    (_frame_errors)."""
     from ..analysis.metrics import cents, listener_errors, onset_limit_ms
     from ..engines.fdm import render_fdm
     from ..engines.operator.choose import as_model
