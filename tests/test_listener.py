@@ -56,6 +56,40 @@ def test_a_pitch_offset_does_not_read_as_a_timbre_error():
     assert e["harm_db_max"] < 0.02
 
 
+def creep_and_slip(f0, ripple, seconds=1.0):
+    """The waveform of a heavy bow held just above vb_stop: p creeps down to its mean for most of a period, then
+    slips (a deep pulse of a twentieth of the period), with a ripple of `ripple` at 40 x f0 (a lock's handovers)."""
+    t = np.arange(int(seconds * SR)) / SR
+    ph = (t * f0) % 1.0
+    slip = np.where(ph > 0.95, -1.6 * np.sin(np.pi * (ph - 0.95) / 0.05), 0.0)
+    x = 0.13 * (1 - ph / 0.95) * (ph <= 0.95) + slip
+    x = x - x.mean()
+    return x + ripple * np.sin(2 * np.pi * 40 * f0 * t)
+
+
+@pytest.mark.parametrize("ripple", [0.0, 0.01, 0.04])
+def test_a_creeping_waveform_with_a_ripple_at_its_mean_keeps_its_pitch(ripple):
+    """Session 37: such a render, its waveform on the truth's, read 1281 cents sharp where the ripple crossed the
+    mean two or three times a period; a crossing now counts only after a dip toward the trough."""
+    from bowsynth.analysis.metrics import f0_estimate
+
+    x = creep_and_slip(10.7, ripple, seconds=2.0)
+    assert f0_estimate(x, SR, tail=1.0) == pytest.approx(10.7, rel=2e-4)
+    assert abs(listener_errors(x, creep_and_slip(10.7, 0.0, seconds=2.0), SR)["cents"]) < 0.3
+
+
+@pytest.mark.parametrize("phase", [0.4, 1.5, 2.5])
+def test_a_second_harmonic_with_a_shallow_dip_does_not_halve_the_period(phase):
+    """A second harmonic up to 0.9 of the fundamental adds a crossing a period at some phases, after a shallow dip:
+    it does not count (before session 37, 0.9 at phases 0.4 and 2.5 read 219.9 and 110.3 Hz)."""
+    from bowsynth.analysis.metrics import f0_estimate
+
+    t = np.arange(SR) / SR
+    for second in (0.3, 0.6, 0.9):
+        x = np.sin(2 * np.pi * 110 * t) + second * np.sin(2 * np.pi * 220 * t + phase)
+        assert f0_estimate(x, SR, tail=1.0) == pytest.approx(110, rel=1e-6)
+
+
 def test_a_weak_harmonic_is_scored_and_a_quiet_one_is_not():
     weak = LEVELS.copy()
     weak[5] -= 3.0  # harmonic 6, -38 dB: scored

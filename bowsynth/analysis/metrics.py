@@ -24,6 +24,17 @@ def ncc(x, ref) -> float:
     return float(100.0 * np.corrcoef(x, ref)[0, 1])
 
 
+# An upward zero crossing counts toward the pitch only where the signal dipped at least this share of its deepest dip
+# below its mean since the previous crossing (a Schmitt trigger's lower threshold). Why (session 37): the slowest heavy
+# bows, just above vb_stop, creep for most of a period with p drifting down to its mean before each slip, and there a
+# render's ripple of a few hundredths (a lock's window handovers) crosses the mean two or three times a period. Those
+# crossings halved the median period, the filter below then kept them, and a note whose waveform lies on the truth's
+# read 1281 cents sharp (stick-halt at 110 Hz, F_B / w 1.6, v_B 0.071: dips 0.003-0.047 against the slip's 1.59). A
+# clean note's crossings all dip to its trough: nothing changes there (the audio-rate FDM's ratio at 1 kHz, settled
+# to 2e-7 between chunks, did not settle when a chunk's first crossing was judged by its cut dip).
+CROSS_DIP = 0.25
+
+
 def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     """Fundamental from interpolated upward zero crossings of the last `tail` fraction (the steady state)."""
     x = np.asarray(x, float)
@@ -34,6 +45,15 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     i = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
     if len(i) < 3:
         return float("nan")
+    # a crossing counts where the signal went CROSS_DIP of its deepest dip below the mean since the previous one; only
+    # where some crossing after the first did not (the first's dip is cut by the segment's start, and a clean note's
+    # estimate stays what it was, its first crossing kept however the segment starts)
+    dips = np.minimum.reduceat(x, np.concatenate([[0], i + 1]))[:len(i)]
+    deep = dips <= CROSS_DIP * dips.min()
+    if not deep[1:].all():
+        i = i[deep]
+        if len(i) < 3:
+            return float("nan")
     t = i + x[i] / (x[i] - x[i + 1])  # linear interpolation of each crossing
     # crossings closer than half the median period are noise on a slow edge: drop them
     period = np.median(np.diff(t))

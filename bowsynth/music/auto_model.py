@@ -9,9 +9,10 @@ the note is scored the same way (measured once per model and bow, cached on disk
 plays where it scores AUTO_MARGIN better than the pick. Elsewhere no other model is measured. Where the model that
 plays still misses the targets, the render's notes say so and name `--method fdm`.
 
-Why the pick's own note is measured where it does not hold the physics' period, not only its long-run pitch: in the
-band just above vb_stop at heavy forces stick-halt's own period at F_B / w 1.6, v_B 0.071 is within 0.06 cents of
-the truth's, yet its 2 s note from rest settles on another cycle, 1281 cents off (session 36).
+Why the pick's own note is measured where it does not hold the physics' period, not only its long-run pitch: that
+note, from rest, is what a render plays. (Session 36 came to it at F_B / w 1.6, v_B 0.071, 110 Hz, where stick-halt's
+note read 1281 cents off; that was the pitch estimator's, misled by a ripple on the note's slow creep, and the note
+plays within 0.8 cents: metrics.CROSS_DIP, session 37.)
 
 Why (session 36): the smallest box is not always the truest. Of 48 held-out stick-slip bows, one, at 196.8 Hz, F_B /
 w 1.702, v_B 0.0968, lies deep in stick-high's box (the smallest that has it away from its edges), whose own cycle
@@ -98,7 +99,7 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
         return AutoPick(pick)
     mine = next((s for s, m in scored if m is pick), math.inf)
     best_s, best = min(scored, key=lambda x: x[0])  # min keeps the first of equals: the pick, then pool order
-    # where even the truest misses, say so: the band just above vb_stop at heavy forces plays other notes (session 36)
+    # where even the truest misses, say so: the band just above vb_stop at heavy forces, 5-150 cents off (session 37)
     missed = (f"; it misses the worst-case targets there too (1 meets them): `--method fdm` plays the physics"
               if best_s > 1.0 else "")
     if best is pick or best_s + AUTO_MARGIN > mine:
