@@ -78,6 +78,16 @@ def test_a_creeping_waveform_with_a_ripple_at_its_mean_keeps_its_pitch(ripple):
     assert abs(listener_errors(x, creep_and_slip(10.7, 0.0, seconds=2.0), SR)["cents"]) < 0.3
 
 
+def test_a_growing_note_keeps_its_early_crossings():
+    """A note that grows tenfold while it glides 100 -> 101 Hz: its crossings all count, the low ones included, so the
+    estimate is the glide's mean (a threshold on the segment's deepest dip would read only its loud end, ~100.7)."""
+    from bowsynth.analysis.metrics import f0_estimate
+
+    t = np.arange(SR) / SR
+    x = 10 ** t * np.sin(2 * np.pi * (100 * t + 0.5 * t * t))
+    assert f0_estimate(x, SR, tail=1.0) == pytest.approx(100.5, abs=0.01)
+
+
 @pytest.mark.parametrize("phase", [0.4, 1.5, 2.5])
 def test_a_second_harmonic_with_a_shallow_dip_does_not_halve_the_period(phase):
     """A second harmonic up to 0.9 of the fundamental adds a crossing a period at some phases, after a shallow dip:

@@ -24,14 +24,15 @@ def ncc(x, ref) -> float:
     return float(100.0 * np.corrcoef(x, ref)[0, 1])
 
 
-# An upward zero crossing counts toward the pitch only where the signal dipped at least this share of its deepest dip
-# below its mean since the previous crossing (a Schmitt trigger's lower threshold). Why (session 37): the slowest heavy
-# bows, just above vb_stop, creep for most of a period with p drifting down to its mean before each slip, and there a
-# render's ripple of a few hundredths (a lock's window handovers) crosses the mean two or three times a period. Those
-# crossings halved the median period, the filter below then kept them, and a note whose waveform lies on the truth's
-# read 1281 cents sharp (stick-halt at 110 Hz, F_B / w 1.6, v_B 0.071: dips 0.003-0.047 against the slip's 1.59). A
-# clean note's crossings all dip to its trough: nothing changes there (the audio-rate FDM's ratio at 1 kHz, settled
-# to 2e-7 between chunks, did not settle when a chunk's first crossing was judged by its cut dip).
+# An upward zero crossing counts toward the pitch only where the signal dipped at least this share of the deepest dip
+# within a period of it below its mean since the previous crossing (a Schmitt trigger's lower threshold). Why (session
+# 37): the slowest heavy bows, just above vb_stop, creep for most of a period with p drifting down to its mean before
+# each slip, and there a render's ripple of a few hundredths (a lock's window handovers) crosses the mean two or three
+# times a period. Those crossings halved the median period, the filter below then kept them, and a note whose waveform
+# lies on the truth's read 1281 cents sharp (stick-halt at 110 Hz, F_B / w 1.6, v_B 0.071: dips 0.003-0.047 against
+# the slip's 1.59). A clean note's crossings all dip to its trough: nothing changes there (the audio-rate FDM's ratio
+# at 1 kHz, settled to 2e-7 between chunks, did not settle when a chunk's first crossing was judged by its cut dip).
+# Within a period, not the whole segment: a note that grows tenfold keeps its quiet crossings (tests/test_listener.py).
 CROSS_DIP = 0.25
 
 
@@ -45,12 +46,17 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     i = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
     if len(i) < 3:
         return float("nan")
-    # a crossing counts where the signal went CROSS_DIP of its deepest dip below the mean since the previous one; only
-    # where some crossing after the first did not (the first's dip is cut by the segment's start, and a clean note's
-    # estimate stays what it was, its first crossing kept however the segment starts)
+    # a crossing counts where the signal went CROSS_DIP of the deepest dip within a period on either side below the
+    # mean since the previous crossing (the period: between crossings that dip CROSS_DIP of the segment's deepest);
+    # only where some crossing after the first did not (the first's dip is cut by the segment's start: a clean note's
+    # estimate stays what it was, however the segment starts)
     dips = np.minimum.reduceat(x, np.concatenate([[0], i + 1]))[:len(i)]
     deep = dips <= CROSS_DIP * dips.min()
     if not deep[1:].all():
+        if deep.sum() >= 2:
+            period = np.median(np.diff(i[deep]))
+            lo, hi = np.searchsorted(i, i - period), np.searchsorted(i, i + period, side="right")
+            deep = dips <= CROSS_DIP * np.array([dips[a:b].min() for a, b in zip(lo, hi)])
         i = i[deep]
         if len(i) < 3:
             return float("nan")
