@@ -48,8 +48,7 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
         return float("nan")
     # a crossing counts where the signal went CROSS_DIP of the deepest dip within a period on either side below the
     # mean since the previous crossing (the period: between crossings that dip CROSS_DIP of the segment's deepest);
-    # only where some crossing after the first did not (the first's dip is cut by the segment's start: a clean note's
-    # estimate stays what it was, however the segment starts)
+    # only where some crossing after the first did not (a clean note's estimate stays what it was)
     dips = np.minimum.reduceat(x, np.concatenate([[0], i + 1]))[:len(i)]
     deep = dips <= CROSS_DIP * dips.min()
     if not deep[1:].all():
@@ -57,6 +56,10 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
             period = np.median(np.diff(i[deep]))
             lo, hi = np.searchsorted(i, i - period), np.searchsorted(i, i + period, side="right")
             deep = dips <= CROSS_DIP * np.array([dips[a:b].min() for a, b in zip(lo, hi)])
+            # the first crossing's dip is cut by the segment's start: it counts where the next counted one follows a
+            # period later (give or take a quarter), as on a clean note; else it is a ripple's or a shallow harmonic's
+            later = i[1:][deep[1:]]
+            deep[0] = bool(len(later)) and abs(later[0] - i[0] - period) < 0.25 * period
         i = i[deep]
         if len(i) < 3:
             return float("nan")

@@ -113,7 +113,7 @@ def _why_silent(beta, vb, a, amp_end, grows) -> str:
 
 
 # what the measurement depends on besides (beta, v_B, a): a change to any of it invalidates the on-disk table
-RATIO_VERSION = f"4/{SPP}/{MAX_PERIODS}/{AMP_TOL!r}/{FREQ_TOL!r}/{MEASURE_CHUNKS}"
+RATIO_VERSION = f"5/{SPP}/{MAX_PERIODS}/{AMP_TOL!r}/{FREQ_TOL!r}/{MEASURE_CHUNKS}"
 _ratios = DiskTable("sounding-ratio", RATIO_VERSION)
 
 
