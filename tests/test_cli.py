@@ -200,7 +200,7 @@ def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
         assert recipe_status(r) is None, (r.name, recipe_status(r))
 
 
-def test_make_models_builds_each_refinement_after_the_model_it_refines(tmp_path):
+def test_make_models_builds_each_refinement_after_the_model_it_refines(tmp_path, monkeypatch):
     """build_order, what `make models` loops over: a chain of refinements (a stage, its refinement, a refinement of
     that) in the order they must be trained, whatever order the files come in and whether or not any model file
     exists yet; the shipped recipes likewise; a cycle refused."""
@@ -215,11 +215,19 @@ def test_make_models_builds_each_refinement_after_the_model_it_refines(tmp_path)
                                                + (f'from = "{parent}.safetensors"\n' if parent else ""))
     given = [tmp_path / f"{n}.toml" for n in "cdba"]
     assert [p.stem for p in build_order(given)] == ["a", "b", "c", "d"]
-    models = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
+    # paths relative to the working folder, as `make models` gives them, with the parents' files present
+    (tmp_path / "a.safetensors").write_bytes(b"")
+    (tmp_path / "b.safetensors").write_bytes(b"")
+    rel = [Path(tmp_path.name) / p.name for p in given]
+    monkeypatch.chdir(tmp_path.parent)
+    assert [p.stem for p in build_order(rel)] == ["a", "b", "c", "d"]
+    repo = Path(__file__).resolve().parents[1]
+    models = repo / "bowsynth" / "models"
     shipped = sorted((models / "stages").glob("*.toml")) + sorted(models.glob("*.toml"))
-    out = subprocess.run([sys.executable, "-m", "bowsynth.training.recipe", *map(str, shipped)], capture_output=True,
-                         text=True, check=True).stdout.split()
-    order = [Path(p).resolve() for p in out]
+    out = subprocess.run([sys.executable, "-m", "bowsynth.training.recipe",
+                          *(str(p.relative_to(repo)) for p in shipped)], capture_output=True, text=True, check=True,
+                         cwd=repo).stdout.split()
+    order = [(repo / p).resolve() for p in out]
     assert sorted(order) == sorted(p.resolve() for p in shipped)
     from bowsynth.training.recipe import load_recipe
 

@@ -63,10 +63,13 @@ def build_order(paths) -> list[Path]:
     by_out: dict[Path, Path] = {}
     parent: dict[Path, Path | None] = {}
     for p in paths:
-        r = load_recipe(p)
-        by_out[Path(r.get("out", p.with_suffix(".safetensors"))).resolve()] = p
+        # read by its absolute path: load_recipe puts the folder before a `from` whose file exists, and a relative
+        # folder (`make models` passes bowsynth/models/...) would be put before it twice below
+        a = p.resolve()
+        r = load_recipe(a)
+        by_out[Path(r.get("out", a.with_suffix(".safetensors"))).resolve()] = p
         # the parent's file need not exist yet (a fresh build): its path as the recipe names it, from its folder
-        parent[p] = (p.parent / r["from"]).resolve() if "from" in r else None
+        parent[p] = (a.parent / r["from"]).resolve() if "from" in r else None
     order: list[Path] = []
     state: dict[Path, int] = {}  # 1: being placed, 2: placed
 
