@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 import soundfile as sf
 
 from bowsynth import Scene
@@ -111,17 +112,16 @@ def test_a_covering_model_that_cannot_be_measured_is_passed_over_not_fatal(monke
 
 def test_where_every_covering_model_misses_the_render_says_so_and_names_the_fdm():
     """The band just above vb_stop at heavy forces (session 37): F_B / w 1.2, v_B 0.071 at 110 Hz, where the truth
-    speaks (onset ~0.08 s) and stick-stops, the only model there, plays its waveform ~115 cents flat (measured). The
-    render is still the pick's, and its notes say that it misses the targets and that `--method fdm` plays the physics;
-    a bow its pick plays within them carries no such note."""
-    from bowsynth.engines import render as engine_render
-    from bowsynth.music.engine_tuning import sounding_for
-
+    speaks (onset ~0.08 s) and stick-stops, the renderer's pick, plays its waveform ~115 cents flat (measured), and
+    stops-band (session 38, failed its validation by ear) ~34 cents flat. The truer plays, and the render's notes say
+    that it misses the targets too and that `--method fdm` plays the physics; a bow its pick plays within them carries
+    no such note."""
     sc = _scene(f0=110.0, beta=1.2, vb=0.071, seconds=1.0)
     r = render(sc)
-    assert _stem(r) == covering_model(sc).path.stem == "stick-stops"
-    assert np.array_equal(r.p, engine_render(sc, sounding=sounding_for(sc, "auto")).p)
-    assert any("misses the worst-case targets" in n and "--method fdm" in n for n in r.info.notes), r.info.notes
+    assert covering_model(sc).path.stem == "stick-stops" and _stem(r) == "stops-band"
+    assert np.array_equal(r.p, render(sc, model="stops-band").p)
+    assert any("misses the worst-case targets there too" in n and "--method fdm" in n for n in r.info.notes), \
+        r.info.notes
     soft = render(_scene(f0=220.0, beta=0.2, vb=0.2, seconds=0.5))
     assert not any("misses" in n for n in soft.info.notes)
 
@@ -133,3 +133,60 @@ def test_a_creeping_note_in_the_band_reads_at_its_own_pitch():
     sc = _scene(f0=110.0, beta=1.6, vb=0.071, seconds=1.0)
     e = listener_errors(render(sc, model="stick-halt").p, render(sc, engine="fdm", oversample=100).p, sc.sample_rate)
     assert abs(e["cents"]) < 5 and e["harm_db_max"] < 0.5, e
+
+
+def test_a_model_that_failed_its_validation_by_ear_is_measured_where_the_pick_misses():
+    """A model that failed its validation by a pitch or harmonics miss at some grid bow is never the renderer's pick,
+    but where the pick misses at a held bow it is measured there like the validated models, and plays where it sounds
+    truer; one that failed otherwise (an error, a sound where the truth rests) is no candidate."""
+    from bowsynth.engines.operator.choose import available_models
+    from bowsynth.engines.operator.modelfile import load_model, missed_by_ear
+    from bowsynth.music import auto_model
+
+    sc = _scene()
+    winner = auto_model.auto_pick(sc).model  # the truest of the validated models here (stick-high misses)
+
+    def failed(**v):
+        m = load_model(winner.path)  # a model object of its own: the scanned one stays as it is
+        m.meta.validation = {**m.meta.validation, **v}
+        return m
+    by_ear = failed(cents_abs_max=45.0)
+    assert by_ear.failure is not None and missed_by_ear(by_ear.meta)
+    pool = [by_ear if m is winner else m for m in available_models()]
+    assert covering_model(sc, pool) is not by_ear
+    got = auto_model.auto_pick(sc, pool)
+    assert got.model is by_ear and got.switched and "45 cents" in got.note and "measured at this bow" in got.note
+    for other in (failed(error="diverged"), failed(silent_sounding=2)):
+        assert other.failure is not None and not missed_by_ear(other.meta)
+        pool = [other if m is winner else m for m in available_models()]
+        got = auto_model.auto_pick(sc, pool)
+        assert got.model is not other and got.model.path.stem != "stick-high" and got.switched
+
+
+def test_a_bow_the_pick_cannot_hold_is_played_by_a_model_measured_there(tmp_path, capsys, monkeypatch):
+    """F_B / w 1.256, v_B 0.07465 at 95 Hz, held just above vb_stop: stick-stops, the renderer's pick, leaves its
+    trained states from rest (the render was refused, session 37). stops-band, its refinement on the band, failed its
+    validation by ear at another grid bow and is never the pick; measured at this bow it plays the note within the
+    targets, and the render says which model plays and why."""
+    f0, beta, vb = 95.4, 1.256, 0.07465
+    sc = _scene(f0, beta, vb)
+    assert covering_model(sc).path.stem == "stick-stops" and as_model("stops-band").failure is not None
+    truth = render(sc, engine="fdm", oversample=100)
+    r = render(sc)
+    assert _stem(r) == "stops-band"
+    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    assert abs(e["cents"]) < 1 and e["harm_db_max"] < 1
+    out = tmp_path / "n.wav"
+    code, text, err = run_main(["render", "--f0", str(f0), "--fb", str(beta * 2 * math.pi * f0), "--vb", str(vb),
+                                "--duration", "1", str(out)], capsys, monkeypatch)
+    assert code == 0, err
+    assert "stops-band plays this bow" in text and "measured at this bow" in text
+    # where stick-stops leaves its states and stops-band, measured, plays another note (6060 cents off at 319.8 Hz, F_B
+    # / w 1.188, v_B 0.07111), the render is refused, as before, naming --method fdm: no wrong note
+    from bowsynth.errors import BowsynthError
+    from bowsynth.music.auto_model import auto_pick
+
+    other = _scene(319.8, 1.188, 0.07111)
+    assert auto_pick(other).model.path.stem == "stick-stops"
+    with pytest.raises(BowsynthError, match="method fdm"):
+        render(other)

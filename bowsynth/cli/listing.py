@@ -52,6 +52,7 @@ def models(
     from rich.markup import escape
 
     from ..engines.operator.choose import scan_models
+    from ..engines.operator.modelfile import unpicked_text
 
     if report is not None:
         from ..report.models_page import check_report_path
@@ -70,7 +71,7 @@ def models(
             continue
         d, v = m.domain, m.meta.validation
         sc = m.meta.scene
-        mark = f"  FAILED ({escape(m.failure)}): not picked by default" if m.failure else ""
+        mark = f"  FAILED ({escape(m.failure)}): {unpicked_text(m.meta)}" if m.failure else ""
         fmt = "" if m.meta.format_version >= 2 else " (format 1: no digest; checked by its physics at render time)"
         if d.is_range:
             b0, b1, v0, v1 = d.box

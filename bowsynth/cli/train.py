@@ -48,6 +48,7 @@ def train(
     or for a playing range: --fb LO:HI and/or --vb LO:HI (at --f0), or --score FILE (the bows a score or MIDI file
     plays). A range model plays any bow inside its box and follows gestures through it."""
     from .. import api
+    from ..engines.operator.modelfile import unpicked_text
     from ..training.recipe import load_recipe
 
     if config is not None:
@@ -85,8 +86,8 @@ def train(
     v = res.model.meta.validation
     tell(False, f"model written to {res.path} ({res.model.id})")
     if res.model.failure:
-        err.print(f"warning: {res.model.failure}: this model is not picked by default (only with --model); train "
-                  f"longer (--minutes) before rendering with it", soft_wrap=True)
+        err.print(f"warning: {res.model.failure}: this model is {unpicked_text(res.model.meta)}; train longer "
+                  f"(--minutes) before rendering with it", soft_wrap=True)
     if v.get("error"):
         return
     if box is not None and not box.is_point:  # a score with one bow trains a point model

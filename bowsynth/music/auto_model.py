@@ -4,10 +4,13 @@ targets at the note's bow and pitch; then the truest of the models that cover th
 
 The pick is judged by auto windows' own score (auto_windows.auto_score: the harmonics' worst dB, the pitch's cents
 and the onset, each over its worst-case target, in the windows auto plays; where it does not hold the physics'
-period, in free windows, measured for this). Where that is over CHALLENGE_SCORE, every validated model that covers
-the note is scored the same way (measured once per model and bow, cached on disk like auto's windows) and the lowest
-plays where it scores AUTO_MARGIN better than the pick. Elsewhere no other model is measured. Where the model that
-plays still misses the targets, the render's notes say so and name `--method fdm`.
+period, in free windows, measured for this). Where that is over CHALLENGE_SCORE, or the pick cannot hold the bow
+from rest where the truth sounds (its render would be refused), every validated model that covers the note is scored
+the same way (measured once per model and bow, cached on disk like auto's windows) and the lowest plays where it
+scores AUTO_MARGIN better than the pick. So is a model that failed its validation by ear alone
+(modelfile.missed_by_ear: a pitch or harmonics miss at some grid bow of its box): it is never the pick, but a
+measurement at this bow says more of it here than its worst grid bow does. Elsewhere no other model is measured.
+Where the model that plays still misses the targets, the render's notes say so and name `--method fdm`.
 
 Why the pick's own note is measured where it does not hold the physics' period, not only its long-run pitch: that
 note, from rest, is what a render plays. (Session 36 came to it at F_B / w 1.6, v_B 0.071, 110 Hz, where stick-halt's
@@ -35,13 +38,18 @@ import math
 from dataclasses import dataclass
 
 from ..engines.operator.choose import available_models, bow_key, covering_model
-from ..engines.operator.modelfile import OperatorModel
+from ..engines.operator.modelfile import OperatorModel, missed_by_ear
 from ..errors import BowsynthError
 from ..scene import Scene
 from .auto_windows import AUTO_MARGIN, auto_score
+from .tuning import SilentNoteError, sounding_ratio
 
 
 CHALLENGE_SCORE = 0.5  # over this (1 meets the worst-case targets) the pick is measured against the other models
+# Where the pick cannot play the note (its render is refused), another model plays it only under this score: 50 cents
+# or dB over the targets of 1 is a quarter tone off, another note. A refusal names `--method fdm`; a wrong note does
+# not (session 38: stops-band at 319.8 Hz, F_B / w 1.188, v_B 0.0711, where stick-stops leaves its states, 6060 cents).
+OTHER_NOTE_SCORE = 50.0
 
 
 @dataclass(frozen=True)
@@ -85,10 +93,12 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
         return AutoPick(pick)
     bow = (held.beta, held.vb, held.a, held.f0)
     first = auto_score(pick, *bow)
+    if first is None and _sounds(bow):  # the pick cannot hold the bow from rest (its render is refused)
+        first = math.inf
     if first is None or first <= CHALLENGE_SCORE:
         return AutoPick(pick)
     scored = [(first, pick)] if math.isfinite(first) else []  # the pick measured once, above
-    for m in [m for m in pool if m is not pick and m.failure is None and m.covers(scene)]:
+    for m in [m for m in pool if m is not pick and _candidate(m) and m.covers(scene)]:
         try:
             s = auto_score(m, *bow)
         except BowsynthError:  # a model that cannot be measured here (a file of ./models failing its physics check)
@@ -102,12 +112,28 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
     # where even the truest misses, say so: the band just above vb_stop at heavy forces, 5-150 cents off (session 37)
     missed = (f"; it misses the worst-case targets there too (1 meets them): `--method fdm` plays the physics"
               if best_s > 1.0 else "")
-    if best is pick or best_s + AUTO_MARGIN > mine:
+    if best is pick or best_s + AUTO_MARGIN > mine or (not math.isfinite(mine) and best_s > OTHER_NOTE_SCORE):
         if not math.isfinite(mine) or mine <= 1.0:
             return AutoPick(pick)
         return AutoPick(pick, f"note: {_name(pick)} misses the worst-case targets at this bow (auto windows score "
                               f"{mine:.3g}, 1 meets them) and no model that covers it does better: `--method fdm` "
                               f"plays the physics")
+    unvalidated = f" ({best.failure}: measured at this bow)" if best.failure else ""
+    against = f" against {mine:.3g}" if math.isfinite(mine) else f"; {_name(pick)} cannot play it from rest"
     return AutoPick(best, f"note: {_name(best)} plays this bow: it sounds truer there than {_name(pick)}, the most "
-                          f"specialised model that covers it (auto windows score {best_s:.3g} against {mine:.3g}; "
-                          f"1 meets the worst-case targets){missed}", switched=True)
+                          f"specialised model that covers it (auto windows score {best_s:.3g}{against}; "
+                          f"1 meets the worst-case targets){unvalidated}{missed}", switched=True)
+
+
+def _sounds(bow: tuple) -> bool:
+    """Whether the truth sounds at a held bow (beta, vb, a, f0): it settles on a period."""
+    try:
+        sounding_ratio(*bow[:3])
+    except SilentNoteError:
+        return False
+    return True
+
+
+def _candidate(m: OperatorModel) -> bool:
+    """A model measured against the pick at a bow: a validated one, or one that failed its validation by ear alone."""
+    return m.failure is None or missed_by_ear(m.meta)

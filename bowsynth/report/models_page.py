@@ -14,6 +14,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ..engines.fdm import TRUTH_OVERSAMPLE
+from ..engines.operator.modelfile import unpicked_text
 from . import html as H
 from . import listen as L
 
@@ -174,7 +175,7 @@ def model_section(path, m, grid: int, progress, plt) -> tuple[str, dict]:
     kind = "range model" if m.domain.is_range else "point model"
     head = [f'<section id="{anchor}"><h2>{H.esc(path.name)} <small>({kind})</small></h2>']
     if m.failure:
-        head.append(f'<p class="note bad">{H.esc(m.failure)}: not picked by default (only with --model)</p>')
+        head.append(f'<p class="note bad">{H.esc(m.failure)}: {H.esc(unpicked_text(m.meta))}</p>')
     head.append(f'<div class="card">{_meta_card(path, m)}</div>')
     head.append("<h3>Validation the file carries</h3>" + _validation_table(m.meta.validation or {}))
     base = _scene_of(m)
