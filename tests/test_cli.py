@@ -312,7 +312,9 @@ def test_a_model_of_damped_bows_says_it_rests_where_render_and_models_state_its_
                                                                                            monkeypatch):
     # halt-edge's grid bows all damp the mass: no pitch or NMSE to state ("n/a" before), but whether it rests
     code, out, err = run_main(["models"], capsys, monkeypatch)
-    line = next(ln for ln in out.splitlines() if "halt-edge" not in ln and "F_B/w 1.9..2.02" in ln)
+    lines = out.splitlines()
+    line = lines[next(i for i, ln in enumerate(lines) if "halt-edge.safetensors" in ln) + 1]  # its details
+    assert "F_B/w 1.9..2.02" in line and "vb 0..0.08" in line, line
     assert code == 0 and "the model rests at 9 of 9" in line and "n/a" not in line, line
     fb = 2.0 * 2 * math.pi * 110
     code, out, err = run_main(["render", "--f0", "110", "--fb", f"{fb:.1f}", "--vb", "0.04", "-d", "0.5",
