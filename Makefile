@@ -48,8 +48,8 @@ test: $(STAMP) chromium jackd
 # forces; soft-fast its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long,
 # creep-mid, fast-long and corner-long learnt from renders of 6, 6, 6 and 16 s: their notes take seconds to settle);
 # stick-halt the heavy bow stops (stick-halt-high those above F_B / w 1.72, halt-edge the damped bows at the space's
-# edge, F_B / w 1.9-2.02 x v_B 0-0.08, halt-floor the heavy bows held just below vb_stop, halt-band and high-band
-# those held just above it, stops-band stick-stops' held just above it, failed by ear and played only where
+# edge, F_B / w 1.9-2.02 x v_B 0-0.08, halt-floor the heavy bows held just below vb_stop, halt-band, high-band and
+# edge-band those held just above it, stops-band stick-stops' held just above it, failed by ear and played only where
 # measured truer: a rerun of halt-band's or stops-band's recipe need not reproduce its shipped file, as each says)
 # and stick-gap the fast bows between stick-fast and stick-high, refined in stages (bowsynth/models/stages: models
 # a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner, stick-slow refined
