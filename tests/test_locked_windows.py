@@ -329,6 +329,32 @@ def test_auto_windows_choose_by_the_note_at_its_own_f0():
     assert abs(e["cents"]) < 0.2 and e["harm_db_max"] < 1.0, e
 
 
+def test_a_soft_voice_is_scored_at_its_own_pitch_on_the_output_grid():
+    """A soft model's windows end at the output sample nearest their length, so its chain depends on the pitch:
+    slow-bow at F_B / w 0.358, v_B 0.093 locked in the fewest windows (9 a period) is within 0.2 dB at f0 100 and at
+    444.9 Hz, but does not hold the lock at 438.2 (measured 1.54 dB, +0.45 cents; 7 of 13 pitches over 400-480 Hz).
+    auto windows scored it at f0 100 and played it there (session 36's 1.53 dB at 435.4 Hz); now each candidate is
+    also scored by its note at the note's own pitch, and a lock that holds plays."""
+    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.engines.operator.choose import as_model
+    from bowsynth.music.auto_windows import auto_lock
+    from bowsynth.music.model_ratio import sounding_ratio
+
+    m, beta, vb, f0 = as_model("slow-bow"), 0.358, 0.093, 438.2
+    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
+    truth = render(sc, engine="fdm", oversample=100)
+    fewest = render(sc, model=m, windows="physics")
+    assert fewest.info.windows == 9
+    e = listener_errors(fewest.p, truth.p, sc.sample_rate)
+    assert e["harm_db_max"] > 1.0 and abs(e["cents"]) > 0.3, e
+    chosen = auto_lock(m, beta, vb, 100.0, f0)
+    assert chosen == sounding_ratio(beta, vb, 100.0).r and chosen.more > 0
+    auto = render(sc, windows="auto")
+    assert Path(auto.info.model_path).stem == "slow-bow" and auto.info.windows == 9 + chosen.more
+    e = listener_errors(auto.p, truth.p, sc.sample_rate)
+    assert e["harm_db_max"] < 0.5 and abs(e["cents"]) < 0.05, e
+
+
 def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does():
     """stick-stops at F_B / w 0.7188, v_B 0.08 (bench map's worst pitch in session 21): the physics' period is 16.9 of
     its trained windows; 17 windows of 0.994 T leave its cycle at its own period, 5.3 cents sharp at 110 Hz

@@ -1,6 +1,7 @@
 """--windows auto: per model, held bow and pitch, the windows that sound truest against the truth: free, or locked to
 the physics' period (where the model holds it) in the fewest windows that hold it or up to MORE_TRIED more. Each is
-measured once per model and bow at f0 100 and cached on disk; a note is scored at its own pitch.
+measured once per model and bow at f0 100 and cached on disk; a note is scored at its own pitch (a soft voice's
+also by its note there).
 
 Each candidate is scored by its worse error as a share of the issue's worst-case target: max(harmonics 1-10's worst
 dB / 1 dB, |cents| / 1 cent, |onset error| / max(5 ms, 2 % of the truth's onset)).
@@ -27,6 +28,15 @@ PITCH_LADDER (as many periods as there), and a note is scored by its pitch and h
 Scored by the worst over the ladder instead, a transient at low pitches outweighed a lasting error: stick-slow at
 1.457 / 0.152 slips 3.1 cents in physics windows over periods 20-40 only, is 2.5 cents sharp free everywhere, and a
 344 Hz note went free, 3.0 cents sharp, where physics plays it within 0.01.
+
+Why a soft voice's notes are played at their own pitch (session 39): the chain above does not depend on f0 where a
+window is a whole number of samples (a stick-slip voice's grid: grid.py). A soft voice's window ends at the output
+sample nearest its length, and then it does: slow-bow at F_B / w 0.358, v_B 0.093, locked in the fewest windows (9 a
+period), holds the physics' period at f0 100 and at 6 of 13 pitches over 400-480 Hz, but not at the other 7 (1.41-1.85
+dB, +0.41-0.48 cents), one of them 412.3 Hz where 412.0 holds; 11 windows a period hold it at all 13 (0.21 dB). So
+for a soft voice each ladder pitch's note is played at that pitch (_pitch_errors), and a note is also scored by its
+own note at its own f0 (_at_pitch: the candidates' renders, ~0.1-0.3 s, cached per model, bow and f0), the worse of
+the two.
 
 Why more windows (session 29): where a lock's windows end in the cycle sets its harmonics. stick-high at F_B / w
 1.630, v_B 0.210 at 356 Hz: 13 windows a period (the fewest) 1.15 dB worst, 14: 1.99, 15: 0.44, 16: 0.34; at f0 100's
@@ -75,7 +85,7 @@ TARGET_FRAME_CENTS = 1.0  # the gestures' target: the median over a note's 100 m
 # stick-fast's (1.199, 0.28) every candidate's onset scores 1.6-1.9, and free windows, 1.728 against the lock's 1.633,
 # played 1.04 cents flat where the lock is within 0.15.
 AUTO_MARGIN = 0.1
-_choices = DiskTable("auto-windows", f"9/{AUTO_SECONDS!r}/{AUTO_MAX_SECONDS!r}/{AUTO_OVERSAMPLE}/{PITCH_LADDER!r}/"
+_choices = DiskTable("auto-windows", f"10/{AUTO_SECONDS!r}/{AUTO_MAX_SECONDS!r}/{AUTO_OVERSAMPLE}/{PITCH_LADDER!r}/"
                                      f"{LADDER_MAX_SECONDS!r}/{FIT_SECONDS!r}/{MORE_TRIED}/{TARGET_HARMONIC_DB!r}/"
                                      f"{TARGET_CENTS!r}/{TARGET_FRAME_CENTS!r}")
 
@@ -109,6 +119,7 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
     from ..engines.fdm import render_fdm
     from ..engines.operator.choose import as_model
     from ..engines.operator.engine import render_operator
+    from ..engines.operator.grid import needs_whole_windows
     from ..engines.operator.onset import settled_seconds
 
     m = as_model(model)
@@ -122,6 +133,7 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
     for k in range(lock_more(lock), lock_more(lock) + MORE_TRIED + 1) if lock is not None else ():
         plays.append((f"physics{k}", lambda k=k: operator_ratio(m, locked=True, more=k)(beta, vb, a, RATIO_F0),
                       Lock(RATIO_F0 * float(lock), k)))
+    on_grid = not needs_whole_windows(m.domain, beta)
     out = {}
     for name, ratio_of, sounding in plays:
         try:
@@ -138,7 +150,11 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
         onset = 0.0 if not math.isfinite(ref_ms) else (abs(err_ms) / onset_limit_ms(ref_ms) if math.isfinite(err_ms)
                                                        else math.inf)
         off = math.inf if ratio is None else abs(cents(ratio, truth_r))
-        ladder = _span_errors(r.p, truth.p, spans, sc.sample_rate, RATIO_F0 * truth_r)
+        if on_grid:  # an output-grid voice: each pitch's note played at that pitch (_pitch_errors)
+            ladder = _pitch_errors(lambda f, t, s=sounding: _note_at(m, sc, f, t, s), spans, truth.p,
+                                   sc.sample_rate, RATIO_F0 * truth_r)
+        else:
+            ladder = _span_errors(r.p, truth.p, spans, sc.sample_rate, RATIO_F0 * truth_r)
         out[name] = {"base": _finite(max(harm / TARGET_HARMONIC_DB, onset)), "cents": _finite(off / TARGET_CENTS),
                      "ladder": [_finite(x) for x in ladder],
                      "frames": [_finite(x) for x in _frame_errors(r.p[:sc.n_samples], truth.p, sc.sample_rate)]}
@@ -184,6 +200,103 @@ def _span_errors(p, truth_p, spans, sample_rate: float, truth_hz: float) -> list
     return out
 
 
+def _note_at(m, sc: Scene, f: float, seconds: float, sounding):
+    """p of the held note at pitch f from rest as a render plays it, `seconds` long, the lock (a frequency at f0
+    100) moved to f; None where it does not play."""
+    from ..engines.operator.engine import render_operator
+
+    at = sc.replace(f0=f, fb=sc.beta * physics.omega(f), duration=seconds)
+    lock = None if sounding is None else Lock(float(sounding) * f / sc.f0, lock_more(sounding))
+    try:
+        return render_operator(at, model=m, sounding=lock).p
+    except (DomainError, SilentNoteError):
+        return None
+
+
+def _pitch_errors(note_at, spans, truth_p, sample_rate: float, truth_hz: float) -> list[float]:
+    """_span_errors for a soft voice (the module docstring: its chain depends on f0), each span's note played at its
+    ladder pitch (note_at(f, seconds)). The truth's levels and pitch are its span's at f0 100 (the same periods), the
+    note's over its last second, as a listener hears it: a lock not held drifts through the windows' phase, and its
+    harmonics' error with it (slow-bow's at 417.4 Hz: 1.48 dB over its last second, 0.3 dB over the last FIT_SECONDS
+    of f0 100's periods)."""
+    from ..analysis.metrics import f0_estimate, harmonic_levels
+
+    settled = harmonic_levels(truth_p[-int(sample_rate):], sample_rate)
+    out = []
+    for f, (a, b) in zip(PITCH_LADDER, spans):
+        i, j = int(a * sample_rate), int(b * sample_rate)
+        inside = j <= len(truth_p)
+        ref = f0_estimate(truth_p[i:j], sample_rate, tail=1.0) if inside else truth_hz
+        ref_levels = harmonic_levels(truth_p[max(i, j - int(FIT_SECONDS * sample_rate)):j], sample_rate) \
+            if inside else settled
+        scale = RATIO_F0 / f  # seconds of the note at f per second of f0 100's
+        out.append(_heard_error(note_at(f, b * scale), sample_rate, ref * f / RATIO_F0, ref_levels))
+    return out
+
+
+def _heard_error(p, sample_rate: float, ref_hz: float, ref_levels) -> float:
+    """The worse of |cents| (against ref_hz) and the harmonics' worst |dB| (against ref_levels) of p's last second,
+    each over its target; inf where p is None, has no pitch or lacks a harmonic the truth has."""
+    from ..analysis.metrics import cents, f0_estimate, harmonic_errors, harmonic_levels
+
+    tail = None if p is None else p[-int(sample_rate):]
+    got = None if tail is None else f0_estimate(tail, sample_rate, tail=1.0)
+    if not (got is not None and got > 0 and ref_hz > 0):
+        return math.inf
+    err, missing = harmonic_errors(harmonic_levels(tail, sample_rate), ref_levels)
+    harm = math.inf if missing else float(np.nanmax(err, initial=0.0))
+    return max(abs(cents(got, ref_hz)) / TARGET_CENTS, harm / TARGET_HARMONIC_DB)
+
+
+def _settled_truth(beta: float, vb: float, a: float) -> list[float]:
+    """The truth's harmonic levels (dB re its fundamental) over the last second of a note at f0 100 lasting
+    AUTO_SECONDS past its speaking (at most AUTO_MAX_SECONDS): its limit cycle, which a note at any pitch reaches in
+    the same periods. Cached with the scores."""
+    from ..analysis.metrics import harmonic_levels
+    from ..engines.fdm import render_fdm
+    from ..engines.operator.onset import settled_seconds
+
+    key = f"truth {beta!r} {vb!r} {a!r}"
+    hit = _choices.get(key)
+    if isinstance(hit, list) and len(hit) > 1:
+        return [float(x) for x in hit]
+    sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=1.0)
+    sc = sc.replace(duration=settled_seconds(sc, AUTO_SECONDS, AUTO_MAX_SECONDS))
+    p = render_fdm(sc, oversample=AUTO_OVERSAMPLE).p
+    levels = [_finite(x) if math.isfinite(x) else -1e9 for x in harmonic_levels(p[-int(sc.sample_rate):],
+                                                                               sc.sample_rate)]
+    _choices.put(key, levels)
+    return levels
+
+
+def _at_pitch(m, beta: float, vb: float, a: float, lock, f0: float, names) -> dict:
+    """{candidate: _heard_error} of each candidate's held note from rest at f0 itself, lasting AUTO_SECONDS past its
+    speaking, against the truth's settled levels and pitch: a soft voice's ladder pitches do not stand for the pitches
+    between them (slow-bow's lock of 9 windows a period holds at 412.0 Hz, not at 412.3). Cached per model, bow, f0."""
+    from ..engines.operator.engine import render_operator
+    from ..engines.operator.onset import settled_seconds
+
+    key = f"{m.id} {beta!r} {vb!r} {a!r} at {f0!r}"
+    hit = _choices.get(key)
+    if isinstance(hit, dict) and all(n in hit for n in names):
+        return hit
+    truth_r = sounding_ratio(beta, vb, a).r
+    levels = np.array(_settled_truth(beta, vb, a))
+    levels[levels < -1e8] = np.nan
+    sc = Scene(f0=f0, fb=beta * physics.omega(f0), vb=vb, a=a, duration=1.0)
+    sc = sc.replace(duration=settled_seconds(sc, AUTO_SECONDS, AUTO_MAX_SECONDS))
+    out = {}
+    for name in names:
+        snd = None if name == "free" else Lock(f0 * float(lock), int(name[len("physics"):]))
+        try:
+            p = render_operator(sc, model=m, sounding=snd).p
+        except (DomainError, SilentNoteError):
+            p = None
+        out[name] = _finite(_heard_error(p, sc.sample_rate, f0 * truth_r, levels))
+    _choices.put(key, out)
+    return out
+
+
 def _finite(x: float) -> float:
     """A score as the disk cache keeps it (JSON has no inf): at most 1e9."""
     return min(float(x), 1e9)
@@ -220,8 +333,17 @@ def _cached_errors(model, beta: float, vb: float, a: float, lock) -> dict:
 
 
 def window_scores(model, beta: float, vb: float, a: float, lock, f0: float | None = RATIO_F0) -> dict:
-    """{candidate: score} for a note at f0 (candidate_score), measured once per model and bow (cached)."""
-    return {name: candidate_score(e, f0) for name, e in _cached_errors(model, beta, vb, a, lock).items()}
+    """{candidate: score} for a note at f0 (candidate_score), measured once per model and bow (cached); a voice on
+    the output grid (a soft model's) also by its note at f0 itself (_at_pitch), the worse of the two."""
+    from ..engines.operator.choose import as_model
+    from ..engines.operator.grid import needs_whole_windows
+
+    m = as_model(model)
+    scores = {name: candidate_score(e, f0) for name, e in _cached_errors(m, beta, vb, a, lock).items()}
+    if f0 is None or needs_whole_windows(m.domain, beta):
+        return scores
+    at = _at_pitch(m, beta, vb, a, lock, f0, [n for n, x in scores.items() if math.isfinite(x)])
+    return {n: max(x, at.get(n, math.inf)) if math.isfinite(x) else x for n, x in scores.items()}
 
 
 def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = RATIO_F0) -> float | None:
