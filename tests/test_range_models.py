@@ -494,6 +494,9 @@ BAND_BOWS = [
     (110.0, 1.8, 0.072, "high-band", "high-band", "stick-halt-high", 50),
     # the space's heavy edge, 3 % deep in edge-band's box: halt-edge picked, 13.5 cents flat; edge-band heard truer
     (110.0, 1.95, 0.071, "halt-edge", "edge-band", "halt-edge", 5),
+    # the band's bottom at light forces, 36 % deep in bottom-band's box: stops-band, its parent, 148 cents flat
+    # (session 39); stick-stops, the pick before, left its states there
+    (117.5, 1.169, 0.07141, "bottom-band", "bottom-band", "stops-band", 50),
 ]
 
 

@@ -1,0 +1,67 @@
+"""How well conditioned the pitch is near vb_stop: the truth's sounding ratio (tuning.sounding_ratio, the reference
+integration `--pitch` tunes with) at each bow of a grid against the same bow with v_B (then F_B / w) moved by a
+relative share, both signs; the worse sign's |cents| per share.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/band_conditioning.py [--betas 1.0,1.2,...] [--vbs 0.07075,...]
+                                                                  [--rel 0.001] [--bows F0:BETA:VB,...]
+
+The issue's pitch target (1 cent worst) was set where a bow 0.1 % off moves the pitch 0.3-1.2 cents (GUIDE section 9):
+a target a model meets by knowing its bow to ~0.1 %. Just above vb_stop = 1 / sqrt(2a) the pitch moves far faster
+with v_B (the creep before each slip lengthens without bound as v_B falls to vb_stop), and this table says how much:
+a miss there reads as the bow error that would cause it (--bows: each bow's cents per 0.1 % at its own bow).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from bowsynth.music.tuning import SilentNoteError, sounding_ratio
+
+A = 100.0
+
+
+def cents_per(beta: float, vb: float, rel: float, which: str) -> float | None:
+    """The worse of +/- rel in v_B (which 'vb') or F_B / w ('beta'): |cents| of the truth's pitch; None where a
+    moved bow rests or the bow itself does."""
+    try:
+        r0 = sounding_ratio(beta, vb, A).r
+        worst = 0.0
+        for s in (1, -1):
+            b, v = (beta * (1 + s * rel), vb) if which == "beta" else (beta, vb * (1 + s * rel))
+            worst = max(worst, abs(1200 * math.log2(sounding_ratio(b, v, A).r / r0)))
+        return worst
+    except SilentNoteError:
+        return None
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--betas", default="1.0,1.2,1.4,1.6,1.8,1.95")
+    ap.add_argument("--vbs", default="0.07075,0.0708,0.0709,0.071,0.0715,0.072,0.073,0.074,0.076,0.1,0.15,0.2")
+    ap.add_argument("--rel", type=float, default=0.001)
+    ap.add_argument("--bows", default="", help="F0:BETA:VB[:CENTS],...: the cents per --rel at each (and CENTS, a "
+                                                "miss there, as the bow error in % that would cause it)")
+    args = ap.parse_args()
+    fmt = lambda x: "rests" if x is None else f"{x:.2f}"  # noqa: E731
+    if args.bows:
+        print(f"| f0 | F_B / w | v_B | cents per {args.rel:.1%} of v_B | of F_B / w | miss (cents) | as a bow error "
+              f"(v_B) |\n|---|---|---|---|---|---|---|")
+        for item in args.bows.split(","):
+            f0, beta, vb, *miss = (float(x) for x in item.split(":"))
+            cv, cb = cents_per(beta, vb, args.rel, "vb"), cents_per(beta, vb, args.rel, "beta")
+            eq = f"{miss[0] / cv * args.rel:.3%}" if miss and cv else ""
+            print(f"| {f0:g} | {beta:g} | {vb:g} | {fmt(cv)} | {fmt(cb)} | {miss[0] if miss else ''} | {eq} |",
+                  flush=True)
+        return
+    betas = [float(b) for b in args.betas.split(",")]
+    print(f"|cents| of the truth's pitch for v_B moved {args.rel:.1%} (the worse sign) / for F_B / w moved as much\n")
+    print("| v_B \\ F_B / w | " + " | ".join(f"{b:g}" for b in betas) + " |\n|---|" + "---|" * len(betas))
+    for vb in (float(v) for v in args.vbs.split(",")):
+        cells = [f"{fmt(cents_per(b, vb, args.rel, 'vb'))} / {fmt(cents_per(b, vb, args.rel, 'beta'))}"
+                 for b in betas]
+        print(f"| {vb:g} | " + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
