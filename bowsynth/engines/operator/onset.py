@@ -129,7 +129,10 @@ def mute_from(sc: Scene, p) -> int | None:
     t_speak = speak_time(sc)
     if t_speak is None:
         return None
-    at = math.ceil(MUTE_SAFETY * t_speak / sc.dtau)
+    at = MUTE_SAFETY * t_speak / sc.dtau
+    if not at < sc.n_samples:  # it speaks after the note ends (a force of 1e-309 never does in floats: inf)
+        return None
+    at = math.ceil(at)
     if sc.n_samples - at < MUTE_PERIODS * 2 * math.pi / sc.dtau:
         return None
     tail = np.asarray(p[at:])  # in its own dtype: a float64 copy of a 5 s note cost 0.1-0.5 ms of a 6 ms render
