@@ -516,3 +516,28 @@ def test_a_heavy_bow_held_just_above_vb_stop_plays_on_pitch(f0, beta, vb, pick, 
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5
     old = listener_errors(render(sc, model=parent).p, truth.p, sc.sample_rate)
     assert abs(old["cents"]) > parent_cents and old["harm_db_max"] < 15
+
+
+@pytest.mark.parametrize("f0,beta,vb,parent_db", [(74.5, 1.687, 0.2792, None), (77.3, 1.628, 0.27766, 3.0)])
+def test_stick_slips_top_rim_plays_with_rim_top(f0, beta, vb, parent_db):
+    """Fast heavy bows at the top of stick-slip's box, between stick-gap's forces and stick-top's, where stick-high
+    was the only model (session 39's draws): at 74.5 Hz, F_B / w 1.687, v_B 0.2792 it leaves its states from rest
+    (the render was refused), at 77.3 Hz, 1.628, 0.27766 it plays a harmonic 6.1 dB off. rim-top, stick-high refined
+    there, is the pick and plays both within a cent and half a dB."""
+    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.api import render
+    from bowsynth.engines.operator.choose import covering_model
+    from bowsynth.errors import DomainError
+
+    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
+    truth = render(sc, engine="fdm", oversample=100)
+    assert covering_model(sc).path.stem == "rim-top"
+    r = render(sc)
+    assert Path(r.info.model_path).stem == "rim-top"
+    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5, e
+    if parent_db is None:
+        with pytest.raises(DomainError, match="left the model's trained states"):
+            render(sc, model="stick-high")
+    else:
+        assert listener_errors(render(sc, model="stick-high").p, truth.p, sc.sample_rate)["harm_db_max"] > parent_db
