@@ -94,6 +94,7 @@ CASES = [
     ("bow force 1e308 (FDM)", "render --method fdm --fb 1e308 x.wav"),
     ("bow speed 1e308", "render --method fdm --vb 1e308 x.wav"),
     ("bow force 1e-300", "render --method fdm -d 0.1 --fb 1e-300 x.wav"),
+    ("bow force 2.2e-309, subnormal (operator)", "render -d 0.1 --fb 2.2e-309 x.wav"),
     ("f0 16 kHz at 44.1 kHz (FDM)", "render --method fdm -d 0.1 --f0 16000 x.wav"),
     ("f0 1e-300", "render --method fdm --f0 1e-300 x.wav"),
     ("friction shape 5e-324", "render --a 5e-324 x.wav"),
