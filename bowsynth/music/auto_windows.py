@@ -151,8 +151,8 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
                                                        else math.inf)
         off = math.inf if ratio is None else abs(cents(ratio, truth_r))
         if on_grid:  # an output-grid voice: each pitch's note played at that pitch (_pitch_errors)
-            ladder = _pitch_errors(lambda f, t, s=sounding: _note_at(m, sc, f, t, s), spans, truth.p,
-                                   sc.sample_rate, RATIO_F0 * truth_r)
+            notes = _notes_at(m, sc, [(f, b * RATIO_F0 / f, sounding) for f, (_, b) in zip(PITCH_LADDER, spans)])
+            ladder = _pitch_errors(notes, spans, truth.p, sc.sample_rate, RATIO_F0 * truth_r)
         else:
             ladder = _span_errors(r.p, truth.p, spans, sc.sample_rate, RATIO_F0 * truth_r)
         out[name] = {"base": _finite(max(harm / TARGET_HARMONIC_DB, onset)), "cents": _finite(off / TARGET_CENTS),
@@ -200,22 +200,30 @@ def _span_errors(p, truth_p, spans, sample_rate: float, truth_hz: float) -> list
     return out
 
 
-def _note_at(m, sc: Scene, f: float, seconds: float, sounding):
-    """p of the held note at pitch f from rest as a render plays it, `seconds` long, the lock (a frequency at f0
-    100) moved to f; None where it does not play."""
-    from ..engines.operator.engine import render_operator
+def _notes_at(m, sc: Scene, notes) -> list:
+    """p of each held note (f, seconds, lock) at pitch f from rest as a render plays it, its lock (a frequency at the
+    scene's f0, or None: free windows) moved to f; None for one that does not play. One batched rollout (one by one,
+    ~18 ms a note: 60 of a soft bow's first render); one by one where the batch stops."""
+    from ..engines.operator.engine import render_operator_batch
 
-    at = sc.replace(f0=f, fb=sc.beta * physics.omega(f), duration=seconds)
-    lock = None if sounding is None else Lock(float(sounding) * f / sc.f0, lock_more(sounding))
+    scenes = [sc.replace(f0=f, fb=sc.beta * physics.omega(f), duration=t) for f, t, _ in notes]
+    locks = [None if s is None else Lock(float(s) * f / sc.f0, lock_more(s)) for f, _, s in notes]
     try:
-        return render_operator(at, model=m, sounding=lock).p
+        return [r.p for r in render_operator_batch(scenes, model=m, sounding=locks)]
     except (DomainError, SilentNoteError):
-        return None
+        pass
+    out = []
+    for one, lock in zip(scenes, locks):
+        try:
+            out.append(render_operator_batch([one], model=m, _single=True, sounding=[lock])[0].p)
+        except (DomainError, SilentNoteError):
+            out.append(None)
+    return out
 
 
-def _pitch_errors(note_at, spans, truth_p, sample_rate: float, truth_hz: float) -> list[float]:
+def _pitch_errors(notes, spans, truth_p, sample_rate: float, truth_hz: float) -> list[float]:
     """_span_errors for a soft voice (the module docstring: its chain depends on f0), each span's note played at its
-    ladder pitch (note_at(f, seconds)). The truth's levels and pitch are its span's at f0 100 (the same periods), the
+    ladder pitch (notes: p of each, _notes_at). The truth's levels and pitch are its span's at f0 100 (the same periods), the
     note's over its last second, as a listener hears it: a lock not held drifts through the windows' phase, and its
     harmonics' error with it (slow-bow's at 417.4 Hz: 1.48 dB over its last second, 0.3 dB over the last FIT_SECONDS
     of f0 100's periods)."""
@@ -223,14 +231,13 @@ def _pitch_errors(note_at, spans, truth_p, sample_rate: float, truth_hz: float) 
 
     settled = harmonic_levels(truth_p[-int(sample_rate):], sample_rate)
     out = []
-    for f, (a, b) in zip(PITCH_LADDER, spans):
+    for f, (a, b), p in zip(PITCH_LADDER, spans, notes):
         i, j = int(a * sample_rate), int(b * sample_rate)
         inside = j <= len(truth_p)
         ref = f0_estimate(truth_p[i:j], sample_rate, tail=1.0) if inside else truth_hz
         ref_levels = harmonic_levels(truth_p[max(i, j - int(FIT_SECONDS * sample_rate)):j], sample_rate) \
             if inside else settled
-        scale = RATIO_F0 / f  # seconds of the note at f per second of f0 100's
-        out.append(_heard_error(note_at(f, b * scale), sample_rate, ref * f / RATIO_F0, ref_levels))
+        out.append(_heard_error(p, sample_rate, ref * f / RATIO_F0, ref_levels))
     return out
 
 
@@ -273,7 +280,6 @@ def _at_pitch(m, beta: float, vb: float, a: float, lock, f0: float, names) -> di
     """{candidate: _heard_error} of each candidate's held note from rest at f0 itself, lasting AUTO_SECONDS past its
     speaking, against the truth's settled levels and pitch: a soft voice's ladder pitches do not stand for the pitches
     between them (slow-bow's lock of 9 windows a period holds at 412.0 Hz, not at 412.3). Cached per model, bow, f0."""
-    from ..engines.operator.engine import render_operator
     from ..engines.operator.onset import settled_seconds
 
     key = f"{m.id} {beta!r} {vb!r} {a!r} at {f0!r}"
@@ -285,14 +291,9 @@ def _at_pitch(m, beta: float, vb: float, a: float, lock, f0: float, names) -> di
     levels[levels < -1e8] = np.nan
     sc = Scene(f0=f0, fb=beta * physics.omega(f0), vb=vb, a=a, duration=1.0)
     sc = sc.replace(duration=settled_seconds(sc, AUTO_SECONDS, AUTO_MAX_SECONDS))
-    out = {}
-    for name in names:
-        snd = None if name == "free" else Lock(f0 * float(lock), int(name[len("physics"):]))
-        try:
-            p = render_operator(sc, model=m, sounding=snd).p
-        except (DomainError, SilentNoteError):
-            p = None
-        out[name] = _finite(_heard_error(p, sc.sample_rate, f0 * truth_r, levels))
+    snd = [None if n == "free" else Lock(f0 * float(lock), int(n[len("physics"):])) for n in names]
+    notes = _notes_at(m, sc, [(f0, sc.duration, s) for s in snd])
+    out = {n: _finite(_heard_error(p, sc.sample_rate, f0 * truth_r, levels)) for n, p in zip(names, notes)}
     _choices.put(key, out)
     return out
 
