@@ -497,6 +497,9 @@ BAND_BOWS = [
     # the band's bottom at light forces, 36 % deep in bottom-band's box: stops-band, its parent, 148 cents flat
     # (session 39); stick-stops, the pick before, left its states there
     (117.5, 1.169, 0.07141, "bottom-band", "bottom-band", "stops-band", 50),
+    # the band's bottom at heavy forces: halt-band 30.8 cents sharp (session 38's draw); halt-bottom, its refinement
+    # there (failed its validation by ear: never the pick), heard truer (session 39)
+    (140.6, 1.574, 0.07154, "halt-band", "halt-bottom", "halt-band", 10),
 ]
 
 
