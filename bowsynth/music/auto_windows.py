@@ -134,6 +134,9 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
         plays.append((f"physics{k}", lambda k=k: operator_ratio(m, locked=True, more=k)(beta, vb, a, RATIO_F0),
                       Lock(RATIO_F0 * float(lock), k)))
     on_grid = not needs_whole_windows(m.domain, beta)
+    refs = _span_refs(truth.p, spans, sc.sample_rate, RATIO_F0 * truth_r)  # once per bow, for every candidate
+    if on_grid:  # _at_pitch's reference: this very render
+        _settled_truth(beta, vb, a, truth.p)
     out = {}
     for name, ratio_of, sounding in plays:
         try:
@@ -152,9 +155,9 @@ def candidate_errors(model, beta: float, vb: float, a: float, lock) -> dict:
         off = math.inf if ratio is None else abs(cents(ratio, truth_r))
         if on_grid:  # an output-grid voice: each pitch's note played at that pitch (_pitch_errors)
             notes = _notes_at(m, sc, [(f, b * RATIO_F0 / f, sounding) for f, (_, b) in zip(PITCH_LADDER, spans)])
-            ladder = _pitch_errors(notes, spans, truth.p, sc.sample_rate, RATIO_F0 * truth_r)
+            ladder = _pitch_errors(notes, refs, sc.sample_rate)
         else:
-            ladder = _span_errors(r.p, truth.p, spans, sc.sample_rate, RATIO_F0 * truth_r)
+            ladder = [_heard_error(r.p[i:j], r.p[k:j], sc.sample_rate, ref, levels) for i, j, k, ref, levels in refs]
         out[name] = {"base": _finite(max(harm / TARGET_HARMONIC_DB, onset)), "cents": _finite(off / TARGET_CENTS),
                      "ladder": [_finite(x) for x in ladder],
                      "frames": [_finite(x) for x in _frame_errors(r.p[:sc.n_samples], truth.p, sc.sample_rate)]}
@@ -175,28 +178,21 @@ def _frame_errors(p, truth_p, sample_rate: float) -> list[float]:
     return out
 
 
-def _span_errors(p, truth_p, spans, sample_rate: float, truth_hz: float) -> list[float]:
-    """Per span (seconds) of p: the worse of |cents| of its pitch against the truth's there (its render's where the
-    span lies within it, else the physics' sounding frequency: the truth has settled by then) and its harmonics'
-    worst |dB| over their last FIT_SECONDS at most against the truth's there (else its render's last second: its
-    limit cycle), each over its target; inf where p has no pitch or lacks a harmonic the truth has."""
-    from ..analysis.metrics import cents, f0_estimate, harmonic_errors, harmonic_levels
+def _span_refs(truth_p, spans, sample_rate: float, truth_hz: float) -> list[tuple]:
+    """Per span (seconds of a note at f0 100): its samples i..j, the start k of its last FIT_SECONDS at most, and what
+    a candidate's span is scored against (_heard_error): the truth's pitch there and its harmonics over k..j where the
+    span lies within the truth's render, else the physics' sounding frequency and the render's last second (its limit
+    cycle: the truth has settled by then)."""
+    from ..analysis.metrics import f0_estimate, harmonic_levels
 
     settled = harmonic_levels(truth_p[-int(sample_rate):], sample_rate)
     out = []
     for a, b in spans:
         i, j = int(a * sample_rate), int(b * sample_rate)
-        f = f0_estimate(p[i:j], sample_rate, tail=1.0)
-        inside = j <= len(truth_p)
-        ref = f0_estimate(truth_p[i:j], sample_rate, tail=1.0) if inside else truth_hz
-        if not (f > 0 and ref > 0):
-            out.append(math.inf)
-            continue
         k = max(i, j - int(FIT_SECONDS * sample_rate))
-        ref_levels = harmonic_levels(truth_p[k:j], sample_rate) if inside else settled
-        err, missing = harmonic_errors(harmonic_levels(p[k:j], sample_rate), ref_levels)
-        harm = math.inf if missing else float(np.nanmax(err, initial=0.0))
-        out.append(max(abs(cents(f, ref)) / TARGET_CENTS, harm / TARGET_HARMONIC_DB))
+        inside = j <= len(truth_p)
+        out.append((i, j, k, f0_estimate(truth_p[i:j], sample_rate, tail=1.0) if inside else truth_hz,
+                    harmonic_levels(truth_p[k:j], sample_rate) if inside else settled))
     return out
 
 
@@ -221,55 +217,48 @@ def _notes_at(m, sc: Scene, notes) -> list:
     return out
 
 
-def _pitch_errors(notes, spans, truth_p, sample_rate: float, truth_hz: float) -> list[float]:
-    """_span_errors for a soft voice (the module docstring: its chain depends on f0), each span's note played at its
-    ladder pitch (notes: p of each, _notes_at). The truth's levels and pitch are its span's at f0 100 (the same periods), the
-    note's over its last second, as a listener hears it: a lock not held drifts through the windows' phase, and its
+def _pitch_errors(notes, refs, sample_rate: float) -> list[float]:
+    """The ladder of a soft voice (the module docstring: its chain depends on f0), each span's note played at its
+    ladder pitch (notes: p of each, _notes_at) and scored over its last second, as a listener hears it, against the
+    span's truth (_span_refs, the same periods): a lock not held drifts through the windows' phase, and its
     harmonics' error with it (slow-bow's at 417.4 Hz: 1.48 dB over its last second, 0.3 dB over the last FIT_SECONDS
     of f0 100's periods)."""
-    from ..analysis.metrics import f0_estimate, harmonic_levels
-
-    settled = harmonic_levels(truth_p[-int(sample_rate):], sample_rate)
     out = []
-    for f, (a, b), p in zip(PITCH_LADDER, spans, notes):
-        i, j = int(a * sample_rate), int(b * sample_rate)
-        inside = j <= len(truth_p)
-        ref = f0_estimate(truth_p[i:j], sample_rate, tail=1.0) if inside else truth_hz
-        ref_levels = harmonic_levels(truth_p[max(i, j - int(FIT_SECONDS * sample_rate)):j], sample_rate) \
-            if inside else settled
-        out.append(_heard_error(p, sample_rate, ref * f / RATIO_F0, ref_levels))
+    for f, (_, _, _, ref, levels), p in zip(PITCH_LADDER, refs, notes):
+        tail = None if p is None else p[-int(sample_rate):]
+        out.append(_heard_error(tail, tail, sample_rate, ref * f / RATIO_F0, levels))
     return out
 
 
-def _heard_error(p, sample_rate: float, ref_hz: float, ref_levels) -> float:
-    """The worse of |cents| (against ref_hz) and the harmonics' worst |dB| (against ref_levels) of p's last second,
-    each over its target; inf where p is None, has no pitch or lacks a harmonic the truth has."""
+def _heard_error(pitched, fitted, sample_rate: float, ref_hz: float, ref_levels) -> float:
+    """The worse of |cents| of `pitched`'s pitch against ref_hz and the harmonics' worst |dB| of `fitted` against
+    ref_levels, each over its target; inf where there is no note (None), no pitch, or a harmonic the truth has is
+    missing."""
     from ..analysis.metrics import cents, f0_estimate, harmonic_errors, harmonic_levels
 
-    tail = None if p is None else p[-int(sample_rate):]
-    got = None if tail is None else f0_estimate(tail, sample_rate, tail=1.0)
+    got = None if pitched is None else f0_estimate(pitched, sample_rate, tail=1.0)
     if not (got is not None and got > 0 and ref_hz > 0):
         return math.inf
-    err, missing = harmonic_errors(harmonic_levels(tail, sample_rate), ref_levels)
+    err, missing = harmonic_errors(harmonic_levels(fitted, sample_rate), ref_levels)
     harm = math.inf if missing else float(np.nanmax(err, initial=0.0))
     return max(abs(cents(got, ref_hz)) / TARGET_CENTS, harm / TARGET_HARMONIC_DB)
 
 
-def _settled_truth(beta: float, vb: float, a: float) -> list[float]:
+def _settled_truth(beta: float, vb: float, a: float, p=None) -> list[float]:
     """The truth's harmonic levels (dB re its fundamental) over the last second of a note at f0 100 lasting
     AUTO_SECONDS past its speaking (at most AUTO_MAX_SECONDS): its limit cycle, which a note at any pitch reaches in
-    the same periods. Cached with the scores."""
+    the same periods. Cached with the scores; p: that note's truth, already rendered (candidate_errors')."""
     from ..analysis.metrics import harmonic_levels
     from ..engines.fdm import render_fdm
     from ..engines.operator.onset import settled_seconds
 
     key = f"truth {beta!r} {vb!r} {a!r}"
-    hit = _choices.get(key)
+    hit = _choices.get(key) if p is None else None
     if isinstance(hit, list) and len(hit) > 1:
         return [float(x) for x in hit]
     sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=1.0)
     sc = sc.replace(duration=settled_seconds(sc, AUTO_SECONDS, AUTO_MAX_SECONDS))
-    p = render_fdm(sc, oversample=AUTO_OVERSAMPLE).p
+    p = render_fdm(sc, oversample=AUTO_OVERSAMPLE).p if p is None else p
     levels = [_finite(x) if math.isfinite(x) else -1e9 for x in harmonic_levels(p[-int(sc.sample_rate):],
                                                                                sc.sample_rate)]
     _choices.put(key, levels)
@@ -293,7 +282,8 @@ def _at_pitch(m, beta: float, vb: float, a: float, lock, f0: float, names) -> di
     sc = sc.replace(duration=settled_seconds(sc, AUTO_SECONDS, AUTO_MAX_SECONDS))
     snd = [None if n == "free" else Lock(f0 * float(lock), int(n[len("physics"):])) for n in names]
     notes = _notes_at(m, sc, [(f0, sc.duration, s) for s in snd])
-    out = {n: _finite(_heard_error(p, sc.sample_rate, f0 * truth_r, levels)) for n, p in zip(names, notes)}
+    tails = [None if p is None else p[-int(sc.sample_rate):] for p in notes]
+    out = {n: _finite(_heard_error(t, t, sc.sample_rate, f0 * truth_r, levels)) for n, t in zip(names, tails)}
     _choices.put(key, out)
     return out
 
