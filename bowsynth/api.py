@@ -49,12 +49,20 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     check_request(scene, engine, oversample, force)
     if parse_choice(Engine, engine, "--method") is not Engine.operator:
         return _r(scene, engine=engine, model=model, fallback=fallback, oversample=oversample)
+    from .engines.operator.choose import one_listing
+
+    with one_listing():
+        return _render_operator(scene, model, fallback, windows)
+
+
+def _render_operator(scene, model, fallback: str, windows: str | None):
+    from .engines import render as _r
     from .music.engine_tuning import auto_overrides, sounding_for
 
     over = auto_overrides(scene, windows, model)  # held notes whose measured pick is not the renderer's, or misses
 
     def play(sc, m):
-        return _r(sc, engine=engine, model=m, fallback=fallback, sounding=sounding_for(sc, windows, m))
+        return _r(sc, engine="operator", model=m, fallback=fallback, sounding=sounding_for(sc, windows, m))
     if not isinstance(scene, (list, tuple)):
         if not over:
             return play(scene, model)

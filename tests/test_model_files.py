@@ -237,6 +237,26 @@ def test_the_best_validated_covering_model_wins(tmp_path, monkeypatch):
     assert all(missed_by_ear(m.meta) for m in failed if m.path.parent.resolve() != here)
 
 
+def test_a_render_reads_the_model_directories_once_and_the_next_render_sees_a_new_file(tmp_path, monkeypatch):
+    # a note's render asked for the listing four times (its pick, its windows' pick, the renderer's, the skipped
+    # files' notes): once now, and a file that appears after it is the next render's pick
+    from bowsynth.api import render
+    from bowsynth.engines.operator import choose
+
+    models = tmp_path / "models"
+    models.mkdir()
+    monkeypatch.chdir(tmp_path)
+    calls = []
+    scan = choose._scan
+    monkeypatch.setattr(choose, "_scan", lambda: calls.append(1) or scan())
+    sc = Scene(fb=100, duration=0.05)
+    assert render(sc, windows="free").info.model_path == str(FB100) and len(calls) == 1
+    rewrite(FB100, models / "better.safetensors", lambda m: m["validation"].update(nmse=1e-9))
+    assert render(sc, windows="free").info.model_path == str(models / "better.safetensors") and len(calls) == 2
+    choose.available_models()  # outside a render: read afresh
+    assert len(calls) == 3
+
+
 def test_the_narrowest_covering_box_wins_over_a_lower_validation_nmse():
     """Validation NMSE comes from each box's own bows, so it does not compare across boxes: among models that cover a
     scene the one with the smallest box of bows plays it (a point model before any box), then the lowest NMSE."""
