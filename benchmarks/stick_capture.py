@@ -10,6 +10,8 @@ every step of its scheme: 2 GB for 30 s.
 
     PYTHONPATH=. .venv/bin/python benchmarks/stick_capture.py [--seconds 30] [MODEL:WINDOWS ...]
 
+MODEL `pick` is the model a render of the scene picks (`choose.find_model`).
+
 Results: docs/BENCHMARKS.md, "The stick capture at F_B 1000".
 """
 
@@ -18,17 +20,18 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 from bowsynth.analysis.metrics import cycle_shape_error, listener_errors
 from bowsynth.engines.fdm import TRUTH_OVERSAMPLE, fdm_steps_p
-from bowsynth.engines.operator.choose import as_model
+from bowsynth.engines.operator.choose import as_model, find_model
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.music.engine_tuning import sounding_for
 from bowsynth.scene import Scene
 
-DEFAULT = ["paper-fb1000-half:auto", "paper-fb1000-knee:auto", "paper-fb1000:free", "paper-fb1000:physics",
+DEFAULT = ["pick:auto", "paper-fb1000-half:auto", "paper-fb1000-knee:auto", "paper-fb1000:free", "paper-fb1000:physics",
            "stick-mid:free", "stick-mid:physics", "stick-high:physics"]
 
 
@@ -54,7 +57,8 @@ def main() -> None:
     shift = int(round(sr / 100.0 / 0.7))  # about a sounding period (the note sounds at ~0.73 f0)
     for run in args.runs:
         name, _, windows = run.partition(":")
-        m = as_model(name)
+        m = find_model(sc) if name == "pick" else as_model(name)
+        name = f"{Path(m.path).stem} (the pick)" if name == "pick" else name
         r = render_operator(sc, model=m, sounding=sounding_for(sc, windows or "free", m))
         cells = []
         for a, b in spans:

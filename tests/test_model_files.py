@@ -251,10 +251,28 @@ def test_a_render_reads_the_model_directories_once_and_the_next_render_sees_a_ne
     monkeypatch.setattr(choose, "_scan", lambda: calls.append(1) or scan())
     sc = Scene(fb=100, duration=0.05)
     assert render(sc, windows="free").info.model_path == str(FB100) and len(calls) == 1
-    rewrite(FB100, models / "better.safetensors", lambda m: m["validation"].update(nmse=1e-9))
+    rewrite(FB100, models / "better.safetensors", lambda m: m["validation"].update(nmse=1e-9, lsd_db=1e-3))
     assert render(sc, windows="free").info.model_path == str(models / "better.safetensors") and len(calls) == 2
     choose.available_models()  # outside a render: read afresh
     assert len(calls) == 3
+
+
+def test_point_models_of_one_bow_go_by_their_spectra_at_validation_not_nmse(tmp_path, monkeypatch):
+    # NMSE from rest weighs a phase no listener hears: paper-fb1000-knee (NMSE 4.0e-4, log-spectral distance 3.1 dB)
+    # is the paper scene's pick over paper-fb1000-half (1.9e-5, 11.8 dB); a range model records no spectrum
+    from bowsynth.engines.operator.choose import find_model
+
+    models = tmp_path / "models"
+    models.mkdir()
+    monkeypatch.chdir(tmp_path)
+    sc = Scene(fb=100, duration=0.05)
+    lsd = load_model(FB100).meta.validation["lsd_db"]
+    rewrite(FB100, models / "phase.safetensors", lambda m: m["validation"].update(nmse=1e-9, lsd_db=2 * lsd))
+    assert find_model(sc).path == FB100  # the lower NMSE, the wider spectrum's error: not picked
+    rewrite(FB100, models / "spectrum.safetensors", lambda m: m["validation"].update(nmse=1e-3, lsd_db=lsd / 2))
+    assert find_model(sc).path == models / "spectrum.safetensors"
+    knee = find_model(Scene(f0=100.0, fb=1000.0, vb=0.2))
+    assert knee.path.stem == "paper-fb1000-knee" and knee.meta.validation["nmse"] > 1e-4
 
 
 def test_the_narrowest_covering_box_wins_over_a_lower_validation_nmse():

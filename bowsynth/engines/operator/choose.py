@@ -209,19 +209,30 @@ def rests_throughout(m: OperatorModel) -> bool:
 def preference(m: OperatorModel, depth: float) -> tuple:
     """The order in which models that cover a bow are picked (lowest first), given how deep the bow lies in each one's
     box (Domain.edge_depth): those that have it away from their edges (EDGE) first, then the most specialised (a
-    point model, then the smallest box), then the lowest validation NMSE. Among models that all have the bow near
+    point model, then the smallest box), then the best validation. Among models that all have the bow near
     their edges, the deepest first: there the edge, not the box's size, sets the error (session 20: F_B / w 0.431, v_B
     0.08 lies 5.7 % deep in loud-stops, the smaller box, which played it 9.2 dB and 28 cents off, and 8.1 % deep in
     slow-bow, which plays it 0.035 dB and 3.9 cents off). min() over it keeps the first of equals (./models before
     the shipped)."""
     shallow = depth < EDGE
-    # a box where every grid bow rests has no NMSE on record: last among equals
-    return shallow, -depth if shallow else m.domain.bow_extent, m.meta.validation.get("nmse", math.inf)
+    return shallow, -depth if shallow else m.domain.bow_extent, validation_rank(m)
+
+
+def validation_rank(m: OperatorModel) -> tuple:
+    """How two models of the same bows compare at validation, lowest first. Point models at one bow go by the
+    log-spectral distance of their validation render (the whole spectrum to 80 dB below its peak, on the float
+    signal), then NMSE(p): NMSE from rest weighs a phase offset no listener hears, and picked paper-fb1000-half
+    (1.9e-5) over paper-fb1000-knee (4.0e-4), whose spectrum is 3.1 dB from the truth's against 11.8 and whose
+    stick capture is within 0.5 % of the p range against 1.5-1.8 % (docs/BENCHMARKS.md, session 40). A range model's
+    validation records no spectrum: NMSE; a box where every grid bow rests has none on record: last among equals."""
+    v = m.meta.validation or {}
+    lsd = v.get("lsd_db", math.inf) if not m.domain.is_range else math.inf
+    return lsd, v.get("nmse", math.inf)
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
     """The most specialised validated model (a point model, else the smallest box of bows: Domain.bow_extent; then
-    the lowest validation NMSE(p); ./models before the shipped ones on a tie) among those
+    the best validation: validation_rank; ./models before the shipped ones on a tie) among those
     (found, or the given list) that cover the scene. A model whose validation failed is never picked here (see
     model.validation_failure): pass it explicitly to use it. Otherwise a DomainError says which models come nearest
     and how to train one that covers the scene."""
