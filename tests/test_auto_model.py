@@ -184,11 +184,17 @@ def test_a_bow_the_pick_cannot_hold_is_played_by_a_model_measured_there(tmp_path
     """F_B / w 1.256, v_B 0.07465 at 95 Hz, held just above vb_stop: stick-stops, the renderer's pick, leaves its
     trained states from rest (the render was refused, session 37). stops-band, its refinement on the band, failed its
     validation by ear at another grid bow and is never the pick; measured at this bow it plays the note within the
-    targets, and the render says which model plays and why."""
+    targets, and the render says which model plays and why. upper-band (session 40, stops-band refined on the band's
+    upper half) is the pick there now, and plays it within the targets too."""
     f0, beta, vb = 95.4, 1.256, 0.07465
     sc = _scene(f0, beta, vb)
-    assert covering_model(sc).path.stem == "stick-stops" and as_model("stops-band").failure is not None
     truth = render(sc, engine="fdm", oversample=100)
+    r = render(sc)
+    assert covering_model(sc).path.stem == "upper-band" and _stem(r) == "upper-band"
+    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    assert abs(e["cents"]) < 1 and e["harm_db_max"] < 1
+    _without(monkeypatch, "upper-band")
+    assert covering_model(sc).path.stem == "stick-stops" and as_model("stops-band").failure is not None
     r = render(sc)
     assert _stem(r) == "stops-band"
     e = listener_errors(r.p, truth.p, sc.sample_rate)

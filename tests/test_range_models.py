@@ -500,6 +500,9 @@ BAND_BOWS = [
     # the band's bottom at heavy forces: halt-band 30.8 cents sharp (session 38's draw); halt-bottom, its refinement
     # there (failed its validation by ear: never the pick), heard truer (session 39)
     (140.6, 1.574, 0.07154, "halt-band", "halt-bottom", "halt-band", 10),
+    # the band's upper half at light forces, 41 % deep in upper-band's box: stops-band, its parent and the pick
+    # before, 11.9 cents flat (session 40's draw)
+    (259.8, 1.194, 0.07329, "upper-band", "upper-band", "stops-band", 5),
 ]
 
 
