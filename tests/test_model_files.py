@@ -271,6 +271,10 @@ def test_point_models_of_one_bow_go_by_their_spectra_at_validation_not_nmse(tmp_
     assert find_model(sc).path == FB100  # the lower NMSE, the wider spectrum's error: not picked
     rewrite(FB100, models / "spectrum.safetensors", lambda m: m["validation"].update(nmse=1e-3, lsd_db=lsd / 2))
     assert find_model(sc).path == models / "spectrum.safetensors"
+    # an edited record (text or null where a number belongs, digest recomputed) orders last, never breaks the pick
+    for bad in ("x", None, float("nan")):
+        rewrite(FB100, models / "odd.safetensors", lambda m: m["validation"].update(nmse=1e-12, lsd_db=bad))
+        assert find_model(sc).path == models / "spectrum.safetensors"
     knee = find_model(Scene(f0=100.0, fb=1000.0, vb=0.2))
     assert knee.path.stem == "paper-fb1000-knee" and knee.meta.validation["nmse"] > 1e-4
 

@@ -226,8 +226,14 @@ def validation_rank(m: OperatorModel) -> tuple:
     stick capture is within 0.5 % of the p range against 1.5-1.8 % (docs/BENCHMARKS.md, session 40). A range model's
     validation records no spectrum: NMSE; a box where every grid bow rests has none on record: last among equals."""
     v = m.meta.validation or {}
-    lsd = v.get("lsd_db", math.inf) if not m.domain.is_range else math.inf
-    return lsd, v.get("nmse", math.inf)
+    lsd = math.inf if m.domain.is_range else _finite(v.get("lsd_db"))
+    return lsd, _finite(v.get("nmse"))
+
+
+def _finite(x) -> float:
+    """A recorded number, or inf for one missing or not a finite number (an edited file's null or text must not
+    break the ordering)."""
+    return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) else math.inf
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
