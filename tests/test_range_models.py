@@ -503,6 +503,9 @@ BAND_BOWS = [
     # the band's upper half at light forces, 41 % deep in upper-band's box: stops-band, its parent and the pick
     # before, 11.9 cents flat (session 40's draw)
     (259.8, 1.194, 0.07329, "upper-band", "upper-band", "stops-band", 5),
+    # the band's bottom, 24 % deep in low-band's box: bottom-band, its parent and the pick, 7.4 cents sharp; low-band
+    # (failed its validation by ear: never the pick) heard truer (session 40's draw)
+    (507.4, 1.271, 0.07145, "bottom-band", "low-band", "bottom-band", 5),
 ]
 
 

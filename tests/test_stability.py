@@ -192,7 +192,11 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # session 40: stops-band refined on the band's upper half (F_B / w 0.9-1.3 x v_B 0.0722-0.077): 21 / 23 /
                # 24 of 64 leave (seeds 1-3), the rest within 0.18 % and 0.87 cents at its centre bow (F_B / w 1.082,
                # v_B 0.075); 30 s -0.86 cents
-               "upper-band": (30, 4e-3, 1.3)}
+               "upper-band": (30, 4e-3, 1.3),
+               # session 40: bottom-band refined on the band's bottom at F_B / w 1.0-1.3 x v_B 0.0708-0.0722, failed its
+               # validation by ear (played only where measured truer): 17 / 17 / 21 of 64 leave (seeds 1-3), the rest
+               # within 0.24 % and 1.34 cents at its centre bow (F_B / w 1.140, v_B 0.072); 30 s +0.38 cents
+               "low-band": (26, 4e-3, 1.8)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
