@@ -567,10 +567,11 @@ def test_a_render_of_the_paper_stick_slip_scene_holds_the_stick_capture_within_o
     r = render(sc)
     fine = fdm_steps_p(sc, TRUTH_OVERSAMPLE)
     sr, os_ = sc.sample_rate, TRUTH_OVERSAMPLE
+    truth = fine[::os_][:sc.n_samples]
     i, j = sr, 3 * sr - 1
-    ref = fine[::os_][i:j]
+    ref = truth[i:j]
     shape, _ = cycle_shape_error(r.p[i:j].astype(float), fine[i * os_:(j - 1) * os_ + 1], int(sr / 70), oversample=os_)
     assert shape < 0.01, f"the stick capture's cycle {100 * shape:.2f} % of the p range off"
     assert abs(np.ptp(r.p[i:j]) - np.ptp(ref)) < 0.005 * np.ptp(ref)
-    e = listener_errors(r.p, fine[::os_][:sc.n_samples], sr)
+    e = listener_errors(r.p, truth, sr)
     assert e["harm_db_max"] < 1.0 and abs(e["cents"]) < 1.0

@@ -17,7 +17,7 @@ from ...errors import DomainError, ModelFileError
 from ...scene import Scene
 from .basis import _operator
 from .domain import span_text
-from .modelfile import OperatorModel, grid_rests, load_model
+from .modelfile import OperatorModel, grid_rests, is_finite, load_model
 from .rollout import scene_bows
 from .windows import window_bounds
 
@@ -226,14 +226,11 @@ def validation_rank(m: OperatorModel) -> tuple:
     stick capture is within 0.5 % of the p range against 1.5-1.8 % (docs/BENCHMARKS.md, session 40). A range model's
     validation records no spectrum: NMSE; a box where every grid bow rests has none on record: last among equals."""
     v = m.meta.validation or {}
-    lsd = math.inf if m.domain.is_range else _finite(v.get("lsd_db"))
-    return lsd, _finite(v.get("nmse"))
 
-
-def _finite(x) -> float:
-    """A recorded number, or inf for one missing or not a finite number (an edited file's null or text must not
-    break the ordering)."""
-    return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) else math.inf
+    def recorded(key):  # inf for one missing or not a finite number: an edited file's null or text must not break it
+        x = v.get(key)
+        return float(x) if is_finite(x) else math.inf
+    return math.inf if m.domain.is_range else recorded("lsd_db"), recorded("nmse")
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:

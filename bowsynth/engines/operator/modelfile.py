@@ -85,7 +85,7 @@ def digest(meta: dict, tensors: dict) -> str:
     return "sha256:" + h.hexdigest()
 
 
-def _finite(v) -> bool:
+def is_finite(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
@@ -106,7 +106,7 @@ def validation_failure(meta: ModelMeta) -> str | None:
     if v.get("silent_sounding"):
         return f"validation: it sounds at {v['silent_sounding']} grid bow(s) where the truth rests"
     harm, cents = v.get("harm_db_median"), v.get("cents_abs_max")
-    if v.get("points") is not None and _finite(harm) and _finite(cents):
+    if v.get("points") is not None and is_finite(harm) and is_finite(cents):
         if harm > MAX_VALIDATION_HARM_DB:
             return f"validation harmonics {harm:.3g} dB (median) > {MAX_VALIDATION_HARM_DB:g}"
         if cents > MAX_VALIDATION_CENTS:
@@ -115,7 +115,7 @@ def validation_failure(meta: ModelMeta) -> str | None:
     if grid_rests(v):
         return None  # a box where every grid bow damps the mass (the heavy bow stops' corner): it rests at each
     n = v.get("nmse")
-    if not _finite(n):
+    if not is_finite(n):
         return "no validation score"
     if n > MAX_VALIDATION_NMSE:
         return f"validation NMSE(p) {n:.3g} > {MAX_VALIDATION_NMSE:g}"
@@ -128,7 +128,7 @@ def missed_by_ear(meta: ModelMeta) -> bool:
     may play it at a held bow where it is measured truer than the pick: session 37's tile for the band just above
     vb_stop at F_B / w 0.62-1.3 missed by 45 cents at one grid bow and played the bows no validated model plays."""
     v = meta.validation or {}
-    listened = v.get("points") is not None and _finite(v.get("harm_db_median")) and _finite(v.get("cents_abs_max"))
+    listened = v.get("points") is not None and is_finite(v.get("harm_db_median")) and is_finite(v.get("cents_abs_max"))
     return listened and not v.get("error") and not v.get("silent_sounding") and validation_failure(meta) is not None
 
 
