@@ -130,6 +130,10 @@ CASES = [
     ("model path: a directory", "render --fb 100 --model adir.safetensors x.wav"),
     ("model path: a symlink loop", "render --fb 100 --model loop.safetensors x.wav"),
     ("model path: a FIFO", "render --fb 100 --model mfifo.safetensors x.wav"),
+    ("score: a FIFO with no suffix (never opened to sniff it)", "score --score sfifo --mix m.wav"),
+    ("compare: a directory", "compare adir.safetensors"),
+    ("compare: /dev/null", "compare /dev/null"),
+    ("train --config: a FIFO", "train --config sfifo"),
     # round 3: MIDI files
     ("MIDI file timed in SMPTE frames", "score --score smpte.mid --method fdm --mix m.wav"),
     ("MIDI file with 0 ticks per beat", "score --score zerodiv.mid --method fdm --mix m.wav"),
@@ -321,6 +325,7 @@ def _round3_files(d: Path, exe) -> None:
     (d / "adir.safetensors").mkdir()
     (d / "loop.safetensors").symlink_to("loop.safetensors")
     os.mkfifo(d / "mfifo.safetensors")
+    os.mkfifo(d / "sfifo")
     mid = mido.MidiFile(type=1, ticks_per_beat=480)
     mid.tracks.append(mido.MidiTrack([mido.MetaMessage("set_tempo", tempo=500000, time=0)]))
     for notes in ([72, 74], [67, 65], [67, 62], [48, 43]):

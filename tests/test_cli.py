@@ -330,7 +330,7 @@ def test_train_config_refuses_unknown_keys_and_bad_types(tmp_path, capsys, monke
         code, out, err = run_main(["train", "--config", str(bad)], capsys, monkeypatch)
         assert code == 2 and what in err and "Traceback" not in err, err
     code, out, err = run_main(["train", "--config", str(tmp_path / "none.toml")], capsys, monkeypatch)
-    assert code == 2 and "no such file" in err
+    assert code == 2 and "not found" in err
 
 
 def test_train_batch_width_window_and_device_from_a_recipe_and_the_device_is_recorded(tmp_path, capsys,

@@ -155,6 +155,40 @@ def test_a_model_path_that_is_no_file_says_what_it_is(tmp_path, capsys, monkeypa
     assert code == 0 and "paper-fb100" in out
 
 
+INPUTS = {  # a command that reads a file, and what it calls that file
+    "compare": (["compare", "{f}"], "WAV file"),
+    "score": (["score", "--score", "{f}", "--mix", "{d}/m.wav"], "score file"),  # no suffix: sniffed for MThd
+    "score MIDI": (["score", "--score", "{f}.mid", "--mix", "{d}/m.wav"], "MIDI file"),
+    "train --score": (["train", "--score", "{f}"], "score file"),
+    "train --config": (["train", "--config", "{f}"], "--config"),
+}
+
+
+@pytest.mark.parametrize("kind, says", [("fifo", "is a FIFO"), ("dir", "is a directory"), ("device", "is a device"),
+                                        ("dangling", "not found (a symlink to nothing)"), ("loop", "symlink loop")])
+@pytest.mark.parametrize("command", list(INPUTS))
+def test_an_input_that_is_no_file_says_what_it_is_and_never_blocks(tmp_path, command, kind, says):
+    # a real process with a deadline: a FIFO opened to sniff its first bytes blocked `score` until someone wrote to
+    # it; a directory, /dev/null or a shell's <(...) pipe were each "not found"
+    args, what = INPUTS[command]
+    f = tmp_path / "in"
+    for p in (f, tmp_path / "in.mid"):
+        if kind == "fifo":
+            os.mkfifo(p)
+        elif kind == "dir":
+            p.mkdir()
+        elif kind == "device":
+            p.symlink_to("/dev/null")
+        elif kind == "dangling":
+            p.symlink_to(tmp_path / "gone")
+        else:
+            p.symlink_to(p.name)
+    r = subprocess.run([sys.executable, "-m", "bowsynth", *[a.format(f=f, d=tmp_path) for a in args]],
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 2 and f"{what} {f}" in r.stderr and says in r.stderr and _one_line(r.stderr), r.stderr
+    assert not (tmp_path / "m.wav").exists()
+
+
 @pytest.mark.parametrize("start, force, code, says", [(3000.0, False, 2, "the mix would be 50 min long"),
                                                       (1e12, False, 2, "pass --force"),
                                                       (1e12, True, 1, "out of memory")])

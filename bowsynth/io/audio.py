@@ -28,6 +28,7 @@ import soundfile as sf
 from ..errors import UsageError
 from ..render import Render
 from ..scene import Scene
+from .infile import regular_file
 from .outfile import atomic_write, check_output_path, is_stdout, resolve  # noqa: F401  (re-exported)
 
 META_KEY = "bowsynth"
@@ -302,8 +303,8 @@ def read_wav(path) -> WavInfo:
     naming what is missing: scores over part of a file would look like scores over all of it.
     """
     p = Path(path)
-    if not p.is_file():
-        raise UsageError(f"audio file {p} not found" if p.suffix.lower() not in (".wav", "") else f"WAV file {p} not found")
+    what = "audio file" if p.suffix.lower() not in (".wav", "") else "WAV file"
+    regular_file(p, what, f"a{'n' if what[0] == 'a' else ''} {what}")
     try:
         with sf.SoundFile(str(p)) as f:
             data = f.read(dtype="float64", always_2d=True)

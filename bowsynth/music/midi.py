@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import UsageError
+from ..io.infile import regular_file
 
 CC_PRESSURE, CC_EXPRESSION, CC_MODULATION = 2, 11, 1
 BEND = "bend"  # the pitch wheel's key in MidiPiece.controllers (value 0..16383, 8192 centre)
@@ -107,10 +108,13 @@ def vibrato_depth(cc: float) -> float:
 
 
 def is_midi(path) -> bool:
-    """Does the file start like a standard MIDI file (or is it named like one)?"""
+    """Does the file start like a standard MIDI file (or is it named like one)? Only a regular file is opened to
+    look: a FIFO would block the sniff (its reader then says what it is)."""
     p = Path(path)
     if p.suffix.lower() in (".mid", ".midi", ".smf"):
         return True
+    if not p.is_file():
+        return False
     try:
         with p.open("rb") as fh:
             return fh.read(4) == b"MThd"
@@ -154,8 +158,7 @@ def read_midi(path) -> MidiPiece:
     import mido
 
     p = Path(path)
-    if not p.is_file():
-        raise UsageError(f"MIDI file {p} not found")
+    regular_file(p, "MIDI file", "a MIDI file")
     try:
         head = _header(p)
     except OSError as e:

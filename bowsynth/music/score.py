@@ -35,6 +35,7 @@ from pathlib import Path
 from .. import physics
 from ..controls import Curve, as_control
 from ..errors import SceneError, UsageError
+from ..io.infile import regular_file
 from ..scene import Scene, load_preset
 from .note import MAX_RELEASE, RELEASE, Note, _scale, _with_release, stop_tail
 from .pitch_curve import pitch_points
@@ -179,8 +180,7 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
 
 def load_toml_score(path, ratio_for=None) -> list[Note]:
     p = Path(path)
-    if not p.is_file():
-        raise ScoreError(f"score file {p} not found")
+    regular_file(p, "score file", "a score file", ScoreError)
     try:
         with p.open("rb") as fh:
             data = tomllib.load(fh)

@@ -19,6 +19,7 @@ import tomllib
 from pathlib import Path
 
 from ..errors import UsageError
+from ..io.infile import regular_file
 
 # key: the types the value may have (TOML's); each is the `bowsynth train` flag of that name
 KEYS = {"preset": (str,), "f0": (int, float), "fb": (str, int, float), "vb": (str, int, float), "a": (int, float),
@@ -30,13 +31,10 @@ KEYS = {"preset": (str,), "f0": (int, float), "fb": (str, int, float), "vb": (st
 def load_recipe(path) -> dict:
     """The recipe's settings, checked: known keys, the right types, `out` resolved against the recipe's folder."""
     path = Path(path)
+    regular_file(path, "--config", "a recipe file")
     try:
         with path.open("rb") as fh:
             raw = tomllib.load(fh)
-    except FileNotFoundError:
-        raise UsageError(f"--config {path}: no such file") from None
-    except IsADirectoryError:
-        raise UsageError(f"--config {path} is a directory, not a recipe file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise UsageError(f"--config {path} is not valid TOML: {e}") from None
     out = {}

@@ -19,6 +19,7 @@ import numpy as np
 
 from ... import __version__, physics
 from ...errors import ModelFileError
+from ...io.infile import regular_file
 from ...scene import Scene
 from .domain import PLAYS_BELOW_STIFFNESS, Domain
 from .npnet import NetConfig, weight_shapes
@@ -234,25 +235,7 @@ class OperatorModel:
 def _check_regular(path: Path) -> os.stat_result:
     """A model file is a regular file (its stat returned): say what it is instead (never open a FIFO, which blocks, or
     a device such as /dev/zero, which never ends)."""
-    import errno
-    import stat
-
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise ModelFileError(f"model file {path} not found" + (" (a symlink to nothing)" if path.is_symlink()
-                                                                else "")) from None
-    except OSError as e:
-        why = "is a symlink loop" if e.errno == errno.ELOOP else f"cannot be read ({e.strerror})"
-        raise ModelFileError(f"model file {path} {why}") from None
-    if stat.S_ISDIR(st.st_mode):
-        raise ModelFileError(f"model file {path} is a directory, not a model file")
-    if not stat.S_ISREG(st.st_mode):
-        kind = "a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(
-            st.st_mode) else "not a regular file"
-        raise ModelFileError(f"model file {path} is {kind}" + (f" (the target of a symlink: {os.path.realpath(path)})"
-                                                              if path.is_symlink() else "") + ", not a model file")
-    return st
+    return regular_file(path, "model file", "a model file", ModelFileError)
 
 
 # A file's digest is hashed once per file, not once per process: its identity (device, inode, size, and modification
