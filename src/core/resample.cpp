@@ -71,6 +71,9 @@ void polyphase(const double* x, int64_t rows, int64_t n_in, const double* w, int
 namespace {
 
 constexpr int64_t G = 8;  // outputs per product of resample_rows' inner loop
+// groups of G outputs computed side by side (2: 0.47 -> 0.43 ms for a 5 s row at 100 Hz, 4: 0.40; the loads, not
+// the multiply-adds' latency, bound it from there)
+constexpr int NG = 4;
 
 // A row as the resampler reads it: x held at its last finite sample from its first non-finite one (nf; 0 if that is
 // its first), with an odd continuation of k0 samples at both ends. at(i) is the padded row's sample i.
@@ -129,7 +132,40 @@ inline void row_body(const float* x, const float* wt, int64_t ld, int64_t up, in
     int64_t base = (j0 * down) / up, phase = (j0 * down) % up, c = j0 % up;
     int64_t j = j0;
     while (j < j1) {
-        if (step == 1 && j + G <= j1 && phase + (G - 1) * rest < up) {
+        if (step == 1 && j + NG * G <= j1 && phase + (NG * G - 1) * rest < up) {
+            // NG groups of eight outputs side by side: each group's two sums are a chain of K / 2 dependent
+            // multiply-adds, so one group at a time waited on the multiply-add's latency; the groups' chains fill
+            // each other's waits. Every lane sums as one_output does (even taps, odd taps, then their sum): the
+            // same bits whichever path computes an output.
+            const float* wc[NG];
+            for (int g = 0; g < NG; ++g) {
+                int64_t cg = c + g * G;
+                while (cg >= up) cg -= up;
+                wc[g] = wt + cg;
+            }
+            const float* xb = x + base;
+            f8 a[NG] = {}, b[NG] = {};
+            int64_t k = 0;
+            for (; k + 2 <= Kn; k += 2)
+                for (int g = 0; g < NG; ++g) {
+                    a[g] += *reinterpret_cast<const f8u*>(wc[g] + k * ld) *
+                            *reinterpret_cast<const f8u*>(xb + g * G + k);
+                    b[g] += *reinterpret_cast<const f8u*>(wc[g] + (k + 1) * ld) *
+                            *reinterpret_cast<const f8u*>(xb + g * G + k + 1);
+                }
+            if (k < Kn)
+                for (int g = 0; g < NG; ++g)
+                    a[g] += *reinterpret_cast<const f8u*>(wc[g] + k * ld) *
+                            *reinterpret_cast<const f8u*>(xb + g * G + k);
+            for (int g = 0; g < NG; ++g) {
+                a[g] += b[g];
+                std::memcpy(y + (j - j0) + g * G, &a[g], sizeof a[g]);
+            }
+            j += NG * G;
+            base += NG * G;
+            phase += NG * G * rest;
+            c += NG * G;
+        } else if (step == 1 && j + G <= j1 && phase + (G - 1) * rest < up) {
             const float* wc = wt + c;
             const float* xb = x + base;
             f8 a = {}, b = {};
@@ -156,7 +192,7 @@ inline void row_body(const float* x, const float* wt, int64_t ld, int64_t up, in
             phase -= up;
             ++base;
         }
-        if (c >= up) c -= up;
+        while (c >= up) c -= up;
     }
 }
 
