@@ -21,7 +21,7 @@ from .choose import (_bow_exit, as_model, available_models, covering_model, find
 from .grid import from_grid, needs_whole_windows, to_grid, to_output_in_place, whole_window_scene
 from .modelfile import OperatorModel
 from .onset import mute_from, rest_onset, ring_down
-from .rollout import applied_controls, length_buckets, rollout_states, scene_bows
+from .rollout import applied_controls, length_buckets, prepare, rollout_states, scene_bows
 from .windows import FAIL_BOW, FAIL_DOMAIN, FAIL_MUTE, FAILURES, locked_window, window_bounds
 
 
@@ -298,10 +298,10 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
         wtau = np.array([op.window if w is None else w for w in wins])
         par, bows, leave = _voice_bows(m, group, wins) if group else (None, [], [])
         loop = "core"
-        # warm-up: converts the weights and computes the trunk features at these sample offsets, so that `seconds`
-        # measures the rollout itself (start-up: info.setup_seconds)
+        # the weights converted and the trunk features at these sample offsets, so that `seconds` measures the
+        # rollout itself (start-up: info.setup_seconds)
         if group:
-            rollout_states(m, x0, 1, dtau, loop=loop, params=par[:, :1], window=wtau)
+            prepare(m, dtau, wtau)
         t0 = time.perf_counter() - t_rest
         q, p, fail = [None] * len(group), [None] * len(group), [None] * len(group)
         for rows in length_buckets([g.n_samples for g in group]):
