@@ -506,6 +506,9 @@ BAND_BOWS = [
     # the band's bottom, 24 % deep in low-band's box: bottom-band, its parent and the pick, 7.4 cents sharp; low-band
     # (failed its validation by ear: never the pick) heard truer (session 40's draw)
     (507.4, 1.271, 0.07145, "bottom-band", "low-band", "bottom-band", 5),
+    # the band's floor, 0.3 % above vb_stop: low-band, its parent, 6.8 cents flat and bottom-band, the pick, 25 cents
+    # sharp; floor-band (failed its validation by ear) heard truer (session 41's draw)
+    (322.1, 1.279, 0.07092, "bottom-band", "floor-band", "low-band", 5),
 ]
 
 

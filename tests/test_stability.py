@@ -39,7 +39,8 @@ SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.ends
 # (F_B / w 1.082, v_B 0.075), where 0.1 % of v_B moves the truth 3-4 cents
 LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3, "slow-bow": 1.3, "floor-long": 6.0, "stick-halt": 5.5,
               "stick-halt-high": 2.5, "creep-mid": 1.5, "halt-band": 4.5, "high-band": 7.5,
-              "edge-band": 6.0, "bottom-band": 2.5, "halt-bottom": 6.5, "upper-band": 1.3}
+              "edge-band": 6.0, "bottom-band": 2.5, "halt-bottom": 6.5, "upper-band": 1.3,
+              "floor-band": 6.5}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
@@ -196,7 +197,12 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # session 40: bottom-band refined on the band's bottom at F_B / w 1.0-1.3 x v_B 0.0708-0.0722, failed its
                # validation by ear (played only where measured truer): 17 / 17 / 21 of 64 leave (seeds 1-3), the rest
                # within 0.24 % and 1.34 cents at its centre bow (F_B / w 1.140, v_B 0.072); 30 s +0.38 cents
-               "low-band": (26, 4e-3, 1.8)}
+               "low-band": (26, 4e-3, 1.8),
+               # session 41: low-band refined on the band's floor at F_B / w 1.15-1.3 x v_B 0.0708-0.0711, failed its
+               # validation by ear (played only where measured truer): 12 / 15 / 19 of 64 leave (seeds 1-3), the rest
+               # within 0.17 % at its centre bow (F_B / w 1.223, v_B 0.07095), all ~7 cents sharp there as its 30 s
+               # render (+5.75), where low-band plays 8-9 cents sharp
+               "floor-band": (18, 4e-3, 7.5)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
