@@ -493,7 +493,9 @@ BAND_BOWS = [
     # stick-halt-high 114 cents flat and 4.8 dB off (session 37's scan); high-band is the pick
     (110.0, 1.8, 0.072, "high-band", "high-band", "stick-halt-high", 50),
     # the space's heavy edge, 3 % deep in edge-band's box: halt-edge picked, 13.5 cents flat; edge-band heard truer
-    (110.0, 1.95, 0.071, "halt-edge", "edge-band", "halt-edge", 5),
+    # (session 38: within 0.001 cents, 0.11 dB), since session 41 edge-floor, its refinement on the band's floor
+    # (0.001 cents, 0.005 dB)
+    (110.0, 1.95, 0.071, "halt-edge", "edge-floor", "halt-edge", 5),
     # the band's bottom at light forces, 36 % deep in bottom-band's box: stops-band, its parent, 148 cents flat
     # (session 39); stick-stops, the pick before, left its states there
     (117.5, 1.169, 0.07141, "bottom-band", "bottom-band", "stops-band", 50),
@@ -509,6 +511,10 @@ BAND_BOWS = [
     # the band's floor, 0.3 % above vb_stop: low-band, its parent, 6.8 cents flat and bottom-band, the pick, 25 cents
     # sharp; floor-band (failed its validation by ear) heard truer (session 41's draw)
     (322.1, 1.279, 0.07092, "bottom-band", "floor-band", "low-band", 5),
+    # the space's heavy edge at the band's floor, 0.3 % above vb_stop: halt-edge, the pick, 12.7 cents flat and
+    # edge-band, the parent, 56; edge-floor (failed its validation by ear: another note at one grid bow) heard truer
+    # (session 41's draw)
+    (179.1, 1.950, 0.07091, "halt-edge", "edge-floor", "edge-band", 20),
 ]
 
 
