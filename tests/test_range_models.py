@@ -515,6 +515,9 @@ BAND_BOWS = [
     # edge-band, the parent, 56; edge-floor (failed its validation by ear: another note at one grid bow) heard truer
     # (session 41's draw)
     (179.1, 1.950, 0.07091, "halt-edge", "edge-floor", "edge-band", 20),
+    # the band's floor at its light edge, 0.4 % above vb_stop: bottom-band, the pick, 16 cents flat, floor-band, the
+    # parent, and low-band 9.3-9.6 sharp; light-floor (failed its validation by ear) heard truer (session 41's scan)
+    (110.0, 1.2, 0.071, "bottom-band", "light-floor", "floor-band", 5),
 ]
 
 
