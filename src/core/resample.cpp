@@ -119,6 +119,36 @@ inline void row_ends(const HeldRow& h, const float* wt, int64_t ld, int64_t up, 
     }
 }
 
+// N groups of G consecutive outputs from column c of wt (y: the first output's place, xb: its first input), side by
+// side: each group's two sums are a chain of K / 2 dependent multiply-adds, so one group at a time waited on the
+// multiply-add's latency; the groups' chains fill each other's waits. Every lane sums as one_output does (even taps,
+// odd taps, then their sum): the same bits whichever path computes an output.
+template <int N, int KK>
+inline void groups(const float* wt, int64_t ld, int64_t up, int64_t c, const float* xb, int64_t K, float* y) {
+    const int64_t Kn = KK > 0 ? KK : K;
+    const float* wc[N];
+    for (int g = 0; g < N; ++g) {
+        int64_t cg = c + g * G;
+        while (cg >= up) cg -= up;
+        wc[g] = wt + cg;
+    }
+    f8 a[N] = {}, b[N] = {};
+    int64_t k = 0;
+    for (; k + 2 <= Kn; k += 2)
+        for (int g = 0; g < N; ++g) {
+            a[g] += *reinterpret_cast<const f8u*>(wc[g] + k * ld) * *reinterpret_cast<const f8u*>(xb + g * G + k);
+            b[g] += *reinterpret_cast<const f8u*>(wc[g] + (k + 1) * ld) *
+                    *reinterpret_cast<const f8u*>(xb + g * G + k + 1);
+        }
+    if (k < Kn)
+        for (int g = 0; g < N; ++g)
+            a[g] += *reinterpret_cast<const f8u*>(wc[g] + k * ld) * *reinterpret_cast<const f8u*>(xb + g * G + k);
+    for (int g = 0; g < N; ++g) {
+        a[g] += b[g];
+        std::memcpy(y + g * G, &a[g], sizeof a[g]);
+    }
+}
+
 template <int KK>
 inline void row_body(const float* x, const float* wt, int64_t ld, int64_t up, int64_t K, int64_t down, float* y,
                      int64_t j0, int64_t j1) {  // y: output j0's place
@@ -127,67 +157,25 @@ inline void row_body(const float* x, const float* wt, int64_t ld, int64_t up, in
     // own), so they are one product of the tap's eight weights (wt: the weights in output order, tap-major) with
     // the inputs: K vector multiply-adds for eight outputs, against K / 4 and a horizontal sum each in float64
     // before (0.85 ms for 5 s of two rows at 100 Hz against 1.6; float32 is the network's precision)
-    const int64_t Kn = KK > 0 ? KK : K;
     const int64_t step = down / up, rest = down - step * up;
     int64_t base = (j0 * down) / up, phase = (j0 * down) % up, c = j0 % up;
     int64_t j = j0;
     while (j < j1) {
-        if (step == 1 && j + NG * G <= j1 && phase + (NG * G - 1) * rest < up) {
-            // NG groups of eight outputs side by side: each group's two sums are a chain of K / 2 dependent
-            // multiply-adds, so one group at a time waited on the multiply-add's latency; the groups' chains fill
-            // each other's waits. Every lane sums as one_output does (even taps, odd taps, then their sum): the
-            // same bits whichever path computes an output.
-            const float* wc[NG];
-            for (int g = 0; g < NG; ++g) {
-                int64_t cg = c + g * G;
-                while (cg >= up) cg -= up;
-                wc[g] = wt + cg;
-            }
-            const float* xb = x + base;
-            f8 a[NG] = {}, b[NG] = {};
-            int64_t k = 0;
-            for (; k + 2 <= Kn; k += 2)
-                for (int g = 0; g < NG; ++g) {
-                    a[g] += *reinterpret_cast<const f8u*>(wc[g] + k * ld) *
-                            *reinterpret_cast<const f8u*>(xb + g * G + k);
-                    b[g] += *reinterpret_cast<const f8u*>(wc[g] + (k + 1) * ld) *
-                            *reinterpret_cast<const f8u*>(xb + g * G + k + 1);
-                }
-            if (k < Kn)
-                for (int g = 0; g < NG; ++g)
-                    a[g] += *reinterpret_cast<const f8u*>(wc[g] + k * ld) *
-                            *reinterpret_cast<const f8u*>(xb + g * G + k);
-            for (int g = 0; g < NG; ++g) {
-                a[g] += b[g];
-                std::memcpy(y + (j - j0) + g * G, &a[g], sizeof a[g]);
-            }
-            j += NG * G;
-            base += NG * G;
-            phase += NG * G * rest;
-            c += NG * G;
-        } else if (step == 1 && j + G <= j1 && phase + (G - 1) * rest < up) {
-            const float* wc = wt + c;
-            const float* xb = x + base;
-            f8 a = {}, b = {};
-            int64_t k = 0;
-            for (; k + 2 <= Kn; k += 2) {
-                a += *reinterpret_cast<const f8u*>(wc + k * ld) * *reinterpret_cast<const f8u*>(xb + k);
-                b += *reinterpret_cast<const f8u*>(wc + (k + 1) * ld) * *reinterpret_cast<const f8u*>(xb + k + 1);
-            }
-            if (k < Kn) a += *reinterpret_cast<const f8u*>(wc + k * ld) * *reinterpret_cast<const f8u*>(xb + k);
-            a += b;
-            std::memcpy(y + (j - j0), &a, sizeof a);
-            j += G;
-            base += G;
-            phase += G * rest;
-            c += G;
-        } else {
+        // as many outputs at once as read consecutive inputs without a phase wrap: NG groups, one, or one output
+        const int64_t n = step != 1                                                     ? 1
+                          : j + NG * G <= j1 && phase + (NG * G - 1) * rest < up ? NG * G
+                          : j + G <= j1 && phase + (G - 1) * rest < up           ? G
+                                                                                  : 1;
+        if (n == NG * G)
+            groups<NG, KK>(wt, ld, up, c, x + base, K, y + (j - j0));
+        else if (n == G)
+            groups<1, KK>(wt, ld, up, c, x + base, K, y + (j - j0));
+        else
             y[j - j0] = one_output<KK>(wt + c, ld, x + base, K);
-            ++j;
-            base += step;
-            phase += rest;
-            ++c;
-        }
+        j += n;
+        base += n == 1 ? step : n;
+        phase += n * rest;
+        c += n;
         while (phase >= up) {
             phase -= up;
             ++base;
