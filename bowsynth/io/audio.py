@@ -303,8 +303,10 @@ def read_wav(path) -> WavInfo:
     naming what is missing: scores over part of a file would look like scores over all of it.
     """
     p = Path(path)
-    what = "audio file" if p.suffix.lower() not in (".wav", "") else "WAV file"
-    regular_file(p, what, f"a{'n' if what[0] == 'a' else ''} {what}")
+    if p.suffix.lower() in (".wav", ""):
+        regular_file(p, "WAV file", "a WAV file")
+    else:
+        regular_file(p, "audio file", "an audio file")
     try:
         with sf.SoundFile(str(p)) as f:
             data = f.read(dtype="float64", always_2d=True)

@@ -232,12 +232,6 @@ class OperatorModel:
         return path
 
 
-def _check_regular(path: Path) -> os.stat_result:
-    """A model file is a regular file (its stat returned): say what it is instead (never open a FIFO, which blocks, or
-    a device such as /dev/zero, which never ends)."""
-    return regular_file(path, "model file", "a model file", ModelFileError)
-
-
 # A file's digest is hashed once per file, not once per process: its identity (device, inode, size, and modification
 # and change times in ns, taken before it is read) is kept on disk with the digest its weights matched. Any write to
 # the file moves its change time, which no user can set back, so an edited or replaced file is hashed afresh. (The
@@ -264,7 +258,9 @@ def load_model(path) -> OperatorModel:
     from safetensors import safe_open
 
     path = Path(path)
-    ident, hashed = _identity(_check_regular(path)), None
+    # a regular file or one line saying what it is: a FIFO (which blocks) or a device (/dev/zero never ends) is never
+    # opened
+    ident, hashed = _identity(regular_file(path, "model file", "a model file", ModelFileError)), None
     try:
         with safe_open(str(path), framework="numpy") as f:
             raw = (f.metadata() or {}).get(META_KEY)
