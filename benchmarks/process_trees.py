@@ -1,16 +1,19 @@
 """Whole processes a user runs, this tree against another source tree (a worktree at an older commit, its compiled
 core copied or built in), alternated: `--help`, a 1 s operator note, a 2 s A5 and a 1 s `--method fdm` note.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/process_trees.py OTHER_TREE [--runs 9]
+    PYTHONPATH=. .venv/bin/python benchmarks/process_trees.py OTHER_TREE [--runs 9] [--caches THIS_DIR OTHER_DIR]
 
 As in chorale_trees.py, each process drops the editable install's finder (which would always load this checkout) and
-puts its own tree first on sys.path. Prints Markdown: medians, and each as a multiple of its tree's `--help`.
+puts its own tree first on sys.path. Each tree has its own cache, empty at the start, or a copy of the one given with
+--caches (a user's, full of measurements; each tree's in the layout it reads). Prints Markdown: medians, and each as a
+multiple of its tree's `--help`.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -32,12 +35,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("other", type=Path)
     ap.add_argument("--runs", type=int, default=9)
+    ap.add_argument("--caches", type=Path, nargs=2, metavar=("THIS_DIR", "OTHER_DIR"))
     args = ap.parse_args()
     trees = {"this tree": ROOT, "other tree": source_tree(args.other)}
     # the processes a user runs read their modules' bytecode (see chorale.py)
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPATH")}
     t = {(tr, c): [] for tr in trees for c in CASES}
     with tempfile.TemporaryDirectory() as d:
+        for tr, given in zip(trees, args.caches or ()):
+            shutil.copytree(given, Path(d) / f"cache-{tr.split()[0]}")
         for i in range(args.runs):
             # the trees take turns going first, as chorale_trees.py's operator processes take turns in each slot
             for tr in list(trees)[::1 if i % 2 == 0 else -1]:

@@ -1,5 +1,7 @@
-"""Odd environments (issue 26): a cache file that is a FIFO, a user with no home directory."""
+"""Odd environments (issue 26): a cache entry that is a FIFO or damaged, two processes at once, a user with no home
+directory."""
 
+import json
 import os
 import subprocess
 import sys
@@ -19,15 +21,22 @@ def _env(**kw):
     return env
 
 
-def test_a_cache_file_that_is_a_fifo_is_ignored_not_waited_on(tmp_path):
+def test_a_cache_entry_that_is_a_fifo_is_ignored_not_waited_on(tmp_path):
     d = tmp_path / "cache"
-    d.mkdir()
-    os.mkfifo(d / "sounding-ratio.json")
-    r = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--pitch", "A3", "--method", "fdm", "-d", "0.1",
-                        str(tmp_path / "a.wav")], env=_env(BOWSYNTH_CACHE=str(d)), capture_output=True, text=True,
-                       timeout=120)
+    cmd = [sys.executable, "-m", "bowsynth", "render", "--pitch", "A3", "--method", "fdm", "-d", "0.1"]
+    first = subprocess.run(cmd + [str(tmp_path / "a.wav")], env=_env(BOWSYNTH_CACHE=str(d)), capture_output=True,
+                           text=True, timeout=120)
+    assert first.returncode == 0, first.stderr
+    entries = list(d.rglob("*.json"))
+    assert entries
+    for e in entries:  # every entry the first process kept is now a FIFO: reading one would wait forever
+        e.unlink()
+        os.mkfifo(e)
+    r = subprocess.run(cmd + [str(tmp_path / "b.wav")], env=_env(BOWSYNTH_CACHE=str(d)), capture_output=True,
+                       text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert "f0 224.3" in r.stdout and (tmp_path / "a.wav").stat().st_size > 0
+    assert "f0 224.3" in r.stdout and (tmp_path / "b.wav").stat().st_size > 0
+    assert all(e.is_file() for e in entries)  # measured again and written over the FIFOs
 
 
 def test_a_user_with_no_home_gets_no_cache_and_renders(tmp_path, monkeypatch, capsys):
@@ -45,14 +54,47 @@ def test_a_user_with_no_home_gets_no_cache_and_renders(tmp_path, monkeypatch, ca
     assert code == 0 and "pitch 110.00 Hz" in out, err
 
 
-@pytest.mark.parametrize("junk", [b"[" * 100000, b"\xff\xfe not utf-8", b'{"version": 1}'])
-def test_a_damaged_cache_table_is_ignored(tmp_path, monkeypatch, junk):
+@pytest.mark.parametrize("junk", [b"[" * 100000, b"\xff\xfe not utf-8", b'{"version": 1}', b"x" * (2 << 20)])
+def test_a_damaged_cache_entry_is_ignored(tmp_path, monkeypatch, junk):
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
-    (tmp_path / "t.json").write_bytes(junk)
+    cache.DiskTable("t", "v1").put("k", 0)
+    cache.DiskTable("t", "v1").entry_path("k").write_bytes(junk)
     t = cache.DiskTable("t", "v1")
     assert t.get("k") is None
     t.put("k", 1)
     assert cache.DiskTable("t", "v1").get("k") == 1
+
+
+def test_two_processes_at_once_keep_what_each_wrote(tmp_path, monkeypatch):
+    """Each process reads the table before the other writes (sessions 1-41 kept a table in one file, and the last
+    process to write it dropped the other's new entries, measured again by every later process: seconds each)."""
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    cache.DiskTable("t", "v1").put("old", 0)
+    a, b = cache.DiskTable("t", "v1"), cache.DiskTable("t", "v1")
+    assert a.get("old") == 0 and b.get("old") == 0
+    a.put("a", 1)
+    b.put("b", 2)
+    later = cache.DiskTable("t", "v1")
+    assert (later.get("old"), later.get("a"), later.get("b")) == (0, 1, 2)
+    assert cache.DiskTable("t", "v2").get("a") is None  # another version of the measurement: not an answer
+
+
+def test_a_table_keeps_its_newest_entries_and_versions(tmp_path, monkeypatch):
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    monkeypatch.setattr(cache, "MAX_ENTRIES", 10)
+    (tmp_path / "t.json").write_text('{"version": "v0", "entries": {}}')  # the one-file table of an older bowsynth
+    for i, v in enumerate(("v1", "v2")):
+        cache.DiskTable("t", v).put("k", v)
+        os.utime(cache.DiskTable("t", v).entry_path("k").parent, ns=(i * 10**9, i * 10**9))
+    t = cache.DiskTable("t", "v3")
+    for i in range(12):
+        t.put(f"k{i}", i)
+        os.utime(t.entry_path(f"k{i}"), ns=(i * 10**9, i * 10**9))  # written a second apart, whatever the clock
+    t.put("k12", 12)
+    left = {json.loads(p.read_text())["key"] for p in (tmp_path / "t").rglob("*.json")}
+    assert "k12" in left and "k11" in left and "k0" not in left and len(left) <= 10
+    assert [cache.DiskTable("t", v).get("k") for v in ("v1", "v2")] == [None, "v2"]  # the newest other version kept
+    assert not (tmp_path / "t.json").exists()
 
 
 @pytest.mark.parametrize("user", [None, "2"])

@@ -186,7 +186,7 @@ def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
     first = pitch.sounding_ratio(0.159, 0.2, 100.0)
     with pytest.raises(pitch.SilentNoteError) as silent:
         pitch.sounding_ratio(0.159, 0.05, 100.0)  # a bow stop: does not speak
-    assert (fresh_cache / "sounding-ratio.json").is_file()
+    assert len(list((fresh_cache / "sounding-ratio").rglob("*.json"))) == 2
     _forget(monkeypatch)
     assert pitch.sounding_ratio(0.159, 0.2, 100.0) == first  # the same floats, bit for bit
     with pytest.raises(pitch.SilentNoteError) as again:
@@ -195,28 +195,33 @@ def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
     assert pitch.tune("A4", fb=None, beta=0.159, vb=0.2).f0 == pytest.approx(440 / first.r)
 
 
-@pytest.mark.parametrize("content", [b"", b"{not json", b"\xff\xfe\x00", b'{"version": "0", "entries": {}}',
+def _entry(fresh_cache):
+    (path,) = (fresh_cache / "sounding-ratio").rglob("*.json")
+    return path
+
+
+@pytest.mark.parametrize("content", [b"", b"{not json", b"\xff\xfe\x00", b'{"version": "0", "key": "x", "value": 1}',
                                      b'{"version": null, "entries": []}', b"[1, 2]"])
-def test_a_bad_cache_file_is_measured_over(fresh_cache, content):
-    """Truncated, binary, foreign-version or wrong-shaped tables are ignored and replaced, never an error."""
+def test_a_bad_cache_entry_is_measured_over(fresh_cache, monkeypatch, content):
+    """Truncated, binary, foreign-version or wrong-shaped entries are ignored and replaced, never an error."""
     from bowsynth.music import tuning as pitch
 
-    fresh_cache.mkdir()
-    (fresh_cache / "sounding-ratio.json").write_bytes(content)
     r = pitch.sounding_ratio(0.159, 0.2, 100.0)
-    assert 0.8 < r.r < 1.0
-    doc = json.loads((fresh_cache / "sounding-ratio.json").read_text())
-    assert doc["version"] == pitch.RATIO_VERSION and len(doc["entries"]) == 1
+    _entry(fresh_cache).write_bytes(content)
+    pitch.sounding_ratio.cache_clear()
+    monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
+    assert pitch.sounding_ratio(0.159, 0.2, 100.0) == r
+    doc = json.loads(_entry(fresh_cache).read_text())
+    assert doc["version"] == pitch.RATIO_VERSION and doc["value"]["r"] == r.r
 
 
 def test_an_edited_entry_is_measured_again(fresh_cache, monkeypatch):
     from bowsynth.music import tuning as pitch
 
     r = pitch.sounding_ratio(0.159, 0.2, 100.0)
-    path = fresh_cache / "sounding-ratio.json"
+    path = _entry(fresh_cache)
     doc = json.loads(path.read_text())
-    (key,) = doc["entries"]
-    doc["entries"][key] = {"r": "fast"}
+    doc["value"] = {"r": "fast"}
     path.write_text(json.dumps(doc))
     pitch.sounding_ratio.cache_clear()
     monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
@@ -236,14 +241,16 @@ def test_no_cache_when_off_or_unwritable(fresh_cache, tmp_path, monkeypatch):
     monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
     assert pitch.sounding_ratio(0.159, 0.2, 100.0).r > 0  # measured, not remembered, no error
     assert blocker.read_text() == "not a directory"
-    link = tmp_path / "link.json"
-    link.symlink_to(tmp_path / "target.json")
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
     from bowsynth.io.cache import DiskTable
 
     t = DiskTable("link", "v")
+    link = t.entry_path("k")
+    link.parent.mkdir(parents=True)
+    link.symlink_to(tmp_path / "target.json")
     t.put("k", 1)  # the link is replaced by a file; what it pointed to is never written
-    assert not (tmp_path / "target.json").exists() and json.loads(link.read_text())["entries"] == {"k": 1}
+    assert not (tmp_path / "target.json").exists() and json.loads(link.read_text())["value"] == 1
+    assert not link.is_symlink()
 
 
 @pytest.mark.parametrize("pitch, fb, engine", [("A5", 553.0, "fdm"), (1000.0, 900.0, "fdm"),

@@ -1,29 +1,30 @@
-"""A small on-disk cache of measured numbers (the sounding ratios of `pitch`) and computed arrays (a model's trunk on
-its grid), kept between processes.
+"""A small on-disk cache of measured numbers (sounding ratios, auto windows' scores, models' digests and physics
+verdicts) and computed arrays (a model's trunk on its grid), kept between processes.
 
-Why: `render --pitch A4` solves for the f0 that sounds at A4 by running the FDM from rest a few times; that costs a
-fraction of a second per process (the runs; numba's import and load added ~0.8 s before the compiled core), every time the same note is asked for. The
-answer depends only on (F_B / w, v_B, a) and the measuring code, so it is kept in one JSON file per table under
+Why: `render --pitch A4` solves for the f0 that sounds at A4 by running the FDM from rest a few times, and auto windows
+score a model at a bow by notes from rest against a x10 FDM: a fraction of a second to seconds per process, every time
+the same note is asked for. Each answer depends only on its key and the measuring code (the table's version), so it is
+kept, one small JSON file an entry (DiskTable), under
 
     $BOWSYNTH_CACHE, else $XDG_CACHE_HOME/bowsynth, else ~/.cache/bowsynth     (BOWSYNTH_CACHE=off: no cache)
 
 A cache is never a reason to fail: a file that cannot be read, parsed or written, or that was written by another
 version of the measurement, is ignored (and replaced when it can be). Writes go to a temporary file in the same
-directory, then replace the old one (two processes writing at once: the last one's table wins, nothing is torn).
+directory, then replace the old one: nothing is torn, and two processes writing at once both keep what they wrote.
 """
-
 from __future__ import annotations
 
 import contextlib
 import json
 import os
 import secrets
+import shutil
+import stat
 from pathlib import Path
 
 import numpy as np
 
 CACHE_ENV = "BOWSYNTH_CACHE"
-MAX_ENTRIES = 20_000  # a table this size is ~2 MB of JSON; older entries go first
 
 
 def cache_dir() -> Path | None:
@@ -40,15 +41,10 @@ def cache_dir() -> Path | None:
     return home / ".cache" / "bowsynth"
 
 
-MAX_TABLE_BYTES = 4 * MAX_ENTRIES * 100  # a table is ~100 bytes an entry; more is not ours
-
-
 @contextlib.contextmanager
 def _regular(path: Path, max_bytes: int):
     """The file open for binary reading, or None for anything that is not a regular file of at most max_bytes: a
     FIFO would block the read forever, a device or a huge file is not ours. OSError where it cannot be opened."""
-    import stat
-
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     try:
         st = os.fstat(fd)
@@ -61,49 +57,98 @@ def _regular(path: Path, max_bytes: int):
         os.close(fd)
 
 
-def _read_table(path: Path) -> str | None:
-    """The table's text, or None for anything that is not a regular file of a sane size."""
-    with _regular(path, MAX_TABLE_BYTES) as fh:
-        return None if fh is None else fh.read(MAX_TABLE_BYTES + 1).decode("utf-8")
+MAX_ENTRIES = 10_000  # a table's entries on disk (~4 KB each on most file systems); past it the oldest go first
+MAX_ENTRY_BYTES = 1 << 20  # an entry is 0.1-3 KB; a bigger file is not ours
+KEEP_VERSIONS = 2  # a table's versions kept side by side (two installs of bowsynth used in turn keep theirs)
+
+
+def _digest(text: str) -> str:
+    import hashlib
+
+    return hashlib.blake2b(text.encode(), digest_size=12).hexdigest()
 
 
 class DiskTable:
-    """A JSON table of key -> value (both JSON-able), valid for one `version` of whatever computed the values."""
+    """Key -> value (both JSON-able), valid for one `version` of whatever computed the values: one small file an
+    entry, <cache>/<name>/<version's digest>/<key's digest>.json, holding the version and the key beside the value.
+
+    Why a file an entry and not one file a table (sessions 1-41): a process read and parsed the whole table to find
+    one entry (the auto windows' table reached 2.4 MB: ~50 ms of every render's process, idle), rewrote all of it for
+    each entry it added, and two processes at work at once each wrote back the table they had read, so one lost the
+    other's new entries and a later process measured them again (seconds each). A file an entry costs one small read
+    however many entries there are, and is written alone, atomically: nothing another process wrote is lost."""
 
     def __init__(self, name: str, version: str):
         self.name, self.version = name, version
-        self._data: dict | None = None
+        self._seen: dict = {}
+        self._where: tuple | None = None
 
-    def _path(self) -> Path | None:
-        d = cache_dir()
-        return None if d is None else d / f"{self.name}.json"
+    def _dir(self) -> str | None:
+        # a render looks up ~50 entries (its models' digests): the directory is worked out once per environment
+        env = tuple(os.environ.get(k) for k in (CACHE_ENV, "XDG_CACHE_HOME", "HOME"))
+        if self._where is None or self._where[0] != env:
+            d = cache_dir()
+            self._where = (env, None if d is None else os.path.join(d, self.name, _digest(self.version)))
+        return self._where[1]
 
-    def _load(self) -> dict:
-        if self._data is None:
-            self._data = {}
-            path = self._path()
-            try:
-                text = _read_table(path) if path is not None else None
-                doc = json.loads(text) if text is not None else None
-                if isinstance(doc, dict) and doc.get("version") == self.version and isinstance(doc.get("entries"),
-                                                                                                 dict):
-                    self._data = doc["entries"]
-            except (OSError, ValueError, UnicodeDecodeError, RecursionError):
-                pass
-        return self._data
+    def entry_path(self, key: str) -> Path | None:
+        """Where the entry of `key` is kept (None: no cache)."""
+        d = self._dir()
+        return None if d is None else Path(d, f"{_digest(key)}.json")
 
     def get(self, key: str):
-        return self._load().get(key)
+        if key in self._seen:
+            return self._seen[key]
+        d = self._dir()
+        if d is None:
+            return None
+        path = os.path.join(d, f"{_digest(key)}.json")
+        try:
+            with _regular(path, MAX_ENTRY_BYTES) as fh:
+                doc = None if fh is None else json.loads(fh.read(MAX_ENTRY_BYTES + 1).decode("utf-8"))
+        except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+            return None
+        # the key and version stored beside the value: a digest's collision or a file moved between tables misses
+        if not (isinstance(doc, dict) and doc.get("version") == self.version and doc.get("key") == key):
+            return None
+        self._seen[key] = doc.get("value")
+        return self._seen[key]
 
     def put(self, key: str, value) -> None:
-        data = self._load()
-        data[key] = value
-        while len(data) > MAX_ENTRIES:
-            data.pop(next(iter(data)))
-        path = self._path()
-        if path is not None:
-            text = json.dumps({"version": self.version, "entries": data}, separators=(",", ":"))
-            _replace(path, lambda fh: fh.write(text.encode()))
+        self._seen[key] = value
+        path = self.entry_path(key)
+        if path is None:
+            return
+        text = json.dumps({"version": self.version, "key": key, "value": value}, separators=(",", ":"))
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError:  # a file where the directory would be, or no right to write: no cache, never an error
+            return
+        _replace(path, lambda fh: fh.write(text.encode()))
+        _prune(path.parent)
+
+
+def _prune(d: Path) -> None:
+    """Keep a table's newest MAX_ENTRIES entries and its KEEP_VERSIONS newest versions; remove the one-file table an
+    older bowsynth wrote beside it (<name>.json). Whatever cannot be listed or removed stays."""
+    with contextlib.suppress(OSError):
+        with os.scandir(d) as it:
+            entries = [e for e in it if e.name.endswith(".json")]
+        if len(entries) > MAX_ENTRIES:
+            entries.sort(key=lambda e: e.stat(follow_symlinks=False).st_mtime_ns)
+            for e in entries[:len(entries) - MAX_ENTRIES * 9 // 10]:
+                with contextlib.suppress(OSError):
+                    os.unlink(e.path)
+    with contextlib.suppress(OSError):
+        with os.scandir(d.parent) as it:
+            versions = [e for e in it if e.is_dir(follow_symlinks=False) and e.name != d.name]
+        versions.sort(key=lambda e: e.stat(follow_symlinks=False).st_mtime_ns, reverse=True)
+        for e in versions[KEEP_VERSIONS - 1:]:
+            shutil.rmtree(e.path, ignore_errors=True)
+    old = d.parent.parent / f"{d.parent.name}.json"
+    with contextlib.suppress(OSError):
+        if stat.S_ISREG(os.lstat(old).st_mode):
+            os.unlink(old)
 
 
 def _replace(path: Path, write) -> None:
