@@ -2,6 +2,7 @@
 against the torch network on such windows, and what it is for, measured on a shipped model: the network's error
 stays on the note's harmonics instead of spreading into lines between and below them."""
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -445,3 +446,26 @@ def test_auto_windows_lock_a_note_whose_pitch_wanders_from_frame_to_frame():
     locked = frame_errors(auto.p, truth.p, sc.sample_rate)
     assert free["cents_median"] > 1.0 and locked["cents_median"] < 0.1, (free, locked)
     assert locked["harm_db_median"] < 0.2 and locked["frames"] >= 9
+
+
+def test_unsaved_models_keep_their_measurements_apart(monkeypatch, tmp_path):
+    """A training validates its model before it has an id. Keyed by that empty id, the on-disk answers (auto
+    windows' scores, the model's sounding ratios) of every unsaved model were one: the second training of a box was
+    validated in the windows measured for the first. Now each is kept under a digest of what it plays by."""
+    import bowsynth.music.auto_windows as aw
+    from bowsynth.engines.operator.modelfile import OperatorModel
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    monkeypatch.setattr(aw, "_choices", aw.DiskTable("auto-windows", "test"))
+    shipped = load_model(Path(bowsynth.__file__).parent / "models" / "paper-fb100.safetensors")
+    meta = dataclasses.replace(shipped.meta, id="", digest="")
+    first = OperatorModel(None, meta, weights=shipped.weights)
+    nudged = {k: v * np.float32(1.001) if v.ndim == 2 else v for k, v in shipped.weights.items()}
+    second = OperatorModel(None, dataclasses.replace(meta), weights=nudged)
+    assert shipped.key == shipped.id and first.key != second.key and first.key.startswith("unsaved@")
+    assert first.key == OperatorModel(None, dataclasses.replace(meta), weights=dict(shipped.weights)).key
+    measured = []
+    monkeypatch.setattr(aw, "candidate_errors", lambda m, *bow: measured.append(m) or {"free": {"m": m.key}})
+    for m in (first, second, first):
+        assert aw._cached_errors(m, 0.159, 0.2, 100.0, None) == {"free": {"m": m.key}}
+    assert measured == [first, second]  # the first's answer kept, the second measured for itself

@@ -271,7 +271,7 @@ def _at_pitch(m, beta: float, vb: float, a: float, lock, f0: float, names) -> di
     between them (slow-bow's lock of 9 windows a period holds at 412.0 Hz, not at 412.3). Cached per model, bow, f0."""
     from ..engines.operator.onset import settled_seconds
 
-    key = f"{m.id} {beta!r} {vb!r} {a!r} at {f0!r}"
+    key = f"{m.key} {beta!r} {vb!r} {a!r} at {f0!r}"
     hit = _choices.get(key)
     if isinstance(hit, dict) and all(n in hit for n in names):
         return hit
@@ -314,7 +314,7 @@ def candidate_score(errors: dict | None, f0: float | None = None) -> float:
 def _cached_errors(model, beta: float, vb: float, a: float, lock) -> dict:
     from ..engines.operator.choose import as_model
 
-    key = f"{as_model(model).id} {beta!r} {vb!r} {a!r}"
+    key = f"{as_model(model).key} {beta!r} {vb!r} {a!r}"
     hit = _choices.get(key)
     # an entry of free windows alone (auto_score's, where the model held no lock) does not answer for a lock
     if not (isinstance(hit, dict) and "free" in hit and (lock is None or len(hit) > 1)):

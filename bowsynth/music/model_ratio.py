@@ -38,7 +38,7 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
             tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
             return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
         how = f"-locked2x{f'+{more}' if more else ''}" if locked else ""
-        return engine_ratio(f"operator{how}{RATIO_PERIODS} {m.id}", beta, vb, a, measure)
+        return engine_ratio(f"operator{how}{RATIO_PERIODS} {m.key}", beta, vb, a, measure)
     return ratio
 
 

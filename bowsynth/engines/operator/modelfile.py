@@ -198,6 +198,18 @@ class OperatorModel:
         return self.meta.id
 
     @property
+    def key(self) -> str:
+        """What this model's measurements are kept under on disk (auto windows' scores, its sounding ratios): its id,
+        or for a model not saved (a training's, validated before it has an id) a digest of what it plays by, hashed
+        at each call since a trainer changes its weights. Keyed by an empty id, every unsaved model of a box shared
+        one answer: the second training of a box was validated in the windows chosen for the first."""
+        if self.meta.id:
+            return self.meta.id
+        tensors = dict(self.weights, **{"domain.mask": np.ascontiguousarray(self.domain.mask, dtype=np.uint8)})
+        plays_by = {k: v for k, v in json.loads(self.meta.to_json()).items() if k in ("name", "domain", "net")}
+        return f"unsaved@{digest(plays_by, tensors)[:16]}"
+
+    @property
     def failure(self) -> str | None:
         """Why this model is not picked by default (see validation_failure), or None. Kept while its metadata and
         their validation are the same objects (the trainer assigns a new validation; the lookup asks this of every
