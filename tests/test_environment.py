@@ -65,6 +65,16 @@ def test_a_damaged_cache_entry_is_ignored(tmp_path, monkeypatch, junk):
     assert cache.DiskTable("t", "v1").get("k") == 1
 
 
+def test_a_file_where_a_table_would_be_is_left_alone(tmp_path, monkeypatch):
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    (tmp_path / "t").write_text("mine")
+    os.mkfifo(tmp_path / "u")
+    for name in ("t", "u"):
+        cache.DiskTable(name, "v1").put("k", 1)  # no error, nothing written
+        assert cache.DiskTable(name, "v1").get("k") is None
+    assert (tmp_path / "t").read_text() == "mine" and sorted(os.listdir(tmp_path)) == ["t", "u"]
+
+
 def test_two_processes_at_once_keep_what_each_wrote(tmp_path, monkeypatch):
     """Each process reads the table before the other writes (sessions 1-41 kept a table in one file, and the last
     process to write it dropped the other's new entries, measured again by every later process: seconds each)."""
