@@ -155,6 +155,9 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     ckpt = checkpoint_path(out)
     if resume and not ckpt.exists():
         raise UsageError(f"no checkpoint to resume at {ckpt}")
+    if ckpt.exists() and not (resume or force):  # the same command run again must not throw an interrupted run away
+        raise UsageError(f"{ckpt} holds an unfinished run for {out}: continue it with --resume, or pass --force to "
+                         f"start over")
     out.parent.mkdir(parents=True, exist_ok=True)
     with training_lock(out):
         return _train(scene, config, out, ckpt, name, force, resume, progress, console, box, init)
@@ -180,15 +183,22 @@ def _train(scene, config, out, ckpt, name, force, resume, progress, console, box
             rep.update("training", tr.progress(), f"step {tr.step}, {config.optimizer}")
             tr.run(ckpt=ckpt, on_step=on_step)
             model = tr.model()
-            if box is None:
-                rep.update("validating: 1 s rollout against a x100 FDM", 0.0)
-                model.meta.validation = validate(model, scene)
-            else:
-                from .training import validate_range
+            try:
+                if box is None:
+                    rep.update("validating: 1 s rollout against a x100 FDM", 0.0)
+                    model.meta.validation = validate(model, scene)
+                else:
+                    from .training import validate_range
 
-                secs = config.judge_seconds
-                rep.update(f"validating: {secs:g} s rollouts on a 3 x 3 grid of the box against a x100 FDM", 0.0)
-                model.meta.validation = validate_range(model, scene, box, seconds=secs)
+                    secs = config.judge_seconds
+                    rep.update(f"validating: {secs:g} s rollouts on a 3 x 3 grid of the box against a x100 FDM", 0.0)
+                    model.meta.validation = validate_range(model, scene, box, seconds=secs)
+            except Exception as e:  # the whole budget's training is in the network: kept for a rerun to validate
+                with contextlib.suppress(Exception):  # a checkpoint that cannot be saved leaves the error as it is
+                    tr.save_checkpoint(ckpt)
+                    e.add_note(f"the trained network is kept in {ckpt}: the same command with --resume validates it "
+                               f"without training again")
+                raise
             rep.update("validated", 1.0)
         except KeyboardInterrupt as e:  # Ctrl-C, or SIGTERM raised as errors.Terminated by the CLI
             code = interrupt_exit_code(e)

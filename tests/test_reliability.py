@@ -164,6 +164,12 @@ def test_kill_training_then_resume(tmp_path):
     with safe_open(str(ckpt), framework="pt") as f:
         step = json.loads(f.metadata()["bowsynth_checkpoint"])["step"]
     assert step > 0
+    kept = ckpt.read_bytes()
+    # the same command again, without --resume: the interrupted run is not thrown away (session 42 lost 40 minutes so)
+    again = subprocess.run(BOW + common + ["--steps", str(step + 20)], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
+    assert "unfinished run" in again.stderr and "--resume" in again.stderr and "--force" in again.stderr
+    assert ckpt.read_bytes() == kept and not out.exists()
     r = subprocess.run(BOW + common + ["--steps", str(step + 20), "--resume"], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0, r.stderr
@@ -171,6 +177,33 @@ def test_kill_training_then_resume(tmp_path):
     from bowsynth.engines.operator.modelfile import load_model
 
     assert load_model(out).meta.training["steps_done"] == step + 20
+
+
+def test_a_validation_that_fails_keeps_the_trained_network_for_resume(tmp_path, monkeypatch, capsys):
+    """An error after the budget is spent (session 42: a validation that crashed after 40 minutes of training) keeps
+    the trained network in the checkpoint and says so in its one line; --resume then validates without training."""
+    import bowsynth.training
+    from conftest import run_main
+
+    out, ckpt = tmp_path / "v.safetensors", tmp_path / "v.ckpt.safetensors"
+    args = ["train", "--fb", "100", "--width", "16", "--depth", "2", "--n-data", "64", "--steps", "30", "--out",
+            str(out), "--quiet"]
+    real = bowsynth.training.validate
+
+    def broken(*a, **k):
+        raise AttributeError("'OperatorModel' object has no attribute 'key'")
+
+    monkeypatch.setattr(bowsynth.training, "validate", broken)
+    code, _, err = run_main(args, capsys, monkeypatch)
+    assert code == 1 and err.count("\n") == 1 and err.startswith("internal error: AttributeError"), err
+    assert f"kept in {ckpt}" in err and "--resume" in err and ckpt.exists() and not out.exists()
+    monkeypatch.setattr(bowsynth.training, "validate", real)
+    code, _, err = run_main(args + ["--resume"], capsys, monkeypatch)
+    assert code == 0, err
+    from bowsynth.engines.operator.modelfile import load_model
+
+    m = load_model(out)
+    assert m.meta.training["steps_done"] == 30 and m.meta.validation["seconds"] == 1.0 and not ckpt.exists()
 
 
 def test_ctrl_c_keeps_a_checkpoint(tmp_path):

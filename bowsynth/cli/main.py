@@ -92,7 +92,9 @@ def _run() -> None:
     except Exception as e:  # a bug: still one line unless --debug
         if debug:
             raise
-        err.print(f"internal error: {type(e).__name__}: {e} (rerun with --debug for the traceback)", soft_wrap=True)
+        notes = "".join(f"; {n}" for n in getattr(e, "__notes__", ()))
+        err.print(f"internal error: {type(e).__name__}: {e} (rerun with --debug for the traceback){notes}",
+                  soft_wrap=True)
         sys.exit(1)
     # with standalone_mode=False typer turns a KeyboardInterrupt inside a command into a *returned* 130 (and an
     # explicit Exit into its returned code): without this check Ctrl-C exited 0
