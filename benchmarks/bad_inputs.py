@@ -57,6 +57,8 @@ CASES = [
     ("plot to a non-PNG name", "compare ok.wav --plot p.jpg"),
     ("existing model without --force", "train --fb 100 --steps 5 --out exists.safetensors"),
     ("resume without a checkpoint", "train --fb 100 --resume --out new.safetensors"),
+    ("an unfinished run's checkpoint, the same command again without --resume",
+     "train --fb 100 --steps 5 --out unfinished.safetensors"),
     ("zero training budget", "train --fb 100 --minutes 0"),
     ("unknown optimiser", "train --fb 100 --optimizer sgd --steps 1 --out n.safetensors"),
     ("score file that is not TOML", "score --score bad.toml outdir"),
@@ -179,6 +181,7 @@ def main():
         (d / "garbage.wav").write_bytes(b"RIFF0000WAVEjunk" * 4)
         (d / "bad.toml").write_text("[[voice]\nfb = ")
         (d / "exists.safetensors").write_bytes(b"x")
+        (d / "unfinished.ckpt.safetensors").write_bytes(b"x")  # only its presence is asked before training
         sf.write(d / "plain.wav", np.zeros(100), 44100)
         subprocess.run(exe + ["render", "--method", "fdm", "-d", "0.1", "ok.wav"], cwd=d, check=True,
                        capture_output=True)
