@@ -91,3 +91,23 @@ def test_two_renders_of_one_note_read_one_pitch_whatever_phase_they_end_at(tmp_p
     js = json.loads(so)
     assert abs(list(js["metrics"].values())[0]["cents"]) < 0.1
     assert any("not scored" in n for n in js["notes"])
+
+
+def test_a_reference_too_faint_for_a_spectrum_says_so_without_numpy_warnings(tmp_path):
+    """F_B 1e-300 moves the mass by ~1e-300: the reference's power underflows to zero, and numpy's "Mean of empty
+    slice" reached the user as a warning (hypothesis found it, tests/test_extremes.py). The distance is null."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import numpy as np
+    import soundfile as sf
+
+    sf.write(str(tmp_path / "plain.wav"), np.sin(np.arange(441) * 0.1), 44100, subtype="FLOAT")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    r = subprocess.run([sys.executable, "-m", "bowsynth", "compare", "plain.wav", "--json", "--fb", "1e-300"],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["metrics"] and all(m["lsd_db"] is None for m in doc["metrics"].values())

@@ -149,6 +149,8 @@ def log_spectral_distance(x, ref, sample_rate: float) -> float:
     _, px = sps.welch(np.asarray(x, float), sample_rate, nperseg=nper)
     _, pr = sps.welch(np.asarray(ref, float), sample_rate, nperseg=nper)
     keep = pr > pr.max() * 1e-8
+    if not keep.any():  # a reference so faint its power underflows to zero (F_B 1e-300): no spectrum to compare
+        return float("nan")
     d = 10 * np.log10((px[keep] + 1e-300) / pr[keep])
     return float(np.sqrt(np.mean(d ** 2)))
 
