@@ -12,6 +12,7 @@ A cache is never a reason to fail: a file that cannot be read, parsed or written
 version of the measurement, is ignored (and replaced when it can be). Writes go to a temporary file in the same
 directory, then replace the old one: nothing is torn, and two processes writing at once both keep what they wrote.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -82,6 +83,7 @@ class DiskTable:
         self.name, self.version = name, version
         self._seen: dict = {}
         self._where: tuple | None = None
+        self._tidied: str | None = None  # the directory whose other versions this process has removed
 
     def _dir(self) -> str | None:
         # a render looks up ~50 entries (its models' digests): the directory is worked out once per environment
@@ -91,18 +93,21 @@ class DiskTable:
             self._where = (env, None if d is None else os.path.join(d, self.name, _digest(self.version)))
         return self._where[1]
 
+    def _file(self, key: str) -> str | None:
+        d = self._dir()
+        return None if d is None else os.path.join(d, f"{_digest(key)}.json")
+
     def entry_path(self, key: str) -> Path | None:
         """Where the entry of `key` is kept (None: no cache)."""
-        d = self._dir()
-        return None if d is None else Path(d, f"{_digest(key)}.json")
+        f = self._file(key)
+        return None if f is None else Path(f)
 
     def get(self, key: str):
         if key in self._seen:
             return self._seen[key]
-        d = self._dir()
-        if d is None:
+        path = self._file(key)
+        if path is None:
             return None
-        path = os.path.join(d, f"{_digest(key)}.json")
         try:
             with _regular(path, MAX_ENTRY_BYTES) as fh:
                 doc = None if fh is None else json.loads(fh.read(MAX_ENTRY_BYTES + 1).decode("utf-8"))
@@ -125,12 +130,14 @@ class DiskTable:
         except OSError:  # a file where the directory would be, or no right to write: no cache, never an error
             return
         _replace(path, lambda fh: fh.write(text.encode()))
-        _prune(path.parent)
+        _prune_entries(path.parent)
+        if self._tidied != str(path.parent):  # other versions and an old table go once a process, not at every put
+            _prune_versions(path.parent)
+            self._tidied = str(path.parent)
 
 
-def _prune(d: Path) -> None:
-    """Keep a table's newest MAX_ENTRIES entries and its KEEP_VERSIONS newest versions; remove the one-file table an
-    older bowsynth wrote beside it (<name>.json). Whatever cannot be listed or removed stays."""
+def _prune_entries(d: Path) -> None:
+    """Keep a table's newest MAX_ENTRIES entries. Whatever cannot be listed or removed stays."""
     with contextlib.suppress(OSError):
         with os.scandir(d) as it:
             entries = [e for e in it if e.name.endswith(".json")]
@@ -139,6 +146,11 @@ def _prune(d: Path) -> None:
             for e in entries[:len(entries) - MAX_ENTRIES * 9 // 10]:
                 with contextlib.suppress(OSError):
                     os.unlink(e.path)
+
+
+def _prune_versions(d: Path) -> None:
+    """Keep a table's KEEP_VERSIONS newest versions; remove the one-file table an older bowsynth wrote beside it
+    (<name>.json). Whatever cannot be listed or removed stays."""
     with contextlib.suppress(OSError):
         with os.scandir(d.parent) as it:
             versions = [e for e in it if e.is_dir(follow_symlinks=False) and e.name != d.name]

@@ -205,9 +205,12 @@ class OperatorModel:
         one answer: the second training of a box was validated in the windows chosen for the first."""
         if self.meta.id:
             return self.meta.id
-        tensors = dict(self.weights, **{"domain.mask": np.ascontiguousarray(self.domain.mask, dtype=np.uint8)})
-        plays_by = {k: v for k, v in json.loads(self.meta.to_json()).items() if k in ("name", "domain", "net")}
-        return f"unsaved@{digest(plays_by, tensors)[:16]}"
+        plays_by = {"name": self.meta.name, "domain": self.domain.to_json(), "net": self.meta.net}
+        return f"unsaved@{digest(plays_by, self._file_tensors())[:16]}"
+
+    def _file_tensors(self) -> dict:
+        """What a model file holds beside its metadata: the weights and the domain's mask."""
+        return dict(self.weights, **{"domain.mask": np.ascontiguousarray(self.domain.mask, dtype=np.uint8)})
 
     @property
     def failure(self) -> str | None:
@@ -229,8 +232,7 @@ class OperatorModel:
         from ...io.audio import atomic_write
 
         path = Path(path)
-        tensors = dict(self.weights)
-        tensors["domain.mask"] = np.ascontiguousarray(self.domain.mask, dtype=np.uint8)
+        tensors = self._file_tensors()
         self.meta.id = model_id(self.meta.name, tensors)
         self.meta.format_version = RANGE_VERSION if self.domain.is_range else FORMAT_VERSION
         self.meta.digest = ""
