@@ -107,6 +107,32 @@ def test_a_table_keeps_its_newest_entries_and_versions(tmp_path, monkeypatch):
     assert not (tmp_path / "t.json").exists()
 
 
+def test_cached_arrays_keep_the_most_recently_used_within_their_bound(tmp_path, monkeypatch):
+    """A retrained or replaced model left its 8 MB trunk grid behind for good (sessions 1-42): now the arrays are
+    bounded, the least recently used (read or written) removed first; links and a killed writer's fresh temporary
+    file stay, an old one goes."""
+    import numpy as np
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    a = np.arange(1000.0)
+    monkeypatch.setattr(cache, "MAX_ARRAYS_TOTAL", 3 * (a.nbytes + 200))  # three arrays and their headers
+    outside = tmp_path.parent / "elsewhere.npy"
+    np.save(outside, a)
+    (tmp_path / "link.npy").symlink_to(outside)
+    for i, name in enumerate(("old", "used", "mid")):
+        cache.write_array(name, a + i)
+        os.utime(tmp_path / f"{name}.npy", ns=(i * 10**9, i * 10**9))
+    for name, age in ((".x.npy.0001.tmp", 7200), (".y.npy.0002.tmp", 10)):
+        (tmp_path / name).write_bytes(b"half")
+        t = os.stat(tmp_path / name).st_mtime - age
+        os.utime(tmp_path / name, (t, t))
+    assert cache.read_array("used", a.shape)[1] == 2.0  # reading it marks it used: now the newest of the three
+    cache.write_array("new", a + 3)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == [".y.npy.0002.tmp", "link.npy", "mid.npy", "new.npy", "used.npy"]
+    assert outside.exists() and cache.read_array("new", a.shape)[0] == 3.0
+
+
 @pytest.mark.parametrize("user", [None, "2"])
 def test_numpy_blas_runs_on_one_thread_unless_the_user_says_otherwise(user):
     """OpenBLAS's own threads spin for cores another process holds (a 44100 x 21 product: 1380 ms against 1.3 ms

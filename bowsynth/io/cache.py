@@ -136,11 +136,32 @@ class DiskTable:
             self._tidied = str(path.parent)
 
 
+STALE_TMP_SECONDS = 3600  # a temporary file this old was left by a process killed while it wrote (an array: 8 MB)
+
+
+def _scan(d, suffix: str) -> list:
+    """The regular files in `d` named *suffix; a writer's temporary file older than STALE_TMP_SECONDS is removed on
+    the way (nothing else would ever remove it)."""
+    import time
+
+    found, stale = [], time.time() - STALE_TMP_SECONDS
+    with os.scandir(d) as it:
+        for e in it:
+            if not e.is_file(follow_symlinks=False):
+                continue
+            if e.name.endswith(suffix):
+                found.append(e)
+            elif e.name.startswith(".") and e.name.endswith(".tmp"):
+                with contextlib.suppress(OSError):
+                    if e.stat(follow_symlinks=False).st_mtime < stale:
+                        os.unlink(e.path)
+    return found
+
+
 def _prune_entries(d: Path) -> None:
     """Keep a table's newest MAX_ENTRIES entries. Whatever cannot be listed or removed stays."""
     with contextlib.suppress(OSError):
-        with os.scandir(d) as it:
-            entries = [e for e in it if e.name.endswith(".json")]
+        entries = _scan(d, ".json")
         if len(entries) > MAX_ENTRIES:
             entries.sort(key=lambda e: e.stat(follow_symlinks=False).st_mtime_ns)
             for e in entries[:len(entries) - MAX_ENTRIES * 9 // 10]:
@@ -182,6 +203,10 @@ def _replace(path: Path, write) -> None:
 
 
 MAX_ARRAY_BYTES = 64 << 20  # an array cached here is a few MB (a model's trunk grid: 8 MB at 64 features)
+# All arrays together: ~30 models' trunk grids at 64 features. Before session 43 nothing bounded them, and each model
+# retrained or replaced (its id changes) left its old 8 MB behind for good; the least recently used go first (one is
+# computed again in ~0.1-0.2 s).
+MAX_ARRAYS_TOTAL = 256 << 20
 
 
 def read_array(name: str, shape: tuple, dtype=np.float64):
@@ -195,9 +220,11 @@ def read_array(name: str, shape: tuple, dtype=np.float64):
             if fh is None:
                 return None
             a = np.load(fh, allow_pickle=False)
+            if a.shape != tuple(shape) or a.dtype != np.dtype(dtype) or not np.all(np.isfinite(a)):
+                return None
+            with contextlib.suppress(OSError):  # its change time marks it used: the bound removes the unused first
+                os.utime(fh.fileno())
     except (OSError, ValueError, EOFError):
-        return None
-    if a.shape != tuple(shape) or a.dtype != np.dtype(dtype) or not np.all(np.isfinite(a)):
         return None
     return a
 
@@ -208,3 +235,18 @@ def write_array(name: str, a) -> None:
     if d is None:
         return
     _replace(d / f"{name}.npy", lambda fh: np.save(fh, np.ascontiguousarray(a), allow_pickle=False))
+    _prune_arrays(d, f"{name}.npy")
+
+
+def _prune_arrays(d: Path, keep: str) -> None:
+    """Keep the most recently used arrays within MAX_ARRAYS_TOTAL bytes, and always `keep` (the one just written).
+    Only regular *.npy files are counted or removed: a link or anything else a user put there stays."""
+    with contextlib.suppress(OSError):
+        files = [(e.stat(follow_symlinks=False), e) for e in _scan(d, ".npy")]
+        files.sort(key=lambda f: f[0].st_mtime_ns, reverse=True)
+        total = 0
+        for st, e in files:
+            total += st.st_size
+            if total > MAX_ARRAYS_TOTAL and e.name != keep:
+                with contextlib.suppress(OSError):
+                    os.unlink(e.path)
