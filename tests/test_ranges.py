@@ -75,3 +75,20 @@ def test_range_band_pairs_each_state_with_the_bow_it_was_visited_under():
     np.testing.assert_allclose(rb.weights.sum(), 1.0)
     # window starts: every 441st state of each render (one window of 2 pi at f0 100, 44.1 kHz)
     np.testing.assert_array_equal(rb.starts[:3, :2], rb.states[[0, 441, 882]])
+
+
+_ENDS = st.floats(-3, 3, allow_nan=False) | st.sampled_from([0.0, 0.0708, 1.0, 2.0])
+
+
+@settings(max_examples=300, deadline=None)
+@given(x=st.floats(allow_nan=True, allow_infinity=True) | _ENDS | st.integers(-3, 3), lo=_ENDS, hi=_ENDS,
+       nudge=st.sampled_from([0.0, 1e-13, -1e-13, 1e-9, -1e-9, 1e-6, -1e-6]))
+def test_one_bows_range_test_is_the_arrays(x, lo, hi, nudge):
+    """A model lookup tests one bow in plain arithmetic (domain.within's fast path); it answers as the array test
+    does, at the ends of a box and its tolerance too."""
+    from bowsynth.engines.operator.domain import within
+
+    lo, hi = min(lo, hi), max(lo, hi)
+    for v in (x, x + nudge * max(abs(hi), 1.0) if isinstance(x, float) else x, lo + nudge, hi + nudge):
+        one, many = within(v, lo, hi), within(np.array([v], float), lo, hi)
+        assert isinstance(one, np.bool_) and bool(one) == bool(many[0]), (v, lo, hi)
