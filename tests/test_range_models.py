@@ -518,6 +518,10 @@ BAND_BOWS = [
     # the band's floor at its light edge, 0.4 % above vb_stop: bottom-band, the pick, 16 cents flat, floor-band, the
     # parent, and low-band 9.3-9.6 sharp; light-floor (failed its validation by ear) heard truer (session 41's scan)
     (110.0, 1.2, 0.071, "bottom-band", "light-floor", "floor-band", 5),
+    # the band's floor at high-band's light edge, 0.01 % above vb_stop: high-band, its parent, 16-17 cents flat and
+    # stick-halt-high, the pick (seam-floor has the bow within EDGE of its box's floor), 50; seam-floor (validated)
+    # heard truer (session 43's draw)
+    (152.4, 1.769, 0.07081, "stick-halt-high", "seam-floor", "high-band", 10),
 ]
 
 
