@@ -522,6 +522,9 @@ BAND_BOWS = [
     # stick-halt-high, the pick (seam-floor has the bow within EDGE of its box's floor), 50; seam-floor (validated)
     # heard truer (session 43's draw)
     (152.4, 1.769, 0.07081, "stick-halt-high", "seam-floor", "high-band", 10),
+    # the band's floor at halt-bottom's middle forces, 0.01 % above vb_stop: halt-bottom, its parent, 6.6 cents flat;
+    # mid-narrow (failed its validation by ear) heard truer; stick-halt the pick (session 43's scan)
+    (110.0, 1.4, 0.0708, "stick-halt", "mid-narrow", "halt-bottom", 5),
 ]
 
 
