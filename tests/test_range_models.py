@@ -525,6 +525,9 @@ BAND_BOWS = [
     # the band's floor at halt-bottom's middle forces, 0.01 % above vb_stop: halt-bottom, its parent, 6.6 cents flat;
     # mid-narrow (failed its validation by ear) heard truer; stick-halt the pick (session 43's scan)
     (110.0, 1.4, 0.0708, "stick-halt", "mid-narrow", "halt-bottom", 5),
+    # the band's floor at halt-bottom's heavy edge, 0.4 % above vb_stop: halt-bottom, its parent, 16.3 cents sharp;
+    # seam-low (validated) the pick (session 43's draw)
+    (171.8, 1.703, 0.07107, "seam-low", "seam-low", "halt-bottom", 10),
 ]
 
 
