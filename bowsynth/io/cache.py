@@ -21,6 +21,7 @@ import os
 import secrets
 import shutil
 import stat
+import time
 from pathlib import Path
 
 import numpy as np
@@ -142,8 +143,6 @@ STALE_TMP_SECONDS = 3600  # a temporary file this old was left by a process kill
 def _scan(d, suffix: str) -> list:
     """The regular files in `d` named *suffix; a writer's temporary file older than STALE_TMP_SECONDS is removed on
     the way (nothing else would ever remove it)."""
-    import time
-
     found, stale = [], time.time() - STALE_TMP_SECONDS
     with os.scandir(d) as it:
         for e in it:

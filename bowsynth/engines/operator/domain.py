@@ -21,16 +21,16 @@ MAX_WINDOW = 100 * math.pi  # 50 free periods: what training allows (TrainConfig
 def within(x, lo: float, hi: float, rel_tol: float = REL_TOL) -> np.ndarray:
     """Elementwise lo <= x <= hi up to rel_tol of the larger end (a box's side, or a point when lo == hi): the one
     test of a bow against a range, for model files (Domain) and training boxes (ParamBox) alike."""
-    if isinstance(x, float | int):  # one bow, as a model lookup asks (~7500 times for a chorale): plain arithmetic,
-        # the same tests as below without numpy's ~3 us a call
-        if lo == hi:
+    # one bow, as a model lookup asks (~7500 times for a chorale): plain arithmetic, without numpy's ~3 us a call
+    one = isinstance(x, float | int)
+    if lo == hi:
+        if one:
             return np.bool_(abs(x - lo) <= 1e-12 + rel_tol * abs(lo))
-        tol = rel_tol * max(abs(hi), 1e-12)
+        return np.isclose(np.asarray(x, float), lo, rtol=rel_tol, atol=1e-12)
+    tol = rel_tol * max(abs(hi), 1e-12)
+    if one:
         return np.bool_(lo - tol <= x <= hi + tol)
     x = np.asarray(x, float)
-    if lo == hi:
-        return np.isclose(x, lo, rtol=rel_tol, atol=1e-12)
-    tol = rel_tol * max(abs(hi), 1e-12)
     return (x >= lo - tol) & (x <= hi + tol)
 
 
@@ -129,6 +129,12 @@ class Domain:
         b0, b1, v0, v1 = self.box
         return math.log(max(b1, 1e-12) / max(b0, 1e-12)) * (v1 - v0)
 
+    def spans_played(self, scene: Scene) -> tuple[bool, bool]:
+        """A range model: whether it plays the scene's F_B / w span and its v_B span (the curves are linear between
+        breakpoints, so their extremes are breakpoint values)."""
+        (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
+        return bool(self.beta_plays(blo) and self.beta_plays(bhi)), bool(self.vb_in(vlo) and self.vb_in(vhi))
+
     def box_contains(self, beta, vb) -> np.ndarray:
         """Elementwise: does the model play the bow (beta, v_B) (a point model: equal to its point; a range model:
         inside its box, or below it in beta, beta_plays)?"""
@@ -203,9 +209,10 @@ class Domain:
             return out
         b0, b1, v0, v1 = self.box
         (blo, bhi), (vlo, vhi) = scene.beta_range, scene.vb_range
-        if not (self.beta_plays(blo) and self.beta_plays(bhi)):
+        beta_ok, vb_ok = self.spans_played(scene)
+        if not beta_ok:
             out.append(f"F_B / w {span_text(blo, bhi)} leaves the model's {0 if self.plays_below else b0:.4g}..{b1:.4g}")
-        if not (self.vb_in(vlo) and self.vb_in(vhi)):
+        if not vb_ok:
             out.append(f"v_B {span_text(vlo, vhi, '.4g')} leaves the model's {v0:g}..{v1:g}")
         return out
 
