@@ -528,6 +528,9 @@ BAND_BOWS = [
     # the band's floor at halt-bottom's heavy edge, 0.4 % above vb_stop: halt-bottom, its parent, 16.3 cents sharp;
     # seam-low (validated) the pick (session 43's draw)
     (171.8, 1.703, 0.07107, "seam-low", "seam-low", "halt-bottom", 10),
+    # the middle of seam-low's box, 0.04 % above vb_stop: seam-low, its parent and the pick, 17 cents sharp; seam-mid
+    # (failed its validation by ear) heard truer (session 44's draw)
+    (256.9, 1.690, 0.07083, "seam-low", "seam-mid", "seam-low", 10),
 ]
 
 
