@@ -531,6 +531,10 @@ BAND_BOWS = [
     # the middle of seam-low's box, 0.04 % above vb_stop: seam-low, its parent and the pick, 17 cents sharp; seam-mid
     # (failed its validation by ear) heard truer (session 44's draw)
     (256.9, 1.690, 0.07083, "seam-low", "seam-mid", "seam-low", 10),
+    # the space's heavy edge at the band's floor, 0.05 % above vb_stop: halt-edge, the pick, 29 cents sharp (edge-floor,
+    # edge-narrow's parent, another note from rest here); edge-narrow (failed its validation by ear) heard truer
+    # (session 44's draw)
+    (91.2, 1.988, 0.07084, "halt-edge", "edge-narrow", "halt-edge", 20),
 ]
 
 
