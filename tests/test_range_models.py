@@ -535,6 +535,9 @@ BAND_BOWS = [
     # edge-narrow's parent, another note from rest here); edge-narrow (failed its validation by ear) heard truer
     # (session 44's draw)
     (91.2, 1.988, 0.07084, "halt-edge", "edge-narrow", "halt-edge", 20),
+    # the band's floor at light-floor's middle forces, 0.03 % above vb_stop: light-floor, its parent and the model chosen
+    # by listening before, 10 cents flat; light-narrow (validated) the pick (session 44's draw)
+    (193.2, 1.190, 0.07087, "light-narrow", "light-narrow", "light-floor", 5),
 ]
 
 
