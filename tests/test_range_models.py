@@ -494,8 +494,8 @@ BAND_BOWS = [
     (110.0, 1.8, 0.072, "high-band", "high-band", "stick-halt-high", 50),
     # the space's heavy edge, 3 % deep in edge-band's box: halt-edge picked, 13.5 cents flat; edge-band heard truer
     # (session 38: within 0.001 cents, 0.11 dB), since session 41 edge-floor, its refinement on the band's floor
-    # (0.001 cents, 0.005 dB)
-    (110.0, 1.95, 0.071, "halt-edge", "edge-floor", "halt-edge", 5),
+    # (0.001 cents, 0.005 dB), since session 44 edge-narrow, edge-floor's refinement on a narrower floor
+    (110.0, 1.95, 0.071, "halt-edge", "edge-narrow", "halt-edge", 5),
     # the band's bottom at light forces, 36 % deep in bottom-band's box: stops-band, its parent, 148 cents flat
     # (session 39); stick-stops, the pick before, left its states there
     (117.5, 1.169, 0.07141, "bottom-band", "bottom-band", "stops-band", 50),
@@ -516,8 +516,9 @@ BAND_BOWS = [
     # (session 41's draw)
     (179.1, 1.950, 0.07091, "halt-edge", "edge-floor", "edge-band", 20),
     # the band's floor at its light edge, 0.4 % above vb_stop: bottom-band, the pick, 16 cents flat, floor-band, the
-    # parent, and low-band 9.3-9.6 sharp; light-floor (failed its validation by ear) heard truer (session 41's scan)
-    (110.0, 1.2, 0.071, "bottom-band", "light-floor", "floor-band", 5),
+    # parent, and low-band 9.3-9.6 sharp; light-floor (failed its validation by ear) heard truer (session 41's scan);
+    # since session 44 light-narrow, its refinement (validated), is the pick
+    (110.0, 1.2, 0.071, "light-narrow", "light-narrow", "floor-band", 5),
     # the band's floor at high-band's light edge, 0.01 % above vb_stop: high-band, its parent, 16-17 cents flat and
     # stick-halt-high, the pick (seam-floor has the bow within EDGE of its box's floor), 50; seam-floor (validated)
     # heard truer (session 43's draw)
