@@ -519,25 +519,25 @@ BAND_BOWS = [
     # parent, and low-band 9.3-9.6 sharp; light-floor (failed its validation by ear) heard truer (session 41's scan);
     # since session 44 light-narrow, its refinement (validated), is the pick
     (110.0, 1.2, 0.071, "light-narrow", "light-narrow", "floor-band", 5),
-    # the band's floor at high-band's light edge, 0.01 % above vb_stop: high-band, its parent, 16-17 cents flat and
+    # the band's floor at high-band's light edge, 0.14 % above vb_stop: high-band, its parent, 16-17 cents flat and
     # stick-halt-high, the pick (seam-floor has the bow within EDGE of its box's floor), 50; seam-floor (validated)
     # heard truer (session 43's draw)
     (152.4, 1.769, 0.07081, "stick-halt-high", "seam-floor", "high-band", 10),
-    # the band's floor at halt-bottom's middle forces, 0.01 % above vb_stop: halt-bottom, its parent, 6.6 cents flat;
+    # the band's floor at halt-bottom's middle forces, 0.13 % above vb_stop: halt-bottom, its parent, 6.6 cents flat;
     # mid-narrow (failed its validation by ear) heard truer; stick-halt the pick (session 43's scan)
     (110.0, 1.4, 0.0708, "stick-halt", "mid-narrow", "halt-bottom", 5),
-    # the band's floor at halt-bottom's heavy edge, 0.4 % above vb_stop: halt-bottom, its parent, 16.3 cents sharp;
+    # the band's floor at halt-bottom's heavy edge, 0.5 % above vb_stop: halt-bottom, its parent, 16.3 cents sharp;
     # seam-low (validated) the pick (session 43's draw)
     (171.8, 1.703, 0.07107, "seam-low", "seam-low", "halt-bottom", 10),
-    # the middle of seam-low's box, 0.04 % above vb_stop: seam-low, its parent and the pick, 17 cents sharp; seam-mid
+    # the middle of seam-low's box, 0.17 % above vb_stop: seam-low, its parent and the pick, 17 cents sharp; seam-mid
     # (failed its validation by ear) heard truer (session 44's draw)
     (256.9, 1.690, 0.07083, "seam-low", "seam-mid", "seam-low", 10),
-    # the space's heavy edge at the band's floor, 0.05 % above vb_stop: halt-edge, the pick, 29 cents sharp (edge-floor,
+    # the space's heavy edge at the band's floor, 0.18 % above vb_stop: halt-edge, the pick, 29 cents sharp (edge-floor,
     # edge-narrow's parent, another note from rest here); edge-narrow (failed its validation by ear) heard truer
     # (session 44's draw)
     (91.2, 1.988, 0.07084, "halt-edge", "edge-narrow", "halt-edge", 20),
-    # the band's floor at light-floor's middle forces, 0.03 % above vb_stop: light-floor, its parent and the model chosen
-    # by listening before, 10 cents flat; light-narrow (validated) the pick (session 44's draw)
+    # the band's floor at light-floor's middle forces, 0.22 % above vb_stop: light-floor, its parent and the model
+    # chosen by listening before, 10 cents flat; light-narrow (validated) the pick (session 44's draw)
     (193.2, 1.190, 0.07087, "light-narrow", "light-narrow", "light-floor", 5),
 ]
 
