@@ -539,6 +539,10 @@ BAND_BOWS = [
     # the band's floor at light-floor's middle forces, 0.22 % above vb_stop: light-floor, its parent and the model
     # chosen by listening before, 10 cents flat; light-narrow (validated) the pick (session 44's draw)
     (193.2, 1.190, 0.07087, "light-narrow", "light-narrow", "light-floor", 5),
+    # the band's very floor across seam-low's middle, 0.15 % above vb_stop: seam-low, its parent, 19 cents flat,
+    # seam-mid 17 sharp, stick-halt the pick; seam-bottom (trained without the derivative term, failed its validation
+    # by ear) heard truer (session 45's draw)
+    (106.4, 1.701, 0.07082, "stick-halt", "seam-bottom", "seam-low", 10),
 ]
 
 
