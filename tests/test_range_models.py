@@ -543,9 +543,10 @@ BAND_BOWS = [
     # seam-mid 17 sharp, stick-halt the pick; seam-bottom (trained without the derivative term, failed its validation
     # by ear) heard truer (session 45's draw)
     (106.4, 1.701, 0.07082, "stick-halt", "seam-bottom", "seam-low", 10),
-    # the band's very floor on seam-bottom's light half, 0.2 % above vb_stop: seam-bottom, its parent, 24 cents sharp,
-    # seam-low, the pick, 11; seam-light (failed its validation by ear) heard truer (session 46's draw)
-    (239.0, 1.674, 0.07085, "seam-low", "seam-light", "seam-bottom", 20),
+    # the band's very floor on seam-bottom's light half, 0.14 % above vb_stop: seam-low, its parent, 12 cents sharp,
+    # seam-mid 18, seam-bottom 27, stick-halt the pick; seam-light (trained without the derivative term, failed its
+    # validation by ear) heard truer (session 46's draw)
+    (96.8, 1.672, 0.07081, "stick-halt", "seam-light", "seam-low", 5),
 ]
 
 
