@@ -54,10 +54,11 @@ test: $(STAMP) chromium jackd
 # and stick-gap the fast bows between stick-fast and stick-high, refined in stages (bowsynth/models/stages: models
 # a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner, stick-slow refined
 # on a GPU from its session-19 self (stages/stick-slow-1); halt-bottom, bottom-band, upper-band, low-band, floor-band,
-# edge-floor, light-floor, seam-floor, mid-narrow, seam-low, seam-mid, edge-narrow, light-narrow, seam-bottom and
-# seam-light refine the band just above vb_stop in ever narrower boxes (halt-bottom, low-band, floor-band, edge-floor,
-# light-floor, mid-narrow, seam-mid, edge-narrow, seam-bottom and seam-light failed by ear and play only where measured
-# truer; seam-bottom and seam-light trained without the derivative term), rim-top stick-slip's top rim (BENCHMARKS.md).
+# edge-floor, light-floor, seam-floor, mid-narrow, seam-low, seam-mid, edge-narrow, light-narrow, seam-bottom,
+# seam-light and edge-low refine the band just above vb_stop in ever narrower boxes (halt-bottom, low-band, floor-band,
+# edge-floor, light-floor, mid-narrow, seam-mid, edge-narrow, seam-bottom, seam-light and edge-low failed by ear and
+# play only where measured truer; seam-bottom, seam-light and edge-low trained without the derivative term), rim-top
+# stick-slip's top rim (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after the recipe of that model
 # (bowsynth.training.recipe.build_order).
 RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)

@@ -547,6 +547,10 @@ BAND_BOWS = [
     # seam-mid 18, seam-bottom 27, stick-halt the pick; seam-light (trained without the derivative term, failed its
     # validation by ear) heard truer (session 46's draw)
     (96.8, 1.672, 0.07081, "stick-halt", "seam-light", "seam-low", 5),
+    # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
+    # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
+    # heard truer (session 46's draw)
+    (95.5, 1.940, 0.07082, "halt-edge", "edge-low", "edge-narrow", 5),
 ]
 
 
