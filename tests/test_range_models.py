@@ -551,6 +551,10 @@ BAND_BOWS = [
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)
     (95.5, 1.940, 0.07082, "halt-edge", "edge-low", "edge-narrow", 5),
+    # the top of the space's heavy edge at the band's very floor, 0.28 % above vb_stop: edge-band, its parent, 31 cents
+    # flat, halt-edge the pick 24 sharp; edge-top (trained without the derivative term, failed its validation by ear)
+    # heard truer (session 47's draw)
+    (474.4, 2.002, 0.07091, "halt-edge", "edge-top", "edge-band", 20),
 ]
 
 
