@@ -55,10 +55,10 @@ test: $(STAMP) chromium jackd
 # a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner, stick-slow refined
 # on a GPU from its session-19 self (stages/stick-slow-1); halt-bottom, bottom-band, upper-band, low-band, floor-band,
 # edge-floor, light-floor, seam-floor, mid-narrow, seam-low, seam-mid, edge-narrow, light-narrow, seam-bottom,
-# seam-light, edge-low and edge-top refine the band just above vb_stop in ever narrower boxes (halt-bottom, low-band,
-# floor-band, edge-floor, light-floor, mid-narrow, seam-mid, edge-narrow, seam-bottom, seam-light, edge-low and
-# edge-top failed by ear and play only where measured truer; seam-bottom, seam-light, edge-low and edge-top trained
-# without the derivative term), rim-top
+# seam-light, edge-low, edge-top and edge-sill refine the band just above vb_stop in ever narrower boxes (halt-bottom,
+# low-band, floor-band, edge-floor, light-floor, mid-narrow, seam-mid, edge-narrow, seam-bottom, seam-light, edge-low,
+# edge-top and edge-sill failed by ear and play only where measured truer; seam-bottom, seam-light, edge-low, edge-top
+# and edge-sill trained without the derivative term), rim-top
 # stick-slip's top rim (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after the recipe of that model
 # (bowsynth.training.recipe.build_order).

@@ -553,8 +553,12 @@ BAND_BOWS = [
     (95.5, 1.940, 0.07082, "halt-edge", "edge-low", "edge-narrow", 5),
     # the top of the space's heavy edge at the band's very floor, 0.28 % above vb_stop: edge-band, its parent, 31 cents
     # flat, halt-edge the pick 24 sharp; edge-top (trained without the derivative term, failed its validation by ear)
-    # heard truer (session 47's draw)
+    # heard truer (session 44's draw)
     (474.4, 2.002, 0.07091, "halt-edge", "edge-top", "edge-band", 20),
+    # the heavy edge's lighter forces at the band's very floor, 0.18 % above vb_stop: edge-band, its parent, 6.5 cents
+    # sharp, edge-floor 7.2, halt-edge the pick 43 flat; edge-sill (trained without the derivative term, failed its
+    # validation by ear) heard truer (session 45's draw)
+    (232.9, 1.922, 0.07084, "halt-edge", "edge-sill", "edge-band", 5),
 ]
 
 
