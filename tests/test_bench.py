@@ -77,6 +77,7 @@ def test_bench_equal_quick_reports_the_operator_against_the_fdm(tmp_path, capsys
                              monkeypatch)
     assert code == 0, err
     js = json.loads(so)
+    assert js["windows"] == "auto"  # no --windows: what a render plays
     (row,) = js["equal_accuracy"]
     assert row["model"] == "paper-fb100" and row["f0"] == 100
     assert [e["oversample"] for e in row["fdm"]] == [1, 2]

@@ -73,6 +73,7 @@ def test_bench_map_writes_the_grid_the_plot_and_json(tmp_path):
     res = json.loads(prefix.with_suffix(".json").read_text())
     cells = {(c["beta"], c["vb"]): c for c in res["cells"]}
     assert len(cells) == 4 and res["f0"] == [100.0]
+    assert res["windows"] == "auto"  # no --windows: what a render plays
     assert cells[(0.02, 0.0)]["status"] == "silent"
     # the heaviest bow stopped: halt-edge plays it (session 34; refused before) and rests, as the truth does
     edge = cells[(2.0, 0.0)]

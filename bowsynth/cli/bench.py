@@ -24,9 +24,10 @@ def bench(
     grid: str = typer.Option("10x8", "--grid", help="map: cells, F_B / w x v_B (F_B / w 0.02-2 log-spaced, v_B 0-0.28)."),
     seconds: float = typer.Option(2.0, "--seconds", help="map: each note's length from rest (s); errors over its second half."),
     model: Optional[str] = typer.Option(None, "--model", help="map: this model (a path, or a name in ./models or the shipped ones) plays every cell it covers, instead of the renderer's pick: a candidate before it ships."),
-    windows: str = typer.Option("free", "--windows",
-                                help="map and equal: the operator's windows, as render's (free, locked, physics "
-                                     "or auto); default free, the trained windows (render's default is auto)."),
+    windows: Optional[str] = typer.Option(None, "--windows",
+                                          help="map and equal: the operator's windows, as render's (free, locked, "
+                                               "physics or auto); default auto, what a render plays (free: the "
+                                               "trained windows)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
@@ -38,7 +39,7 @@ def bench(
         raise UsageError(f"bench target must be fdm, equal, map or all, got {what!r}")
     from ..music.engine_tuning import check_windows
 
-    check_windows(windows)
+    windows = check_windows(windows)  # None: render's default, so that the numbers are what a render plays
     if what == "map":
         map_args = _map_args(f0, grid, seconds)
         if model is not None:
