@@ -101,8 +101,7 @@ def _map_args(f0: str, grid: str, seconds: float) -> tuple:
     return f0s, nb, nv, seconds
 
 
-def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: bool, model=None,
-               windows: str = "free") -> None:
+def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: bool, model, windows: str) -> None:
     import json
 
     from ..analysis.error_map import error_map
