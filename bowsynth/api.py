@@ -281,13 +281,13 @@ def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: floa
 
 
 def model_status(scene: Scene, config, out, box=None, init=None) -> str | None:
-    """Why the model file `out` is not what training `scene` (and `box`) with `config` makes, in a few words: missing,
-    unreadable (with the loader's reason), or stale (it plays another scene or box, or was trained with another
-    budget, seed, batch, window, derivative weight or network); None when it is what the recipe asks for. What
-    `train --update` (and so `make models`) asks before training. Settings a recipe does not name are not compared:
-    a model trained by an older version of the trainer stays current until its recipe changes. init: the model a
-    refinement starts from (a path or a name, as `train --from`): the file must have been refined from that model as
-    it is now."""
+    """Why the model file `out` is not what training `scene` (and `box`) with `config` makes, in a few words:
+    missing, unreadable (with the loader's reason), or stale (it plays another scene or box, or was trained with
+    another budget, seed, batch, window, derivative or rollout weight or network); None when it is what the recipe
+    asks for. What `train --update` (and so `make models`) asks before training. Settings a recipe does not name are
+    not compared: a model trained by an older version of the trainer stays current until its recipe changes. init:
+    the model a refinement starts from (a path or a name, as `train --from`): the file must have been refined from
+    that model as it is now."""
     import dataclasses
 
     from .engines.operator.modelfile import load_model
@@ -315,6 +315,9 @@ def model_status(scene: Scene, config, out, box=None, init=None) -> str | None:
     was = (trained.get("weights") or {}).get("deriv", 0.0)  # the weight the model trained with, named or default
     if config.deriv is not None and was != config.deriv:
         return f"stale: trained with deriv {was}, the recipe asks for {config.deriv}"
+    was = (trained.get("weights") or {}).get("roll", 0.0)
+    if was != config.rollout:
+        return f"stale: trained with rollout {was}, the recipe asks for {config.rollout}"
     for key in ("width", "depth"):
         was, want = (m.meta.net or {}).get(key), getattr(config.net, key)
         if was != want and init is None:  # a refinement keeps its base's network

@@ -32,6 +32,7 @@ def train(
     device: Optional[str] = typer.Option(None, "--device", help="auto (a CUDA GPU where torch sees one, default), cpu or cuda; the model records which."),
     band_seconds: Optional[float] = typer.Option(None, "--band-seconds", help="Seconds (at --f0) of the renders from rest the training data comes from, and of a range model's selection and validation rollouts (default 1; up to 30): longer for bows whose notes take seconds to grow."),
     deriv: Optional[float] = typer.Option(None, "--deriv", help="Weight of the loss that matches the network's time derivative to the ODE's on the true trajectories (default 0.1 for range models, 0 for point models): it sharpens the stick capture's knee (docs/BENCHMARKS.md)."),
+    rollout: Optional[float] = typer.Option(None, "--rollout", help="Weight of the loss on chains of 16 windows rolled out as a render does, each from the network's own end state, against the FDM (default 0: none): a held note's pitch is what the windows' small errors add up to (docs/BENCHMARKS.md)."),
     n_data: Optional[int] = typer.Option(None, "--n-data", help="FDM training trajectories (hybrid) drawn from the scene's band (default 4096)."),
     checkpoint_every: Optional[float] = typer.Option(None, "--checkpoint-every", help="Seconds between checkpoints (default 60)."),
     out_path: Optional[Path] = typer.Option(None, "--out", "-o", help="Model file (default ./models/<name>.safetensors)."),
@@ -55,7 +56,7 @@ def train(
         given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
                      rest_linear=rest_linear or None, out=out_path,
                      batch=batch, width=width, device=device, window_ms=window_ms, band_seconds=band_seconds,
-                     deriv=deriv)
+                     deriv=deriv, rollout=rollout)
         given["from"] = from_model
         r = load_recipe(config)
         merged = {k: (v if v is not None else r.get(k)) for k, v in given.items()}
@@ -64,11 +65,12 @@ def train(
         rest_linear = bool(merged["rest_linear"])
         batch, width, device, window_ms = merged["batch"], merged["width"], merged["device"], merged["window_ms"]
         from_model, band_seconds, deriv = merged["from"], merged["band_seconds"], merged["deriv"]
+        rollout = merged["rollout"]
     scene, box = _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4)
     cfg = _train_config(scene, box, minutes=minutes, steps=steps, seed=seed, optimizer=optimizer, lbfgs=lbfgs,
                         hybrid=hybrid, window_ms=window_ms, width=width, depth=depth, n_data=n_data,
                         checkpoint_every=checkpoint_every, rest_linear=rest_linear, batch=batch, device=device,
-                        band_seconds=band_seconds, deriv=deriv)
+                        band_seconds=band_seconds, deriv=deriv, rollout=rollout)
     if update:
         if config is None or out_path is None:
             raise UsageError("--update compares a model file with its recipe: give --config (a recipe with `out`)")
@@ -115,7 +117,7 @@ def _scene_and_box(preset, f0, fb, vb, a, q0, p0, score, a4):
 
 def _train_config(scene, box, minutes=None, steps=None, seed=None, optimizer=None, lbfgs=None, hybrid=True,
                   window_ms=None, width=None, depth=None, n_data=None, checkpoint_every=None, rest_linear=False,
-                  batch=None, device=None, band_seconds=None, deriv=None):
+                  batch=None, device=None, band_seconds=None, deriv=None, rollout=None):
     """The TrainConfig of train's flags (a recipe's keys are those flags' names): the one mapping of flags to its
     fields, for a training and for `recipe_status`'s comparison alike."""
     from .. import api
@@ -125,7 +127,8 @@ def _train_config(scene, box, minutes=None, steps=None, seed=None, optimizer=Non
                                  n_data=n_data if box is None else None,
                                  range_n_data=n_data if box is not None else None,
                                  checkpoint_seconds=checkpoint_every, rest_linear=rest_linear or None,
-                                 batch_states=batch, device=device, band_seconds=band_seconds, deriv=deriv)
+                                 batch_states=batch, device=device, band_seconds=band_seconds, deriv=deriv,
+                                 rollout=rollout)
 
 
 def recipe_status(recipe: Path) -> str | None:
@@ -139,7 +142,7 @@ def recipe_status(recipe: Path) -> str | None:
                                 None, None)
     cfg = _train_config(scene, box, **{k: r.get(k) for k in ("minutes", "steps", "seed", "width", "batch", "device",
                                                              "rest_linear", "window_ms", "band_seconds",
-                                                             "deriv")})
+                                                             "deriv", "rollout")})
     return api.model_status(scene, cfg, r.get("out", recipe.with_suffix(".safetensors")), box, init=r.get("from"))
 
 

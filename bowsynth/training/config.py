@@ -14,7 +14,7 @@ MAX_MINUTES = 24 * 60  # a budget beyond a day is a typo (or `inf`), not a plan
 MAX_STEPS = 10_000_000
 # a range's band at 30 s: 320 runs of 30 s at 44.1 kHz, every 4th state kept, ~3.4 GB of states
 MAX_BAND_SECONDS = 30.0
-MAX_DERIV = 100.0  # the derivative term's weight: 0.02-0.1 measured; beyond 100 it is the whole loss
+MAX_WEIGHT = 100.0  # an added term's weight (deriv: 0.02-0.1 measured; rollout); beyond 100 it is the whole loss
 
 
 @dataclass
@@ -47,6 +47,13 @@ class TrainConfig:
     weights: dict | None = None  # None: chosen from the scene's stiffness (losses.default_weights)
     # the derivative term's weight (losses: deriv); None: losses.DERIV_WEIGHT for range models, none for point models
     deriv: float | None = None
+    # the rollout term's weight (losses: roll; 0: none): chains of rollout_windows windows from FDM states, each window
+    # started from the network's own end state, against the FDM's. The pitch of a held note is the composition of
+    # many windows; a one-window loss sees a window's small phase error, not what it adds up to
+    rollout: float = 0.0
+    rollout_windows: int = 16
+    rollout_chains: int = 1024
+    rollout_batch: int = 128
     checkpoint_seconds: float = 60.0
     # keep the weights that roll out best: from this share of the budget on, every select_every seconds (0: off)
     select_every: float = 15.0
@@ -110,8 +117,14 @@ class TrainConfig:
                              f"{self.range_points}, {self.range_gestures}")
         if not (math.isfinite(self.band_seconds) and 0 < self.band_seconds <= MAX_BAND_SECONDS):
             raise UsageError(f"--band-seconds must be > 0 and at most {MAX_BAND_SECONDS:g}, got {self.band_seconds:g}")
-        if self.deriv is not None and not (math.isfinite(self.deriv) and 0 <= self.deriv <= MAX_DERIV):
-            raise UsageError(f"--deriv must be in [0, {MAX_DERIV:g}], got {self.deriv:g}")
+        if self.deriv is not None and not (math.isfinite(self.deriv) and 0 <= self.deriv <= MAX_WEIGHT):
+            raise UsageError(f"--deriv must be in [0, {MAX_WEIGHT:g}], got {self.deriv:g}")
+        if not (math.isfinite(self.rollout) and 0 <= self.rollout <= MAX_WEIGHT):
+            raise UsageError(f"--rollout must be in [0, {MAX_WEIGHT:g}], got {self.rollout:g}")
+        if not (1 <= self.rollout_windows <= 256 and 16 <= self.rollout_chains <= 1_000_000
+                and 1 <= self.rollout_batch <= self.rollout_chains):
+            raise UsageError(f"rollout chains: windows in [1, 256], chains in [16, 1000000], a batch in [1, chains], "
+                             f"got {self.rollout_windows}, {self.rollout_chains}, {self.rollout_batch}")
         if not (math.isfinite(self.checkpoint_seconds) and self.checkpoint_seconds > 0):
             raise UsageError(f"--checkpoint-every must be > 0 s, got {self.checkpoint_seconds:g}")
         return self

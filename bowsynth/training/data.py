@@ -102,6 +102,26 @@ class TrainingData:
     par: np.ndarray | None = None  # range data: (B, 2) each trajectory's bow (beta, v_B)
     box: object = None  # range data: the ParamBox
     extents: np.ndarray | None = None  # range data: ranges.RangeBand.extents
+    # the rollout term's chains (cfg.rollout > 0): (C, K + 1, 2) the FDM's states at K + 1 window boundaries from
+    # sampler states, and (range data) (C, 2) each chain's bow
+    chain_x: np.ndarray | None = None
+    chain_par: np.ndarray | None = None
+
+
+def add_chains(data: TrainingData, scene: Scene, cfg: TrainConfig, window: float, on_progress=None) -> TrainingData:
+    """The rollout term's chains: K windows of the FDM from states drawn like the data's (the sampler's rng comes
+    after every other draw, so a recipe without the term draws the same data as before it existed)."""
+    if not cfg.rollout > 0:
+        return data
+    n, k = cfg.rollout_chains, cfg.rollout_windows
+    drawn = data.sampler(n)
+    x0, par = drawn if isinstance(drawn, tuple) else (drawn, None)
+    # one call over K windows, kept at their boundaries; its step, like the data's, at most dtau / oversample
+    _, x = fdm_windows(scene, x0, window * k, k, cfg.data_oversample, par=par,
+                       on_progress=None if on_progress is None else lambda f: on_progress(
+                           f"FDM rollout chains: {n} x {k} windows", f))
+    data.chain_x, data.chain_par = x, par
+    return data
 
 
 def build(scene: Scene, cfg: TrainConfig, window: float, rng: np.random.Generator, on_progress=None) -> TrainingData:

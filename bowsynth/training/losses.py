@@ -7,6 +7,8 @@
   deriv - the network's d x / d tau on the data trajectories against the ODE's right-hand side at the *true* states:
           an exact target (unlike fric, evaluated at predicted states) that weights harmonic k by k, so the small,
           fast part of the correction (the upper harmonics a value loss barely sees) is learned
+  roll  - chains of K windows, each started from the network's own end state, against the FDM's window boundaries:
+          what a held note's pitch is made of (the windows' small phase errors added up), which one window hides
 """
 
 from __future__ import annotations
@@ -29,11 +31,12 @@ def stiffness(scene: Scene, beta: float | None = None) -> float:
     return physics.stiffness(scene.beta if beta is None else beta, scene.a)
 
 
-def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None, deriv: float | None = None) -> dict:
+def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None, deriv: float | None = None,
+                    rollout: float = 0.0) -> dict:
     """The loss weights. beta_max: a range model's top F_B / w. A range model drops the friction residual: trained
     with it (0.03) over the soft box for 40 min, its weighted term ended 20x the data term and the validation's median
     NMSE(p) was 0.080; without it, 30 min, 0.019 (docs/BENCHMARKS.md, range models). deriv: the derivative term's
-    weight (None: DERIV_WEIGHT for a range model, none for a point model; 0: none)."""
+    weight (None: DERIV_WEIGHT for a range model, none for a point model; 0: none); rollout: the chains' (0: none)."""
     if not hybrid:
         return {"kin": 1.0, "fric": 1.0}
     w = {"data": 1.0, "end": 1.0, "kin": 1.0}
@@ -43,6 +46,8 @@ def default_weights(scene: Scene, hybrid: bool, beta_max: float | None = None, d
         deriv = DERIV_WEIGHT if beta_max is not None else 0.0
     if deriv > 0:
         w["deriv"] = float(deriv)
+    if rollout > 0:
+        w["roll"] = float(rollout)
     return w
 
 
@@ -103,7 +108,24 @@ def loss_terms(net, batch: dict, scene: Scene, weights: dict) -> dict:
             terms["kin"] = rk.square().mean()
         if "fric" in weights:
             terms["fric"] = rf.square().mean()
+    if "roll" in weights:
+        terms["roll"] = rollout_term(net, batch)
     return terms
+
+
+def rollout_term(net, batch: dict):
+    """The mean square error, in units of the correction scale, of K windows rolled out as a render does (each from
+    the previous window's predicted end), at every window boundary of the batch's chains."""
+    chain = batch["chain_x"]
+    par = batch.get("chain_par")
+    gain = None if par is None else net.gain(par)
+    scale = net.corr_scale if gain is None else net.corr_scale * gain[:, None]
+    end = batch["data_tau"][-1:]  # the window
+    x, total = chain[:, 0], 0.0
+    for k in range(1, chain.shape[1]):
+        x = net(x, end, par)[:, -1]
+        total = total + ((x - chain[:, k]) / scale).square().mean()
+    return total / (chain.shape[1] - 1)
 
 
 def _bows(batch: dict, key: str, scene: Scene):

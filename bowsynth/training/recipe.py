@@ -25,7 +25,8 @@ from ..io.infile import regular_file
 KEYS = {"preset": (str,), "f0": (int, float), "fb": (str, int, float), "vb": (str, int, float), "a": (int, float),
         "minutes": (int, float), "steps": (int,), "seed": (int,), "rest_linear": (bool,), "out": (str,),
         "batch": (int,), "width": (int,), "device": (str,), "window_ms": (int, float), "from": (str,),
-        "band_seconds": (int, float), "deriv": (int, float)}
+        "band_seconds": (int, float), "deriv": (int, float),
+        "rollout": (int, float)}
 
 
 def load_recipe(path) -> dict:

@@ -18,7 +18,7 @@ from ..scene import Scene
 from ..text import jsonable
 from . import checkpoint
 from .config import TrainConfig, check_net_options, resolve_device
-from .data import build, build_range
+from .data import add_chains, build, build_range
 from .losses import default_weights, loss_terms, weighted
 from .selection import RangeSelector, Selector, selection_scene
 
@@ -53,7 +53,7 @@ class Trainer:
         self.scene, self.cfg, self.name = scene, cfg, name
         self.weights = cfg.weights or default_weights(scene, cfg.hybrid,
                                                       beta_max=None if self.box is None else self.box.beta_hi,
-                                                      deriv=cfg.deriv)
+                                                      deriv=cfg.deriv, rollout=cfg.rollout)
         self.window = cfg.window or 2 * math.pi
         self.rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
@@ -61,6 +61,7 @@ class Trainer:
             self.data = build(scene, cfg, self.window, self.rng, on_progress=on_progress)
         else:
             self.data = build_range(scene, self.box, cfg, self.window, self.rng, on_progress=on_progress)
+        self.data = add_chains(self.data, scene, cfg, self.window, on_progress=on_progress)
         self.domain, self.sampler = self.data.domain, self.data.sampler
         d = self.domain
         self.net = DeepONet(cfg.net, seed=cfg.seed)
@@ -78,6 +79,8 @@ class Trainer:
         self.net.to(self.device)  # after the scalings, which are fitted in numpy
         self.data_x0, self.data_x, self.data_tau = (self._tensor(v) for v in (self.data.x0, self.data.x, self.data.tau))
         self.data_par = None if self.data.par is None else self._tensor(self.data.par)
+        self.chain_x, self.chain_par = (None if v is None else self._tensor(v)
+                                        for v in (self.data.chain_x, self.data.chain_par))
         self.opt = self._make_optimizer()
         self.step = 0
         self.elapsed = 0.0
@@ -131,6 +134,11 @@ class Trainer:
         else:
             x0, par = self.sampler(n)
             out.update(phys_x0=self._tensor(x0), phys_par=self._tensor(par), data_par=self.data_par[idx])
+        if self.chain_x is not None:
+            ci = torch.from_numpy(self.rng.integers(0, len(self.chain_x), cfg.rollout_batch)).to(self.device)
+            out["chain_x"] = self.chain_x[ci]
+            if self.chain_par is not None:
+                out["chain_par"] = self.chain_par[ci]
         return out
 
     def progress(self) -> float:
