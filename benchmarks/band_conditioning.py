@@ -14,9 +14,8 @@ a miss there reads as the bow error that would cause it (--bows: each bow's cent
 --models reads a model's accuracy the same way, before any listening: its one-window error on the truth's limit cycle
 at the bow (what its training's end term measures) against the one-window difference the FDM makes for v_B moved by
 1e-4 of itself (which grows as the square of the move: measured), so the v_B error its error equals; the cents that
-bow error moves the truth's pitch by (the worse sign); and the model's own note from rest (2 s, auto windows, against a
-x100 FDM; in free windows, the pitch the network keeps itself, and in auto, what a render plays), the miss it
-predicts.
+bow error moves the truth's pitch by (the worse sign); and the model's own note from rest (2 s against a x100 FDM)
+in free windows (the pitch the network keeps itself: the miss the error predicts) and in auto (what a render plays).
 """
 
 from __future__ import annotations
