@@ -183,18 +183,19 @@ def blas_gmacs(n: int = 512, repeats: int = 10) -> float:
 
 
 def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
-                   oversamples=EQUAL_OVERSAMPLES, windows: str = "free") -> list[dict]:
+                   oversamples=EQUAL_OVERSAMPLES, windows: str | None = None) -> list[dict]:
     """The operator against the FDM at equal accuracy, at the model's own bow (a point model's; a range model's box
     centre) at each pitch: the operator's errors against a x100 FDM (metrics.accuracy: harmonics, pitch, NMSE) and
     its cost (wall seconds per audio second, warm, median), the FDM's at each oversampling, and the cheapest FDM as
     accurate on all three (metrics.as_accurate). A pitch the model cannot play is left out. windows: the operator's,
-    as api.render's (a lock is measured once, before the timing: it is cached on disk as in a user's renders)."""
+    as api.render's, None its default (a lock is measured once, before the timing: it is cached on disk as in a user's renders)."""
     from ..engines.fdm import check_oversample
     from ..engines.operator.engine import render_operator
     from ..errors import DomainError
-    from ..music.engine_tuning import sounding_for
+    from ..music.engine_tuning import check_windows, sounding_for
     from .metrics import accuracy, as_accurate
 
+    windows = check_windows(windows)
     d, rows = model.domain, []
     name = model.path.stem if model.path else model.meta.name
     for f0 in f0s:

@@ -22,7 +22,7 @@ import numpy as np
 from ..engines import render
 from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..errors import BowsynthError
-from ..music.engine_tuning import auto_overrides, sounding_for
+from ..music.engine_tuning import auto_overrides, check_windows, sounding_for
 from ..scene import Scene
 from .metrics import listener_errors, nmse, note_sounds
 
@@ -40,9 +40,9 @@ def grid(n_beta: int, n_vb: int, beta_range=BETA_RANGE, vb_range=VB_RANGE) -> tu
     return [float(b) for b in betas], [float(v) for v in vbs]
 
 
-def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None, windows: str = "free") -> dict:
+def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None, windows: str | None = None) -> dict:
     """One cell: the truth (x100 FDM), the audio-rate FDM and the operator (`model`, or the renderer's pick; its
-    windows as `api.render`'s) at (f0, F_B / w, v_B)."""
+    windows as `api.render`'s, None its default) at (f0, F_B / w, v_B)."""
     sc = Scene(f0=f0, fb=beta * 2.0 * math.pi * f0, vb=vb, duration=seconds)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -73,8 +73,10 @@ def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None
 
 
 def error_map(f0s=(110.0, 440.0), n_beta: int = 10, n_vb: int = 8, seconds: float = 2.0, model=None,
-              progress=None, windows: str = "free") -> dict:
-    """Every cell of the grid at every pitch in f0s (see map_cell). progress(done, total), if given, after each."""
+              progress=None, windows: str | None = None) -> dict:
+    """Every cell of the grid at every pitch in f0s (see map_cell; windows None: a render's default). progress(done,
+    total), if given, after each."""
+    windows = check_windows(windows)
     betas, vbs = grid(n_beta, n_vb)
     total, cells = len(f0s) * len(betas) * len(vbs), []
     t0 = time.perf_counter()

@@ -72,10 +72,13 @@ def plot_pareto(rows, path) -> None:
     plt.close(fig)
 
 
-def run_equal(quick: bool = False, out_prefix=None, windows: str = "free") -> dict:
+def run_equal(quick: bool = False, out_prefix=None, windows: str | None = None) -> dict:
     """Speed at equal accuracy for every shipped model family at 100, 440 and 880 Hz (quick: one model at 100 Hz,
     FDM x1 and x2), with the machine's matrix-product speed measured in the same run; the operator in these windows
-    (api.render's)."""
+    (api.render's; None its default)."""
+    from ..music.engine_tuning import check_windows
+
+    windows = check_windows(windows)
     from ..engines.operator.choose import SHIPPED_DIR, as_model
 
     paths = sorted(SHIPPED_DIR.glob("*.safetensors"))
