@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from bowsynth.errors import BowsynthError
 from bowsynth.music.tuning import SilentNoteError, sounding_ratio
 
 A = 100.0
@@ -98,8 +99,12 @@ def main() -> None:
               "|---|---|---|---|---|---|---|---|")
         for item in args.models.split(","):
             path, f0, beta, vb = item.rsplit(":", 3)
-            row = model_row(path, float(f0), float(beta), float(vb))
             name = path.rsplit("/", 1)[-1].removesuffix(".safetensors")
+            try:
+                row = model_row(path, float(f0), float(beta), float(vb))
+            except BowsynthError as e:  # a box that does not hold the bow, a note that leaves the model's states
+                print(f"| {name} | {f0} | {beta} | {vb} | {str(e).splitlines()[0][:90]} | | | |", flush=True)
+                continue
             print(f"| {name} | {f0} | {beta} | {vb} | {row['err']:.2g} | "
                   f"{row['d_eq']:.3%} | {fmt(row['cents_eq'])} | {row['free']:+.2f} / {row['auto']:+.2f} |",
                   flush=True)

@@ -580,20 +580,30 @@ def test_a_heavy_bow_held_just_above_vb_stop_plays_on_pitch(f0, beta, vb, pick, 
     assert abs(old["cents"]) > parent_cents and old["harm_db_max"] < 15
 
 
-def test_a_model_that_failed_by_ear_plays_only_notes_from_rest():
-    """seam-light, failed by ear, plays (96.8 Hz, 1.672, 0.07081) from rest, where it is measured; a note there that
-    starts off rest is not measured for it, so a validated model plays it and the render says why (session 48: such a
-    model can settle from other states on a cycle the truth does not have). A validated model heard truer from rest
-    (halt-band at (80, 1.473, 0.07126)) still plays a note that starts off rest."""
-    from bowsynth.api import render
+def test_a_model_that_failed_by_ear_plays_a_note_off_rest_only_where_it_settles_on_its_note_from_rest(monkeypatch):
+    """seam-light, failed by ear, plays (96.8 Hz, 1.672, 0.07081) from rest, where the model chosen by listening
+    measures it. A note there that starts off rest plays it only where, from that state, it settles on the note it
+    plays from rest (what was measured): near rest it does, and plays within a cent. Where the check says it does not
+    (session 48's seam-base settled from some states on a second cycle 344 cents flat), a validated model plays and the
+    render names the model left out. A validated model heard truer (halt-band at (80, 1.473, 0.07126)) plays a note
+    off rest unchecked."""
+    import bowsynth.music.auto_model as AM
+    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.api import load_model, model_path, render
 
-    for (f0, beta, vb), rest, moved in (((96.8, 1.672, 0.07081), "seam-light", "seam-low"),
-                                        ((80.0, 1.473, 0.07126), "halt-band", "halt-band")):
-        for q0, plays in ((0.0, rest), (1e-3, moved)):
-            r = render(Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=0.5, q0=q0))
-            assert Path(r.info.model_path).stem == plays, (f0, q0)
-            said = " ".join(r.info.notes)
-            assert ("seam-light" in said and "only notes from rest" in said) == (plays == "seam-low"), said
+    near = Scene(f0=96.8, fb=1.672 * 2 * math.pi * 96.8, vb=0.07081, duration=2.0, q0=1e-3)
+    assert AM._same_note_from(load_model(model_path("seam-light")), near)
+    r = render(near)
+    assert Path(r.info.model_path).stem == "seam-light"
+    assert abs(listener_errors(r.p, render(near, engine="fdm", oversample=100).p, near.sample_rate)["cents"]) < 1
+    monkeypatch.setattr(AM, "_PICKS", {})
+    monkeypatch.setattr(AM, "_same_note_from", lambda m, sc: m.failure is None)
+    r = render(near.replace(duration=0.5))
+    assert Path(r.info.model_path).stem == "seam-low"  # validated, measured from rest: 12 cents sharp there
+    said = " ".join(r.info.notes)
+    assert "seam-light" in said and "do not settle from q0 0.001, p0 0 on the note measured from rest" in said, said
+    r = render(Scene(f0=80.0, fb=1.473 * 2 * math.pi * 80.0, vb=0.07126, duration=0.5, q0=1e-3))
+    assert Path(r.info.model_path).stem == "halt-band"
 
 
 @pytest.mark.parametrize("f0,beta,vb,parent_db", [(74.5, 1.687, 0.2792, None), (77.3, 1.628, 0.27766, 3.0)])

@@ -6,7 +6,7 @@ note asked at a pitch sounds there whichever engine plays it. The truth's ratio 
 from __future__ import annotations
 
 from .. import physics
-from ..engines.operator.windows import Lock, lock_more
+from ..engines.operator.windows import lock_at
 from ..errors import DomainError, UsageError
 from ..scene import Scene
 from .auto_model import AutoPick, auto_pick
@@ -114,7 +114,7 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
     if m is None:
         return None
     r = held_lock(m, windows, held.beta, held.vb, held.a, held.f0)
-    return None if r is None else Lock(held.f0 * r, lock_more(r))
+    return lock_at(r, held.f0)
 
 
 WINDOWS = ("locked", "free", "physics", "auto")  # how an operator voice's windows lie against its note (api.render's)

@@ -63,6 +63,11 @@ def lock_more(sounding) -> int:
     return getattr(sounding, "more", 0)
 
 
+def lock_at(ratio, f0: float) -> Lock | None:
+    """The lock of a held note at f0 whose windows hold `ratio` (a sounding ratio, with its `more`); None: free."""
+    return None if ratio is None else Lock(f0 * float(ratio), lock_more(ratio))
+
+
 def locked_window(T: float, f0: float, sounding: float) -> float:
     """The window (in tau, at most the trained T) of a voice locked to the period it sounds at: that period over k,
     k the fewest windows of at most T that fill it, plus the lock's `more` (a Lock; 0 for a float).
