@@ -149,6 +149,7 @@ CASES = [
     ("train --window-ms 1e-320", "train --fb 100 --window-ms 1e-320 --steps 1 --out w.safetensors"),
     ("train --band-seconds 0", "train --fb 60:80 --band-seconds 0 --steps 1 --out b.safetensors"),
     ("train --deriv -1", "train --fb 100 --deriv -1 --steps 1 --out d.safetensors"),
+    ("train --rollout -1", "train --fb 100 --rollout -1 --steps 1 --out r.safetensors"),
     ("bow force 1e-320 (an all-zero render)", "render --method fdm -d 0.1 --fb 1e-320 x.wav"),
     ("compare against a silent reference", "compare plain.wav --vb -0.0"),
     ("scene flags on a file that carries its scene", "compare ok.wav --vb 0.1"),
