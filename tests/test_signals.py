@@ -105,6 +105,19 @@ def test_signal_while_blocked_writing_to_a_fifo(sig, tmp_path):
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
+def test_sigint_while_torch_loads_waits_for_the_import_and_ends_in_one_line(tmp_path):
+    # the signal as soon as the handlers are in: training is still importing torch, which holds it (api._signals_held)
+    # and then ends cleanly; cut half-way, the import left a warning line, and once a process killed by the signal
+    out = tmp_path / "m.safetensors"
+    proc = _start(["train", "--fb", "100", "--width", "16", "--depth", "2", "--n-data", "1000000", "--steps", "5",
+                   "--quiet", "--out", str(out)], tmp_path)
+    _handlers_installed(proc)
+    code, _, err = _stop(proc, signal.SIGINT)
+    assert code == 130 and err == "interrupted\n", (code, err)
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs /proc")
 def test_sigint_during_training_data_preparation(tmp_path):
     out = tmp_path / "m.safetensors"
     # a million FDM trajectories: data preparation alone would take many minutes
