@@ -534,8 +534,8 @@ BAND_BOWS = [
     (256.9, 1.690, 0.07083, "seam-low", "seam-mid", "seam-low", 10),
     # the space's heavy edge at the band's floor, 0.18 % above vb_stop: halt-edge, the pick, 29 cents sharp (edge-floor,
     # edge-narrow's parent, another note from rest here); edge-narrow (failed its validation by ear) heard truer
-    # (session 44's draw)
-    (91.2, 1.988, 0.07084, "halt-edge", "edge-narrow", "halt-edge", 20),
+    # (session 44's draw); since session 49 edge-roll (validated) the pick, within 0.1 cents
+    (91.2, 1.988, 0.07084, "edge-roll", "edge-roll", "halt-edge", 20),
     # the band's floor at light-floor's middle forces, 0.22 % above vb_stop: light-floor, its parent and the model
     # chosen by listening before, 10 cents flat; light-narrow (validated) the pick (session 44's draw)
     (193.2, 1.190, 0.07087, "light-narrow", "light-narrow", "light-floor", 5),
@@ -556,8 +556,11 @@ BAND_BOWS = [
     (95.5, 1.940, 0.07082, "halt-edge", "edge-low", "edge-narrow", 5),
     # the top of the space's heavy edge at the band's very floor, 0.28 % above vb_stop: edge-band, its parent, 31 cents
     # flat, halt-edge the pick 24 sharp; edge-top (trained without the derivative term, failed its validation by ear)
-    # heard truer (session 44's draw)
-    (474.4, 2.002, 0.07091, "halt-edge", "edge-top", "edge-band", 20),
+    # heard truer (session 44's draw); since session 49 edge-roll (validated) the pick
+    (474.4, 2.002, 0.07091, "edge-roll", "edge-roll", "edge-band", 20),
+    # edge-top's centre bow (session 49): edge-top 9.4 cents flat; edge-roll, edge-top refined with the rollout term
+    # (validated, 1.8 cents), the pick, within 0.01
+    (100.0, 2.0, 0.07095, "edge-roll", "edge-roll", "edge-top", 5),
     # the heavy edge's lighter forces at the band's very floor, 0.18 % above vb_stop: edge-band, its parent, 6.5 cents
     # sharp, edge-floor 7.2, halt-edge the pick 43 flat; edge-sill (trained without the derivative term, failed its
     # validation by ear) heard truer (session 45's draw)
