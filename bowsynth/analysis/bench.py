@@ -188,7 +188,8 @@ def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
     centre) at each pitch: the operator's errors against a x100 FDM (metrics.accuracy: harmonics, pitch, NMSE) and
     its cost (wall seconds per audio second, warm, median), the FDM's at each oversampling, and the cheapest FDM as
     accurate on all three (metrics.as_accurate). A pitch the model cannot play is left out. windows: the operator's,
-    as api.render's, None its default (a lock is measured once, before the timing: it is cached on disk as in a user's renders)."""
+    as api.render's, None its default (a lock is measured once, before the timing: it is cached on disk as in a
+    user's renders)."""
     from ..engines.fdm import check_oversample
     from ..engines.operator.engine import render_operator
     from ..errors import DomainError

@@ -76,11 +76,10 @@ def run_equal(quick: bool = False, out_prefix=None, windows: str | None = None) 
     """Speed at equal accuracy for every shipped model family at 100, 440 and 880 Hz (quick: one model at 100 Hz,
     FDM x1 and x2), with the machine's matrix-product speed measured in the same run; the operator in these windows
     (api.render's; None its default)."""
+    from ..engines.operator.choose import SHIPPED_DIR, as_model
     from ..music.engine_tuning import check_windows
 
     windows = check_windows(windows)
-    from ..engines.operator.choose import SHIPPED_DIR, as_model
-
     paths = sorted(SHIPPED_DIR.glob("*.safetensors"))
     if quick:
         paths = [p for p in paths if p.stem == "paper-fb100"][:1]

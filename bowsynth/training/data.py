@@ -39,6 +39,11 @@ def make_domain(scene: Scene, band: np.ndarray, window: float, margin: float, bo
     return dom
 
 
+def band_draw(cdf: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
+    """n indices into a band drawn by its cumulative weights (a sampler's cdf)."""
+    return np.minimum(np.searchsorted(cdf, rng.random(n)), len(cdf) - 1)
+
+
 class StateSampler:
     """Draws training states near the band (scene sampling) or uniformly in the domain's box."""
 
@@ -53,9 +58,10 @@ class StateSampler:
         w = 1.0 / counts[cell]
         self.cdf = np.cumsum(w) / w.sum()
 
-    def on_band(self, n: int) -> np.ndarray:
-        """n band states, weighted as __call__ draws them, not jittered: states a render visits."""
-        return self.band[np.minimum(np.searchsorted(self.cdf, self.rng.random(n)), len(self.band) - 1)]
+    def on_band(self, n: int) -> tuple[np.ndarray, None]:
+        """n band states, weighted as __call__ draws them, not jittered: states a render visits (and no bows: a point
+        model's, as RangeSampler.on_band's pairs)."""
+        return self.band[band_draw(self.cdf, self.rng, n)], None
 
     def __call__(self, n: int) -> np.ndarray:
         out = np.empty((0, 2))
@@ -64,7 +70,7 @@ class StateSampler:
                 d = self.domain
                 x = self.rng.uniform([d.q_lo, d.p_lo], [d.q_hi, d.p_hi], size=(2 * n, 2))
             else:
-                idx = np.minimum(np.searchsorted(self.cdf, self.rng.random(2 * n)), len(self.band) - 1)
+                idx = band_draw(self.cdf, self.rng, 2 * n)
                 x = self.band[idx] + self.rng.normal(0, 1, (2 * n, 2)) * self.sd
             x = x[self.domain.contains(x[:, 0], x[:, 1])]
             out = np.concatenate([out, x])
@@ -107,7 +113,7 @@ class TrainingData:
     box: object = None  # range data: the ParamBox
     extents: np.ndarray | None = None  # range data: ranges.RangeBand.extents
     # the rollout term's chains (cfg.rollout > 0): (C, K + 1, 2) the FDM's states at K + 1 window boundaries from
-    # sampler states, and (range data) (C, 2) each chain's bow
+    # band states, and (range data) (C, 2) each chain's bow
     chain_x: np.ndarray | None = None
     chain_par: np.ndarray | None = None
 
@@ -121,8 +127,7 @@ def add_chains(data: TrainingData, scene: Scene, cfg: TrainConfig, window: float
     if not cfg.rollout > 0:
         return data
     n, k = cfg.rollout_chains, cfg.rollout_windows
-    drawn = data.sampler.on_band(n)
-    x0, par = drawn if isinstance(drawn, tuple) else (drawn, None)
+    x0, par = data.sampler.on_band(n)
     # one call over K windows, kept at their boundaries; its step, like the data's, at most dtau / oversample
     _, x = fdm_windows(scene, x0, window * k, k, cfg.data_oversample, par=par,
                        on_progress=None if on_progress is None else lambda f: on_progress(
@@ -186,13 +191,13 @@ class RangeSampler:
 
     def on_band(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """n (state, bow) pairs of the band, weighted as __call__ draws them, not jittered: what renders visit."""
-        idx = np.minimum(np.searchsorted(self.cdf, self.rng.random(n)), len(self.cdf) - 1)
+        idx = band_draw(self.cdf, self.rng, n)
         return self.band.states[idx].copy(), self.band.params[idx].copy()
 
     def __call__(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         xs, ps, have = [], [], 0
         while have < n:
-            idx = np.minimum(np.searchsorted(self.cdf, self.rng.random(2 * n)), len(self.cdf) - 1)
+            idx = band_draw(self.cdf, self.rng, 2 * n)
             x = self.band.states[idx] + self.rng.normal(0, 1, (2 * n, 2)) * self.sd
             u = np.stack([np.log(np.maximum(self.band.params[idx, 0], 1e-12)), self.band.params[idx, 1]], 1)
             u = np.clip(u + self.rng.normal(0, 1, u.shape) * self.PARAM_JITTER * (self.hi - self.lo), self.lo, self.hi)
