@@ -550,6 +550,12 @@ BAND_BOWS = [
     (96.8, 1.672, 0.07081, "stick-halt", "seam-roll", "seam-low", 5),
     # deep in seam-roll's box (session 49): seam-roll the pick; seam-light, its parent, 15 cents sharp, seam-low 12
     (230.5, 1.669, 0.07083, "seam-roll", "seam-roll", "seam-light", 10),
+    # deep in seam-edge's box, the seam's light edge (session 50): seam-edge the pick; seam-low, its parent, 9.6 cents
+    # sharp, seam-roll (the model chosen by listening before) 9.3 flat
+    (683.6, 1.660, 0.07082, "seam-edge", "seam-edge", "seam-low", 5),
+    # at seam-edge's light edge, 0.14 % above vb_stop: halt-bottom (the model chosen by listening before) 22 cents
+    # sharp, stick-halt the pick; seam-edge heard truer (session 50's draw)
+    (632.9, 1.651, 0.07081, "stick-halt", "seam-edge", "halt-bottom", 10),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)

@@ -259,6 +259,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # / 23 of 64 leave (seeds 1-3), the rest within 1.13 % and 0.80 cents at its centre bow (F_B / w
                # 1.675, v_B 0.07085); 30 s -0.454 cents (seam-light +4.21)
                "seam-roll": (14, 1.4e-2, 1.5),
+               # session 50: seam-low refined on the seam's light edge, F_B / w 1.65-1.67 x v_B 0.0708-0.0709, with the
+               # rollout term (validated, 0.88 cents): 10 / 20 / 21 of 64 leave (seeds 1-3), the rest within 1.11 % and
+               # 2.0 cents at its centre bow (F_B / w 1.660, v_B 0.07085); 30 s -0.236 cents (seam-low 2 s +9.7)
+               "seam-edge": (14, 1.4e-2, 2.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
