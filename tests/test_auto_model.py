@@ -62,21 +62,23 @@ def test_a_held_bow_the_smallest_box_plays_off_pitch_is_played_by_a_covering_mod
 def test_where_the_pick_meets_the_targets_no_other_model_is_measured(monkeypatch):
     from bowsynth.music import auto_model
 
-    measured = []
+    measured, at_pitch = [], []
     real = auto_model.auto_score
 
-    def spy(m, *bow):
+    def spy(m, *bow, **kw):
         measured.append(m.path.stem)
-        return real(m, *bow)
+        if kw.get("at_pitch"):
+            at_pitch.append(m.path.stem)
+        return real(m, *bow, **kw)
     monkeypatch.setattr(auto_model, "auto_score", spy)
     monkeypatch.setattr(auto_model, "_PICKS", {})  # the process's answers: asked again
     sc = _scene(f0=220.0, beta=0.2, vb=0.2, seconds=0.5)  # a soft bow its pick plays within the targets
     pick = auto_model.auto_pick(sc)
     assert pick.note is None and pick.model is covering_model(sc)
-    assert measured == [pick.model.path.stem]
+    assert measured == [pick.model.path.stem] and not at_pitch
     measured.clear()
-    assert auto_model.auto_pick(_scene()).switched  # a miss: every covering model measured
-    assert len(set(measured)) >= 3
+    assert auto_model.auto_pick(_scene()).switched  # a miss: every covering model measured, at the note's pitch too
+    assert len(set(measured)) >= 3 and set(at_pitch) == set(measured)
 
 
 def test_the_cli_says_which_model_plays_and_why(tmp_path, capsys, monkeypatch):
@@ -99,10 +101,10 @@ def test_a_covering_model_that_cannot_be_measured_is_passed_over_not_fatal(monke
     first = auto_model.auto_pick(_scene())
     broken = first.model.path.stem  # the model the miss went to: now it cannot be measured
 
-    def flaky(m, *bow):
+    def flaky(m, *bow, **kw):
         if m.path.stem == broken:
             raise ModelFileError(f"{m.path}: fails its physics check")
-        return real(m, *bow)
+        return real(m, *bow, **kw)
     monkeypatch.setattr(auto_model, "auto_score", flaky)
     monkeypatch.setattr(auto_model, "_PICKS", {})
     again = auto_model.auto_pick(_scene())

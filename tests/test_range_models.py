@@ -556,6 +556,10 @@ BAND_BOWS = [
     # at seam-edge's light edge, 0.14 % above vb_stop: halt-bottom (the model chosen by listening before) 22 cents
     # sharp, stick-halt the pick; seam-edge heard truer (session 50's draw)
     (632.9, 1.651, 0.07081, "stick-halt", "seam-edge", "halt-bottom", 10),
+    # the seam's floor at its heavy middle, 0.27 % above vb_stop: stick-halt the pick cannot play it from rest;
+    # seam-low, scored 0.28 by the ladder, plays 1.6 cents sharp at this pitch; seam-mid (failed its validation by
+    # ear), scored 0.42, within 0.001: heard at the note's own pitch, the candidates rank as they sound (session 50)
+    (91.082, 1.683211, 0.0710902, "stick-halt", "seam-mid", "seam-low", 1.2),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)

@@ -6,8 +6,9 @@ The pick is judged by auto windows' own score (auto_windows.auto_score: the harm
 and the onset, each over its worst-case target, in the windows auto plays; where it does not hold the physics'
 period, in free windows, measured for this). Where that is over CHALLENGE_SCORE, or the pick cannot hold the bow
 from rest where the truth sounds (its render would be refused), every validated model that covers the note is scored
-the same way (measured once per model and bow, cached on disk like auto's windows) and the lowest plays where it
-scores AUTO_MARGIN better than the pick. So is a model that failed its validation by ear alone
+the same way (measured once per model and bow, cached on disk like auto's windows), each also heard at the note's
+own pitch (auto_score's at_pitch: at the band's floor the ladder's pitches misranked models by 1.6 cents), and the
+lowest plays where it scores AUTO_MARGIN better than the pick. So is a model that failed its validation by ear alone
 (modelfile.missed_by_ear: a pitch or harmonics miss at some grid bow of its box): it is never the pick, but a
 measurement at this bow says more of it here than its worst grid bow does, for a note from rest, which is what it
 measures. A note that starts elsewhere (`--q0`, `--p0`) is played by such a model only where the model, from that
@@ -103,13 +104,15 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
         first = math.inf
     if first is None or first <= CHALLENGE_SCORE:
         return AutoPick(pick)
-    scored = [(first, pick)] if math.isfinite(first) else []  # the pick measured once, above
+    # challenged: every model, the pick too, also heard at the note's own pitch (auto_score's at_pitch)
+    again = auto_score(pick, *bow, at_pitch=True) if math.isfinite(first) else None
+    scored = [(again, pick)] if again is not None and math.isfinite(again) else []
     at_rest = scene.q0 == 0 and scene.p0 == 0
     covering = [m for m in pool if m is not pick and _candidate(m) and m.covers(scene)]
     unheard = [m for m in covering if m.failure is not None and not at_rest and not _same_note_from(m, scene)]
     for m in [m for m in covering if m not in unheard]:
         try:
-            s = auto_score(m, *bow)
+            s = auto_score(m, *bow, at_pitch=True)
         except BowsynthError:  # a model that cannot be measured here (a file of ./models failing its physics check)
             continue  # is not a candidate; the pick's own failure shows when it renders
         if s is not None and math.isfinite(s):

@@ -361,12 +361,17 @@ def _best(scores: dict) -> str:
     return "free" if best == "free" or (close and scores["free"] <= 1.0) else best
 
 
-def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0) -> float | None:
+def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0, at_pitch: bool = False) -> float | None:
     """The score (candidate_score, over the worst-case targets: 1 meets them) of what auto windows play of this model
     at this bow for a note at f0: the lock's or free windows' that auto_lock chooses (where the model does not hold
     the physics' period, its free windows' note is measured: an FDM at x AUTO_OVERSAMPLE and a render, 0.5-3 s, once
     per model and bow). None where nothing is judged: the truth does not sound, or the model cannot hold the bow from
-    rest to measure its pitch."""
+    rest to measure its pitch. at_pitch: a voice on whole windows (stick-slip's) is also heard at f0 itself, as a soft
+    voice always is (_at_pitch), the worse of the two: the model chosen by listening compares models so (session 50:
+    at the band's floor just above vb_stop, seam-low scored 0.28 by the ladder and played 1.64 cents sharp at 91.1 Hz,
+    where seam-mid, scored 0.42, played within 0.001)."""
+    from ..engines.operator.choose import as_model
+
     try:
         truth = sounding_ratio(beta, vb, a).r
     except SilentNoteError:
@@ -374,7 +379,10 @@ def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0) ->
     lock = lock_ratio(model, beta, vb, a)
     if lock is None:
         return None
-    if lock == truth:
-        scores = window_scores(model, beta, vb, a, lock, f0)
-        return scores[_best(scores)]
-    return window_scores(model, beta, vb, a, None, f0)["free"]
+    if lock != truth:  # the model does not hold the physics' period: its free windows
+        lock = None
+    scores = window_scores(model, beta, vb, a, lock, f0)
+    name = _best(scores) if lock is not None else "free"
+    if not at_pitch or f0 is None or not math.isfinite(scores[name]):
+        return scores[name]
+    return max(scores[name], _at_pitch(as_model(model), beta, vb, a, lock, f0, [name])[name])
