@@ -195,6 +195,35 @@ def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
     assert pitch.tune("A4", fb=None, beta=0.159, vb=0.2).f0 == pytest.approx(440 / first.r)
 
 
+def test_an_engines_failed_measurement_is_remembered_on_disk(fresh_cache, monkeypatch):
+    """A model that cannot hold a bow from rest fails the same way every time: the failure is kept and raised again
+    from the table, its kind and its words, without measuring (session 50: 1.1 s of a warm render)."""
+    from bowsynth.errors import DomainError
+    from bowsynth.music import tuning as pitch
+
+    calls = []
+
+    def leaves():
+        calls.append("leaves")
+        raise DomainError("model x left its states at t = 0.100 s")
+
+    def silent():
+        calls.append("silent")
+        return float("nan")
+    with pytest.raises(DomainError, match="left its states"):
+        pitch.engine_ratio("operator x", 1.683, 0.0711, 100.0, leaves)
+    with pytest.raises(pitch.SilentNoteError, match="does not speak with this engine"):
+        pitch.engine_ratio("operator y", 1.683, 0.0711, 100.0, silent)
+    assert calls == ["leaves", "silent"]
+    _forget(monkeypatch)
+    never = lambda: pytest.fail("measured again")  # noqa: E731
+    with pytest.raises(DomainError, match="left its states at t = 0.100 s"):
+        pitch.engine_ratio("operator x", 1.683, 0.0711, 100.0, never)
+    with pytest.raises(pitch.SilentNoteError, match="does not speak with this engine"):
+        pitch.engine_ratio("operator y", 1.683, 0.0711, 100.0, never)
+    assert pitch.engine_ratio("operator z", 1.683, 0.0711, 100.0, lambda: 0.99) == 0.99  # another key: measured
+
+
 def _entry(fresh_cache):
     (path,) = (fresh_cache / "sounding-ratio").rglob("*.json")
     return path
