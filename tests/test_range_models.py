@@ -560,6 +560,9 @@ BAND_BOWS = [
     # seam-low, scored 0.28 by the ladder, plays 1.6 cents sharp at this pitch; seam-mid (failed its validation by
     # ear), scored 0.42, within 0.001: heard at the note's own pitch, the candidates rank as they sound (session 50)
     (91.082, 1.683211, 0.0710902, "stick-halt", "seam-mid", "seam-low", 1.2),
+    # at seam-corner's bottom edge, 0.27 % above vb_stop: halt-bottom (the model chosen by listening before) 8.5 cents
+    # flat, seam-low 10 sharp, stick-halt the pick; seam-corner (validated) heard truer (session 50's draw)
+    (85.037, 1.659217, 0.0709008, "stick-halt", "seam-corner", "halt-bottom", 5),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)
