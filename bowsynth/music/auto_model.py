@@ -4,16 +4,18 @@ targets at the note's bow and pitch; then the truest of the models that cover th
 
 The pick is judged by auto windows' own score (auto_windows.auto_score: the harmonics' worst dB, the pitch's cents
 and the onset, each over its worst-case target, in the windows auto plays; where it does not hold the physics'
-period, in free windows, measured for this). Where that is over CHALLENGE_SCORE, or the pick cannot hold the bow
-from rest where the truth sounds (its render would be refused), every validated model that covers the note is scored
-the same way (measured once per model and bow, cached on disk like auto's windows), each also heard at the note's
-own pitch (auto_score's at_pitch: at the band's floor the ladder's pitches misranked models by 1.6 cents), and the
-lowest plays where it scores AUTO_MARGIN better than the pick. So is a model that failed its validation by ear alone
-(modelfile.missed_by_ear: a pitch or harmonics miss at some grid bow of its box): it is never the pick, but a
-measurement at this bow says more of it here than its worst grid bow does, for a note from rest, which is what it
-measures. A note that starts elsewhere (`--q0`, `--p0`) is played by such a model only where the model, from that
-state, settles on the note it plays from rest (its own 2 s notes, within NOTE_CENTS): session 48's `seam-base`, truer
-from rest at its bows, settled from 3 of 12 random states on a second cycle 344 cents flat, where the truth has one.
+period, in free windows, measured for this). Where that is over CHALLENGE_SCORE, or the pick cannot hold the bow from
+rest where the truth sounds (its render would be refused), every validated model that covers the note is scored the
+same way (measured once per model and bow, cached on disk like auto's windows), and the lowest plays where it scores
+AUTO_MARGIN better than the pick. The pick and the candidates are each also heard at the note's own pitch
+(auto_score's at_pitch, the worse of the two; cached per model, bow and pitch): at the band's floor the ladder's
+pitches misranked models by 1.6 cents and scored 0.47 a pick that played 28 cents flat at 70.7 Hz (session 50). So is
+a model that failed its validation by ear alone (modelfile.missed_by_ear: a pitch or harmonics miss at some grid bow
+of its box): it is never the pick, but a measurement at this bow says more of it here than its worst grid bow does,
+for a note from rest, which is what it measures. A note that starts elsewhere (`--q0`, `--p0`) is played by such a
+model only where the model, from that state, settles on the note it plays from rest (its own 2 s notes, within
+NOTE_CENTS): session 48's `seam-base`, truer from rest at its bows, settled from 3 of 12 random states on a second
+cycle 344 cents flat, where the truth has one.
 Elsewhere no other model is measured.
 Where the model that plays still misses the targets, the render's notes say so and name `--method fdm`.
 
@@ -99,14 +101,12 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
     if pick is None or held is None:
         return AutoPick(pick)
     bow = (held.beta, held.vb, held.a, held.f0)
-    first = auto_score(pick, *bow)
+    first = auto_score(pick, *bow, at_pitch=True)  # heard at the note's pitch too (the ladder read 0.47 for 28 cents)
     if first is None and _sounds(bow):  # the pick cannot hold the bow from rest (its render is refused)
         first = math.inf
     if first is None or first <= CHALLENGE_SCORE:
         return AutoPick(pick)
-    # challenged: every model, the pick too, also heard at the note's own pitch (auto_score's at_pitch)
-    again = auto_score(pick, *bow, at_pitch=True) if math.isfinite(first) else None
-    scored = [(again, pick)] if again is not None and math.isfinite(again) else []
+    scored = [(first, pick)] if math.isfinite(first) else []  # the pick measured once, above
     at_rest = scene.q0 == 0 and scene.p0 == 0
     covering = [m for m in pool if m is not pick and _candidate(m) and m.covers(scene)]
     unheard = [m for m in covering if m.failure is not None and not at_rest and not _same_note_from(m, scene)]
