@@ -77,6 +77,7 @@ def test_where_the_pick_meets_the_targets_no_other_model_is_measured(monkeypatch
     assert pick.note is None and pick.model is covering_model(sc)
     assert measured == [pick.model.path.stem] == at_pitch  # heard at the note's pitch too
     measured.clear()
+    at_pitch.clear()
     assert auto_model.auto_pick(_scene()).switched  # a miss: every covering model measured, at the note's pitch too
     assert len(set(measured)) >= 3 and set(at_pitch) == set(measured)
 
