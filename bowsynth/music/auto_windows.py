@@ -371,6 +371,7 @@ def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0, at
     at the band's floor just above vb_stop, seam-low scored 0.28 by the ladder and played 1.64 cents sharp at 91.1 Hz,
     where seam-mid, scored 0.42, played within 0.001)."""
     from ..engines.operator.choose import as_model
+    from ..engines.operator.grid import needs_whole_windows
 
     try:
         truth = sounding_ratio(beta, vb, a).r
@@ -383,6 +384,8 @@ def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0, at
         lock = None
     scores = window_scores(model, beta, vb, a, lock, f0)
     name = _best(scores) if lock is not None else "free"
-    if not at_pitch or f0 is None or not math.isfinite(scores[name]):
+    m = as_model(model)
+    # a soft voice's scores already hear it at f0 (window_scores); a whole-window voice's are the ladder's alone
+    if not at_pitch or f0 is None or not math.isfinite(scores[name]) or not needs_whole_windows(m.domain, beta):
         return scores[name]
-    return max(scores[name], _at_pitch(as_model(model), beta, vb, a, lock, f0, [name])[name])
+    return max(scores[name], _at_pitch(m, beta, vb, a, lock, f0, [name])[name])
