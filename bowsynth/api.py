@@ -167,9 +167,8 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
 @contextlib.contextmanager
 def _signals_held():
     """SIGINT and SIGTERM held while torch imports, and delivered when it is done: a Ctrl-C inside the import
-    interrupted it half-way (a warning about a file torch left open) and once, in CI, a process that had printed
-    'interrupted' ended killed by the signal instead of with exit code 130. The threads the import starts keep the
-    signals blocked, so the main thread takes them. A second or two of import is the most a signal waits."""
+    interrupted it half-way (a warning about a file torch left open). The threads the import starts keep the signals
+    blocked, so the main thread takes them. A second or two of import is the most a signal waits."""
     held = {signal.SIGINT, signal.SIGTERM}
     try:
         old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
