@@ -124,7 +124,7 @@ CTRL_C_AT = {
     # a namedtuple's or a dataclass's methods are made by exec() of a string while modules import: a Ctrl-C landing
     # there left CPython's 'unhandled KeyboardInterrupt' flag set, and `python -m` ended killed by SIGINT (-2) after
     # printing its line, not with exit 130 (the test above, 1 run in 5 under load)
-    "inside-exec": "    exec('os.kill(os.getpid(), signal.SIGINT)\\nfor _ in range(9): pass', dict(os=os, signal=signal))",
+    "inside-exec": "    exec('os.kill(os.getpid(), signal.SIGINT)\\nfor _ in range(9): pass', globals())",
     # an import cut half-way leaves its .pyc open: 'warning: unclosed file' beside the line (1 run in 27)
     "with-a-file-open": "    f = open(__file__, 'rb')\n    os.kill(os.getpid(), signal.SIGINT)",
 }
