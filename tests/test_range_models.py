@@ -563,6 +563,9 @@ BAND_BOWS = [
     # at seam-corner's bottom edge, 0.27 % above vb_stop: halt-bottom (the model chosen by listening before) 8.5 cents
     # flat, seam-low 10 sharp, stick-halt the pick; seam-corner (validated) heard truer (session 50's draw)
     (85.037, 1.659217, 0.0709008, "stick-halt", "seam-corner", "halt-bottom", 5),
+    # deep in mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-edge the
+    # pick; halt-bottom, its parent and the model chosen by listening before, 18.6 cents sharp
+    (165.42, 1.51911, 0.070885, "mid-edge", "mid-edge", "halt-bottom", 10),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)
