@@ -566,6 +566,9 @@ BAND_BOWS = [
     # deep in mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-edge the
     # pick; halt-bottom, its parent and the model chosen by listening before, 18.6 cents sharp
     (165.42, 1.51911, 0.070885, "mid-edge", "mid-edge", "halt-bottom", 10),
+    # deep in mid-high's box, the band's very floor just below the seam (session 51's draw): mid-high the pick;
+    # halt-bottom, its parent and the model chosen by listening before, 26 cents sharp
+    (548.53, 1.62105, 0.070843, "mid-high", "mid-high", "halt-bottom", 15),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)

@@ -272,6 +272,11 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # v_B 0.0708-0.0709, with the rollout term (validated, 7.8 cents): 13 / 14 / 20 of 64 leave (seeds
                # 1-3), the rest within 1.46 % and 2.94 cents at its centre bow (F_B / w 1.502, v_B 0.07085); 30 s -0.212
                "mid-edge": (22, 1.7e-2, 3.5),
+               # session 51: halt-bottom refined on the band's very floor just below the seam, F_B / w 1.585-1.65 x
+               # v_B 0.0708-0.07095, with the rollout term (validated, 4.6 cents): 15 / 14 / 23 of 64 leave (seeds
+               # 1-3), the rest within 0.67 % and 2.54 cents at its centre bow (F_B / w 1.617, v_B 0.070875); 30 s
+               # -0.527
+               "mid-high": (20, 1e-2, 3.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
