@@ -569,6 +569,9 @@ BAND_BOWS = [
     # deep in mid-high's box, the band's very floor just below the seam (session 51's draw): mid-high the pick;
     # halt-bottom, its parent and the model chosen by listening before, 26 cents sharp
     (548.53, 1.62105, 0.070843, "mid-high", "mid-high", "halt-bottom", 15),
+    # in mid-corner's thin box, just above mid-edge's (session 51's draw): halt-bottom, its parent and the model
+    # chosen by listening before, 14 cents sharp, stick-halt the pick; mid-corner (validated) heard truer
+    (739.66, 1.53996, 0.0709226, "stick-halt", "mid-corner", "halt-bottom", 10),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)

@@ -44,7 +44,7 @@ LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3, "slow-bow": 1.3, "floor-lon
               "mid-narrow": 2.5, "seam-low": 10.0, "seam-mid": 10.0,
               "edge-narrow": 7.0, "light-narrow": 5.0, "seam-bottom": 14.5, "seam-light": 5.0,
               "edge-low": 10.0, "edge-top": 10.5, "edge-sill": 2.5,
-              "edge-roll": 3.0, "seam-corner": 2.0}
+              "edge-roll": 3.0, "seam-corner": 2.0, "mid-corner": 1.5}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
@@ -277,6 +277,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # 1-3), the rest within 0.67 % and 2.54 cents at its centre bow (F_B / w 1.617, v_B 0.070875); 30 s
                # -0.527
                "mid-high": (20, 1e-2, 3.5),
+               # session 51: halt-bottom refined on the band's floor just above mid-edge, F_B / w 1.46-1.545 x v_B
+               # 0.0709-0.07095, with the rollout term (validated, 0.002 cents): 12 / 14 / 20 of 64 leave (seeds 1-3),
+               # the rest within 0.52 % and 1.77 cents at its centre bow (F_B / w 1.502, v_B 0.070925); 30 s +0.935
+               "mid-corner": (18, 1e-2, 2.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
