@@ -7,12 +7,12 @@ and the onset, each over its worst-case target, in the windows auto plays; where
 period, in free windows, measured for this). Where that is over CHALLENGE_SCORE, or the pick cannot hold the bow from
 rest where the truth sounds (its render would be refused), every validated model that covers the note is scored the
 same way (measured once per model and bow, cached on disk like auto's windows), and the lowest plays where it scores
-AUTO_MARGIN better than the pick. The pick and the candidates are each also heard at the note's own pitch
-(auto_score's at_pitch, the worse of the two; cached per model, bow and pitch): at the band's floor the ladder's
-pitches misranked models by 1.6 cents and scored 0.47 a pick that played 28 cents flat at 70.7 Hz (session 50). So is
-a model that failed its validation by ear alone (modelfile.missed_by_ear: a pitch or harmonics miss at some grid bow
-of its box): it is never the pick, but a measurement at this bow says more of it here than its worst grid bow does,
-for a note from rest, which is what it measures. A note that starts elsewhere (`--q0`, `--p0`) is played by such a
+AUTO_MARGIN better than the pick. So is a model that failed its validation by ear alone (modelfile.missed_by_ear: a
+pitch or harmonics miss at some grid bow of its box): it is never the pick, but a measurement at this bow says more
+of it here than its worst grid bow does, for a note from rest, which is what it measures. The pick and the
+candidates are each also heard at the note's own pitch (auto_score's at_pitch, the worse of the two; cached per
+model, bow and pitch): at the band's floor the ladder's pitches misranked models by 1.6 cents and scored 0.47 a pick
+that played 28 cents flat at 70.7 Hz (session 50). A note that starts elsewhere (`--q0`, `--p0`) is played by such a
 model only where the model, from that state, settles on the note it plays from rest (its own 2 s notes, within
 NOTE_CENTS): session 48's `seam-base`, truer from rest at its bows, settled from 3 of 12 random states on a second
 cycle 344 cents flat, where the truth has one.

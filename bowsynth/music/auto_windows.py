@@ -384,8 +384,10 @@ def auto_score(model, beta: float, vb: float, a: float, f0: float = RATIO_F0, at
         lock = None
     scores = window_scores(model, beta, vb, a, lock, f0)
     name = _best(scores) if lock is not None else "free"
-    m = as_model(model)
+    if not at_pitch or f0 is None or not math.isfinite(scores[name]):
+        return scores[name]
+    m = as_model(model)  # read only when heard at f0: a model given by name is a file
     # a soft voice's scores already hear it at f0 (window_scores); a whole-window voice's are the ladder's alone
-    if not at_pitch or f0 is None or not math.isfinite(scores[name]) or not needs_whole_windows(m.domain, beta):
+    if not needs_whole_windows(m.domain, beta):
         return scores[name]
     return max(scores[name], _at_pitch(m, beta, vb, a, lock, f0, [name])[name])
