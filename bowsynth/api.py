@@ -5,11 +5,11 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-import signal
 from pathlib import Path
 
 from . import physics
 from .errors import BowsynthError, UsageError, interrupt_exit_code
+from .interrupts import held
 from .scene import Scene
 
 
@@ -164,29 +164,12 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
         return _train(scene, config, out, ckpt, name, force, resume, progress, console, box, init)
 
 
-@contextlib.contextmanager
-def _signals_held():
-    """SIGINT and SIGTERM held while torch imports, and delivered when it is done: a Ctrl-C inside the import
-    interrupted it half-way (a warning about a file torch left open). The threads the import starts keep the signals
-    blocked, so the main thread takes them. A second or two of import is the most a signal waits."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    except (AttributeError, OSError, ValueError):  # no POSIX thread signals here: nothing to hold
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
 def _train(scene, config, out, ckpt, name, force, resume, progress, console, box, init):
     from .io.progress import Reporter
 
     with Reporter(console, enabled=progress, title="train: ") as rep:
         rep.update("preparing", 0.0, "loading torch")  # before torch loads: a log shows life from the first second
-        with _signals_held():
+        with held():  # cut half-way, the import left a warning about a file torch had open
             from .training import Trainer, TrainResult, validate
 
         tr = Trainer(scene, config, name, on_progress=lambda phase, f: rep.update(f"preparing: {phase}", f), box=box,

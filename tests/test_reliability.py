@@ -254,11 +254,11 @@ def test_wheel_carries_presets_and_shipped_models(tmp_path):
 
 def test_a_signal_during_a_checkpoint_write_waits_for_it():
     """Ctrl-C arriving while a checkpoint is written is delivered after the write: the file is whole."""
-    from bowsynth.training.checkpoint import signals_held
+    from bowsynth.interrupts import held
 
     done = []
     with pytest.raises(KeyboardInterrupt):
-        with signals_held():
+        with held():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)
             done.append("written")

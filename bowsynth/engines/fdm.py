@@ -199,32 +199,24 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None, loop: st
 
 
 def _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=None):
-    """fdm_batch's states one by one in the compiled loop, in slices over a pool of threads (the core runs
-    without the GIL); each row's arithmetic is the numpy batch's, so the rows are the same to the bit."""
-    from concurrent.futures import ThreadPoolExecutor, as_completed
-
+    """fdm_batch's states one by one in the compiled loop, in slices over threads (the core runs without the GIL;
+    interrupts.share: a Ctrl-C stops them within a slice); each row's arithmetic is the numpy batch's, so the rows are
+    the same to the bit."""
     from .. import compiled
+    from ..interrupts import share
 
     n = u_cur.size
     q, p = np.empty((n, n_out)), np.empty((n, n_out))
+    per = max(1, min(64, n // 32))
 
-    def rows(lo: int, hi: int) -> int:
-        for i in range(lo, hi):
+    def rows(lo: int) -> None:
+        for i in range(lo, min(lo + per, n)):
             u, e = run_fdm_raw(u_prev[i], u_cur[i], n_out, stride, k, w[i], fb[i], vb[i], a, eta0=eta[i])
             q[i] = w[i] * u
             p[i] = e + vb[i]
-        return hi - lo
 
-    per = max(1, min(64, n // 32))
-    pool = ThreadPoolExecutor(max_workers=min(4, compiled.usable_cores()))
-    try:
-        done = 0
-        for f in as_completed([pool.submit(rows, i, min(i + per, n)) for i in range(0, n, per)]):
-            done += f.result()
-            if on_progress is not None:
-                on_progress(done / n)
-    finally:  # an interrupt (Ctrl-C) waits for the slices running, not for those queued
-        pool.shutdown(wait=True, cancel_futures=True)
+    share(rows, range(0, n, per), min(4, compiled.usable_cores()),
+          on_item=None if on_progress is None else lambda done: on_progress(min(1.0, done * per / n)))
     return q, p
 
 

@@ -15,12 +15,9 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
-import signal
 import stat
 import sys
 import tempfile
-import threading
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -185,31 +182,3 @@ def _copy_into(tmp: str, t: Target) -> None:
         flags = os.O_WRONLY | (os.O_TRUNC if t.kind == "file" else 0)
         with os.fdopen(os.open(t.real, flags), "wb") as dst:
             shutil.copyfileobj(src, dst)
-
-
-@contextmanager
-def signals_held():
-    """Ctrl-C and SIGTERM wait until the block is done, then act as they would have: a checkpoint is written whole
-    or not at all, and the save that an interruption makes is not itself cut short by a second Ctrl-C. Done with the
-    Python handlers (a blocked signal mask would not do: the kernel hands a process's signal to any thread that does
-    not block it, and torch's threads do not)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pending = []
-    old = {}
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        h = signal.getsignal(sig)
-        if h is not signal.SIG_IGN and h is not None:
-            old[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
-    try:
-        yield
-    finally:
-        for sig, h in old.items():
-            signal.signal(sig, h)
-        if pending:
-            h = old[pending[0]]
-            if callable(h):
-                h(pending[0], None)  # raises, as the handler would have (KeyboardInterrupt, errors.Terminated)
-            else:
-                signal.raise_signal(pending[0])

@@ -102,7 +102,7 @@ def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove"
     import shutil
 
     from ..io.audio import DC_TAG, write_wav
-    from ..io.outfile import signals_held
+    from ..interrupts import held
 
     out.mkdir(parents=True, exist_ok=True)
     stage = out / f".staging-{os.getpid()}-{secrets.token_hex(3)}"
@@ -117,7 +117,7 @@ def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove"
         text = json.dumps({"bowsynth_stems": 1, "signal": signal, "dc": DC_TAG if dc == "remove" else "kept",
                            "notes": index}, indent=1)
         (stage / "notes.json").write_text(text + "\n")
-        with signals_held():
+        with held():
             for fname in [p.name for p in paths] + ["notes.json"]:
                 dst = out / fname
                 if dst.is_symlink() or (dst.exists() and not dst.is_file()):

@@ -8,7 +8,7 @@ from pathlib import Path
 import torch
 
 from ..errors import UsageError
-from ..io.outfile import signals_held  # noqa: F401  (written once, beside the other output rules)
+from ..interrupts import held
 
 META_KEY = "bowsynth_checkpoint"
 
@@ -43,7 +43,7 @@ def save(path: Path, state: dict) -> None:
 
     from ..io.audio import atomic_write
 
-    with signals_held():
+    with held():
         tensors = dict(state["tensors"])
         meta = {**state["meta"], "opt": _flatten(state["optimizer"], "opt", tensors)}
         tensors["torch_rng"] = torch.get_rng_state()

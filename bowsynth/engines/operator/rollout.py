@@ -38,7 +38,6 @@ MAX_THREADS = 8
 MIN_THREAD_SAMPLES = 100_000
 WINDOW_SAMPLES = 245.0
 PER_VOICE = (0, 4, 9, 10, 12, 13)  # the loops' per-voice inputs: x0, vidx, center, halfrange, pin, gain
-_pool = None  # a ThreadPoolExecutor, made (and concurrent.futures imported: 4 ms with logging) when first needed
 
 
 def threads() -> int:
@@ -88,11 +87,9 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
     split in fixed runs by estimated work, one thread waited for the other ~2.8 ms of those 42 (the estimate is
     off by the CPU's vector width). A group's voices roll in one call whichever thread takes it, so their samples
     never depend on the threads."""
-    import threading
-
     from ... import compiled as core
+    from ...interrupts import share
 
-    global _pool
     n_samples, spw, vidx, q, p, fail = args[1], args[2], args[4], args[-3], args[-2], args[-1]
     groups = voice_groups(spw[vidx])
     work = n_samples * (1 + WINDOW_SAMPLES / spw[vidx])
@@ -115,25 +112,9 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
         for k in range(len(groups)):
             run(k)
         return
-    queue = iter(np.argsort(-group_work, kind="stable").tolist())
-    lock = threading.Lock()
-
-    def worker():
-        while True:
-            with lock:
-                k = next(queue, None)
-            if k is None:
-                return
-            run(k)
-
-    if _pool is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _pool = ThreadPoolExecutor(max_workers=MAX_THREADS, thread_name_prefix="bowsynth-roll")
-    others = [_pool.submit(worker) for _ in range(n_run - 1)]
-    worker()  # this thread takes groups too, while the pool's take the others
-    for f in others:
-        f.result()
+    # this thread takes groups too, heaviest first, while n_run - 1 others take the rest (interrupts.share: with
+    # Ctrl-C held, for an exception raised inside the threads' hand-over left its lock held)
+    share(run, np.argsort(-group_work, kind="stable").tolist(), n_run)
 
 
 def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
