@@ -8,8 +8,7 @@ import os
 from pathlib import Path
 
 from . import physics
-from .errors import BowsynthError, UsageError, interrupt_exit_code
-from .interrupts import held
+from .errors import BowsynthError, UsageError, held, interrupt_exit_code
 from .scene import Scene
 
 

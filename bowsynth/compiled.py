@@ -13,9 +13,11 @@ check every array's dtype, rank and shape before touching it (TypeError / ValueE
 from __future__ import annotations
 
 import hashlib
+import signal
+import threading
 from pathlib import Path
 
-from .errors import BowsynthError
+from .errors import HELD, BowsynthError, held, pending
 
 ABI = 4  # src/core/core.h: bowsynth::ABI
 _REBUILD = "rebuild it with `pip install -e .` (or `make core` in a source tree run with PYTHONPATH)"
@@ -44,6 +46,72 @@ def usable_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _block_held() -> None:
+    # the pool's threads never take the signals: the kernel hands them to the main thread, which acts on them
+    try:
+        signal.pthread_sigmask(signal.SIG_BLOCK, HELD)
+    except (AttributeError, OSError, ValueError):  # no POSIX thread signals here
+        pass
+
+
+_END = object()
+_pool = None  # a ThreadPoolExecutor whose threads block the signals (_block_held)
+
+
+def share(run, items, n_threads: int, on_item=None) -> None:
+    """run(item) for each of items on up to n_threads threads: this one and the pool's, each taking the next item as
+    it is free (heaviest first is the caller's order to give). The signals are held meanwhile (held()): one that comes
+    stops the threads taking items, and its handler raises once they are all back, so a long job still ends within
+    one item per thread. on_item(done) runs in this thread after each item it finishes (done: items finished in
+    all). A thread's exception is raised here once the others are back."""
+    global _pool
+    queue = iter(list(items))
+    lock = threading.Lock()
+    done, stop = [0], [False]
+
+    def take():
+        with lock:
+            return _END if stop[0] else next(queue, _END)
+
+    def loop(mine: bool) -> None:
+        while not pending():
+            item = take()
+            if item is _END:
+                return
+            try:
+                run(item)
+            except BaseException:
+                stop[0] = True
+                raise
+            with lock:
+                done[0] += 1
+                n = done[0]
+            if mine and on_item is not None:
+                on_item(n)
+
+    with held():
+        others = []
+        if n_threads > 1:
+            if _pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                _pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="bowsynth-work", initializer=_block_held)
+            others = [_pool.submit(loop, False) for _ in range(min(n_threads, 8) - 1)]
+        try:
+            loop(True)
+        except BaseException:
+            stop[0] = True
+            raise
+        finally:
+            for f in others:
+                f.exception()  # waits: no thread still writes into the caller's arrays when this returns
+        for f in others:
+            f.result()
+    # here only when a signal came and its handler returned (one that records, say): the work is still owed
+    for item in queue:
+        run(item)
 
 
 _module = None

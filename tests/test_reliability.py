@@ -254,7 +254,7 @@ def test_wheel_carries_presets_and_shipped_models(tmp_path):
 
 def test_a_signal_during_a_checkpoint_write_waits_for_it():
     """Ctrl-C arriving while a checkpoint is written is delivered after the write: the file is whole."""
-    from bowsynth.interrupts import held
+    from bowsynth.errors import held
 
     done = []
     with pytest.raises(KeyboardInterrupt):

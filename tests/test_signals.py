@@ -108,7 +108,7 @@ def test_signal_while_blocked_writing_to_a_fifo(sig, tmp_path):
 @pytest.mark.parametrize("delay", [0.0, 4.0], ids=["while-torch-loads", "during-data-preparation"])
 def test_sigint_during_training_ends_in_one_line(delay, tmp_path):
     # a million FDM trajectories: data preparation alone would take many minutes. At once, training is still importing
-    # torch, which holds the signal (interrupts.held) and then ends cleanly: cut half-way, the import left a warning
+    # torch, which holds the signal (errors.held) and then ends cleanly: cut half-way, the import left a warning
     # line. A process killed by the signal after printing its line (1 run in 5 under load): the test below. After 4 s,
     # in the threaded FDM data: once (CI) hung for good, a lock of concurrent.futures left held (the tests of share)
     out = tmp_path / "m.safetensors"
@@ -228,7 +228,7 @@ def _work(log, n_items, signal_at=None, sig=signal.SIGINT):
     the items running as it ran."""
     import threading
 
-    from bowsynth.interrupts import share
+    from bowsynth.compiled import share
 
     log.update(ran=[], seen=[])
     running, lock = [0], threading.Lock()
@@ -260,7 +260,7 @@ def _work(log, n_items, signal_at=None, sig=signal.SIGINT):
 def test_shared_work_runs_every_item_once_over_the_threads():
     import threading
 
-    from bowsynth.interrupts import share
+    from bowsynth.compiled import share
 
     who, lock = {}, threading.Lock()
 
@@ -277,7 +277,7 @@ def test_shared_work_runs_every_item_once_over_the_threads():
 
 
 def test_a_threads_error_is_raised_once_every_thread_is_back():
-    from bowsynth.interrupts import share
+    from bowsynth.compiled import share
 
     ran = []
 

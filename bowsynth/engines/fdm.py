@@ -200,10 +200,9 @@ def fdm_batch(q0, p0, n_out, stride, k, w, fb, vb, a, on_progress=None, loop: st
 
 def _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=None):
     """fdm_batch's states one by one in the compiled loop, in slices over threads (the core runs without the GIL;
-    interrupts.share: a Ctrl-C stops them within a slice); each row's arithmetic is the numpy batch's, so the rows are
+    compiled.share: a Ctrl-C stops them within a slice); each row's arithmetic is the numpy batch's, so the rows are
     the same to the bit."""
     from .. import compiled
-    from ..interrupts import share
 
     n = u_cur.size
     q, p = np.empty((n, n_out)), np.empty((n, n_out))
@@ -215,7 +214,7 @@ def _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=No
             q[i] = w[i] * u
             p[i] = e + vb[i]
 
-    share(rows, range(0, n, per), min(4, compiled.usable_cores()),
+    compiled.share(rows, range(0, n, per), min(4, compiled.usable_cores()),
           on_item=None if on_progress is None else lambda done: on_progress(min(1.0, done * per / n)))
     return q, p
 

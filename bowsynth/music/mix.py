@@ -102,7 +102,7 @@ def write_stems(notes, renders, out: Path, signal: str = "u", dc: str = "remove"
     import shutil
 
     from ..io.audio import DC_TAG, write_wav
-    from ..interrupts import held
+    from ..errors import held
 
     out.mkdir(parents=True, exist_ok=True)
     stage = out / f".staging-{os.getpid()}-{secrets.token_hex(3)}"

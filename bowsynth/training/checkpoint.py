@@ -7,8 +7,7 @@ from pathlib import Path
 
 import torch
 
-from ..errors import UsageError
-from ..interrupts import held
+from ..errors import UsageError, held
 
 META_KEY = "bowsynth_checkpoint"
 

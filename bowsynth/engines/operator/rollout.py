@@ -88,7 +88,6 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
     off by the CPU's vector width). A group's voices roll in one call whichever thread takes it, so their samples
     never depend on the threads."""
     from ... import compiled as core
-    from ...interrupts import share
 
     n_samples, spw, vidx, q, p, fail = args[1], args[2], args[4], args[-3], args[-2], args[-1]
     groups = voice_groups(spw[vidx])
@@ -112,9 +111,9 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
         for k in range(len(groups)):
             run(k)
         return
-    # this thread takes groups too, heaviest first, while n_run - 1 others take the rest (interrupts.share: with
+    # this thread takes groups too, heaviest first, while n_run - 1 others take the rest (compiled.share: with
     # Ctrl-C held, for an exception raised inside the threads' hand-over left its lock held)
-    share(run, np.argsort(-group_work, kind="stable").tolist(), n_run)
+    core.share(run, np.argsort(-group_work, kind="stable").tolist(), n_run)
 
 
 def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
