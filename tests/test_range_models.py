@@ -572,6 +572,9 @@ BAND_BOWS = [
     # in mid-corner's thin box, just above mid-edge's (session 51's draw): halt-bottom, its parent and the model
     # chosen by listening before, 14 cents sharp, stick-halt the pick; mid-corner (validated) heard truer
     (739.66, 1.53996, 0.0709226, "stick-halt", "mid-corner", "halt-bottom", 10),
+    # deep in seam-stripe's box, the top of halt-band's forces (session 52's draw): seam-stripe the pick; halt-band,
+    # its parent and the model chosen before, 13.9 cents sharp
+    (213.52, 1.71104, 0.072865, "seam-stripe", "seam-stripe", "halt-band", 10),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)

@@ -281,6 +281,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # 0.0709-0.07095, with the rollout term (validated, 0.002 cents): 12 / 14 / 20 of 64 leave (seeds 1-3),
                # the rest within 0.52 % and 1.77 cents at its centre bow (F_B / w 1.502, v_B 0.070925); 30 s +0.935
                "mid-corner": (18, 1e-2, 2.5),
+               # session 52: halt-band refined on the stripe above the seam, F_B / w 1.695-1.715 x v_B 0.0711-0.0745,
+               # with the rollout term (validated, 0.55 cents): 13 / 21 / 23 of 64 leave (seeds 1-3), the rest within
+               # 1.24 % and 3.99 cents at its centre bow (F_B / w 1.705, v_B 0.0728); 30 s -0.666 cents
+               "seam-stripe": (18, 1.5e-2, 3.0),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
