@@ -65,11 +65,12 @@ def share(run, items, n_threads: int, on_item=None) -> None:
     it is free (heaviest first is the caller's order to give). The signals are held meanwhile (held()): one that comes
     stops the threads taking items, and its handler raises once they are all back, so a long job still ends within
     one item per thread. on_item(done) runs in this thread after each item it finishes (done: items finished in
-    all). A thread's exception is raised here once the others are back."""
+    all), and with the whole count once every thread is back. A thread's exception is raised here once the others
+    are back."""
     global _pool
     queue = iter(list(items))
     lock = threading.Lock()
-    done, stop = [0], [False]
+    done, stop, told = [0], [False], [0]
 
     def take():
         with lock:
@@ -89,6 +90,7 @@ def share(run, items, n_threads: int, on_item=None) -> None:
                 done[0] += 1
                 n = done[0]
             if mine and on_item is not None:
+                told[0] = n
                 on_item(n)
 
     with held():
@@ -109,6 +111,8 @@ def share(run, items, n_threads: int, on_item=None) -> None:
                 f.exception()  # waits: no thread still writes into the caller's arrays when this returns
         for f in others:
             f.result()
+        if on_item is not None and told[0] != done[0]:  # the last items were the pool's
+            on_item(done[0])
     # here only when a signal came and its handler returned (one that records, say): the work is still owed
     for item in queue:
         run(item)
