@@ -575,6 +575,9 @@ BAND_BOWS = [
     # deep in seam-stripe's box, the top of halt-band's forces (session 52's draw): seam-stripe the pick; halt-band,
     # its parent and the model chosen before, 13.9 cents sharp
     (213.52, 1.71104, 0.072865, "seam-stripe", "seam-stripe", "halt-band", 10),
+    # in the sliver above seam-stripe's box, below stick-halt-high's (session 52's draw): stripe-edge the pick;
+    # halt-band, its parent and the model chosen before, 15.8 cents sharp
+    (503.11, 1.717446, 0.07316, "stripe-edge", "stripe-edge", "halt-band", 10),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)
