@@ -214,8 +214,8 @@ def _fdm_rows(u_prev, u_cur, eta, n_out, stride, k, w, fb, vb, a, on_progress=No
             q[i] = w[i] * u
             p[i] = e + vb[i]
 
-    compiled.share(rows, range(0, n, per), min(4, compiled.usable_cores()),
-          on_item=None if on_progress is None else lambda done: on_progress(min(1.0, done * per / n)))
+    report = None if on_progress is None else lambda done: on_progress(min(1.0, done * per / n))
+    compiled.share(rows, range(0, n, per), min(4, compiled.usable_cores()), on_item=report)
     return q, p
 
 
