@@ -56,6 +56,7 @@ def _block_held() -> None:
         pass
 
 
+SHARE_THREADS = 8  # the most threads share() runs work on, the caller's included
 _END = object()
 _pool = None  # a ThreadPoolExecutor whose threads block the signals (_block_held)
 
@@ -99,8 +100,9 @@ def share(run, items, n_threads: int, on_item=None) -> None:
             if _pool is None:
                 from concurrent.futures import ThreadPoolExecutor
 
-                _pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="bowsynth-work", initializer=_block_held)
-            others = [_pool.submit(loop, False) for _ in range(min(n_threads, 8) - 1)]
+                _pool = ThreadPoolExecutor(max_workers=SHARE_THREADS - 1, thread_name_prefix="bowsynth-work",
+                                           initializer=_block_held)
+            others = [_pool.submit(loop, False) for _ in range(min(n_threads, SHARE_THREADS) - 1)]
         try:
             loop(True)
         except BaseException:

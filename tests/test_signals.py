@@ -210,7 +210,6 @@ def test_stems_are_written_all_or_none(sig, tmp_path):
     assert not (tmp_path / "m.wav").exists()
 
 
-
 @pytest.fixture
 def raising_handlers():
     """The CLI's handlers (raise KeyboardInterrupt / Terminated), restored after the test."""

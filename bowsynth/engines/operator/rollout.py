@@ -34,17 +34,17 @@ BATCH_FROM = 8
 # the work is n_samples (1 + WINDOW_SAMPLES / samples per window): a window's branch costs ~33k multiply-adds, a
 # sample ~134 (shared/GUIDE.md 9), so a window weighs ~245 samples.
 GROUP = 4
-MAX_THREADS = 8
 MIN_THREAD_SAMPLES = 100_000
 WINDOW_SAMPLES = 245.0
 PER_VOICE = (0, 4, 9, 10, 12, 13)  # the loops' per-voice inputs: x0, vidx, center, halfrange, pin, gain
 
 
 def threads() -> int:
-    """The cores a render may use (compiled.usable_cores: this process's CPU affinity), at most MAX_THREADS."""
+    """The cores a render may use (compiled.usable_cores: this process's CPU affinity), at most the threads
+    compiled.share runs work on."""
     from ... import compiled
 
-    return min(compiled.usable_cores(), MAX_THREADS)
+    return min(compiled.usable_cores(), compiled.SHARE_THREADS)
 
 
 def voice_runs(work: np.ndarray, n_threads: int) -> list[tuple[int, int]]:
