@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python benchmarks/listener.py [--model PATH] [--region soft|stick|all] [--n N] [--seed S]
                                                           [--seconds 2] [--json out.json] [--box B0:B1,V0:V1]
-                                                          [--windows locked|free|physics|auto]
+                                                          [--windows auto|locked|free|physics]
     PYTHONPATH=. .venv/bin/python benchmarks/listener.py --gestures [--only TEXT] [--model PATH] [--windows auto]
 
 Random bows (F_B / w log-uniform, v_B uniform) at random pitches (f0 log-uniform 65-880 Hz), drawn with a seed no
@@ -51,7 +51,7 @@ def onset_ok(err_ms: float, ref_ms: float) -> bool:
     return math.isfinite(err_ms) and abs(err_ms) <= onset_limit_ms(ref_ms)
 
 
-WINDOWS = "locked"  # the operator's windows (api.render's; --windows)
+WINDOWS = None  # the operator's windows (--windows); None: the render's default, as a user hears it
 
 
 def one(f0: float, beta: float, vb: float, seconds: float, model=None) -> dict:
@@ -152,8 +152,9 @@ def main(argv=None):
     ap.add_argument("--gestures", action="store_true", help="the gestures instead of held bows")
     ap.add_argument("--only", default=None, metavar="TEXT", help="with --gestures: those whose name holds TEXT")
     ap.add_argument("--json", default=None)
-    ap.add_argument("--windows", default="locked", choices=["locked", "free", "physics", "auto"],
-                    help="the operator's windows (render --windows; gestures play free windows either way)")
+    ap.add_argument("--windows", default=None, choices=["locked", "free", "physics", "auto"],
+                    help="the operator's windows (render --windows; default the render's, auto; gestures play free "
+                         "windows either way)")
     a = ap.parse_args(argv)
     global WINDOWS
     WINDOWS = a.windows
