@@ -578,6 +578,9 @@ BAND_BOWS = [
     # in the sliver above seam-stripe's box, below stick-halt-high's (session 52's draw): stripe-edge the pick;
     # halt-band, its parent and the model chosen before, 15.8 cents sharp
     (503.11, 1.717446, 0.07316, "stripe-edge", "stripe-edge", "halt-band", 10),
+    # the stripe above v_B 0.0745, at halt-band's top (session 53's draw): stripe-top the pick; halt-band, its parent
+    # and the model chosen before, 19.3 cents sharp
+    (456.24, 1.71645, 0.07605, "stripe-top", "stripe-top", "halt-band", 15),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)

@@ -292,6 +292,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # leave (seeds 1-3), the rest within 0.83 % and 3.79 cents at its centre bow (F_B / w 1.707, v_B
                # 0.0728); 30 s -3.55 cents (seam-stripe, the pick there, -0.666)
                "stripe-edge": (20, 1.2e-2, 4.5),
+               # session 53: halt-band refined on the stripe above v_B 0.0745, F_B / w 1.685-1.72 x v_B 0.0745-0.077,
+               # with the rollout term (validated, 0.2 cents): 17 / 21 / 24 of 64 leave (seeds 1-3), the rest within
+               # 0.69 % and 1.00 cents at its centre bow (F_B / w 1.702, v_B 0.076); 30 s -0.040 cents
+               "stripe-top": (20, 1e-2, 1.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
