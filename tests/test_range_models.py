@@ -581,6 +581,9 @@ BAND_BOWS = [
     # the stripe above v_B 0.0745, at halt-band's top (session 53's draw): stripe-top the pick; halt-band, its parent
     # and the model chosen before, 19.3 cents sharp
     (456.24, 1.71645, 0.07605, "stripe-top", "stripe-top", "halt-band", 15),
+    # the band's floor at high-band's middle forces (session 53's draw): high-sill the pick; high-band, its parent and
+    # the model chosen before, 10.9 cents sharp
+    (216.68, 1.812914, 0.0708802, "high-sill", "high-sill", "high-band", 8),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)
