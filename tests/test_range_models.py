@@ -584,6 +584,9 @@ BAND_BOWS = [
     # the band's floor at high-band's middle forces (session 53's draw): high-sill the pick; high-band, its parent and
     # the model chosen before, 10.9 cents sharp
     (216.68, 1.812914, 0.0708802, "high-sill", "high-sill", "high-band", 8),
+    # inside mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-core the
+    # pick; mid-edge, its parent and the model chosen before, 2.7 cents sharp
+    (69.655, 1.481454, 0.070872, "mid-core", "mid-core", "mid-edge", 2),
     # the space's heavy edge at the band's very floor, 0.15 % above vb_stop: edge-narrow, its parent, 9 cents sharp,
     # edge-floor 15, halt-edge the pick; edge-low (trained without the derivative term, failed its validation by ear)
     # heard truer (session 46's draw)

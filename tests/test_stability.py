@@ -302,6 +302,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # rollout term (validated, 2.2 cents): 19 / 17 / 23 of 64 leave (seeds 1-3), the rest within 0.43 % and
                # 2.24 cents at its centre bow (F_B / w 1.849, v_B 0.07095); 30 s -1.52 cents
                "high-sill": (22, 5e-3, 2.5),
+               # session 53: mid-edge refined on the band's very floor at F_B / w 1.465-1.525 x v_B 0.0708-0.0709, with
+               # the rollout term (validated, 0.85 cents): 8 / 15 / 22 of 64 leave (seeds 1-3), the rest within 1.05 %
+               # (7 voices over 1 %) and 2.70 cents at its centre bow (F_B / w 1.495, v_B 0.07085); 30 s +0.362 cents
+               "mid-core": (12, 1.5e-2, 3.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
