@@ -113,6 +113,78 @@ def test_a_covering_model_that_cannot_be_measured_is_passed_over_not_fatal(monke
     assert again.switched and again.note is not None
 
 
+# the band's floor on the seam, 0.17 % above vb_stop: its pick misses and 7-12 shipped models cover it
+FLOOR = (256.9, 1.690, 0.07083)
+
+
+def test_the_covering_models_are_measured_over_the_cores_each_score_its_own(monkeypatch):
+    """Each candidate is measured once, on the cores the process may use, and each score lands on its model whatever
+    order the threads finish in; one that cannot be measured is None, the others unchanged."""
+    import random
+    import threading
+    import time
+
+    from bowsynth import compiled
+    from bowsynth.errors import ModelFileError
+    from bowsynth.music import auto_model
+
+    monkeypatch.setattr(compiled, "usable_cores", lambda: 2)
+    models = [m for m in auto_model.available_models() if m.covers(_scene(*FLOOR))]
+    assert len(models) >= 4
+    want = {m.path.stem: float(i) for i, m in enumerate(models)}
+    threads, calls, broken = set(), [], [None]
+    rng = random.Random(5)
+
+    def fake(m, *bow, **kw):
+        threads.add(threading.get_ident())
+        calls.append(m.path.stem)
+        time.sleep(rng.uniform(0, 0.05))  # the threads finish out of order
+        if m.path.stem == broken[0]:
+            raise ModelFileError(f"{m.path}: fails its physics check")
+        assert kw == {"at_pitch": True} and bow == (1.690, 0.07083, 100.0, 256.9)
+        return want[m.path.stem]
+    monkeypatch.setattr(auto_model, "auto_score", fake)
+    got = auto_model._scores(models, (1.690, 0.07083, 100.0, 256.9))
+    assert got == [want[m.path.stem] for m in models]
+    assert sorted(calls) == sorted(want) and len(threads) == 2
+    broken[0] = models[1].path.stem
+    got = auto_model._scores(models, (1.690, 0.07083, 100.0, 256.9))
+    assert got[1] is None and got[:1] + got[2:] == [want[m.path.stem] for m in models[:1] + models[2:]]
+
+
+def test_a_ctrl_c_while_the_candidates_are_measured_stops_them_and_raises_once_they_are_back(monkeypatch):
+    import os
+    import signal
+    import threading
+    import time
+
+    from bowsynth import compiled
+    from bowsynth.music import auto_model
+
+    monkeypatch.setattr(compiled, "usable_cores", lambda: 2)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    started, ended = [], []
+
+    def slow(m, *bow, **kw):
+        started.append(m)
+        if len(started) == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # from whichever thread measures the second model
+        time.sleep(0.2)
+        ended.append(m)
+        return 3.0
+    monkeypatch.setattr(auto_model, "auto_score", slow)
+    models = [m for m in auto_model.available_models() if m.covers(_scene(*FLOOR))]
+    assert len(models) >= 4
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            auto_model._scores(models, (1.690, 0.07083, 100.0, 256.9))
+        assert len(started) < len(models)  # the rest were never measured
+        assert len(ended) == len(started)  # none still running
+        assert threading.current_thread() is threading.main_thread()
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def _without(monkeypatch, stem: str) -> None:
     """The shipped models less one, wherever a render looks them up (a model shipped later that covers a case)."""
     from bowsynth.engines.operator import choose, engine

@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .. import compiled
 from ..engines.operator.choose import available_models, bow_key, covering_model
 from ..engines.operator.modelfile import OperatorModel, missed_by_ear
 from ..errors import BowsynthError
@@ -110,13 +111,8 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
     at_rest = scene.q0 == 0 and scene.p0 == 0
     covering = [m for m in pool if m is not pick and _candidate(m) and m.covers(scene)]
     unheard = [m for m in covering if m.failure is not None and not at_rest and not _same_note_from(m, scene)]
-    for m in [m for m in covering if m not in unheard]:
-        try:
-            s = auto_score(m, *bow, at_pitch=True)
-        except BowsynthError:  # a model that cannot be measured here (a file of ./models failing its physics check)
-            continue  # is not a candidate; the pick's own failure shows when it renders
-        if s is not None and math.isfinite(s):
-            scored.append((s, m))
+    heard = [m for m in covering if m not in unheard]
+    scored += [(s, m) for s, m in zip(_scores(heard, bow), heard) if s is not None and math.isfinite(s)]
     if not scored:
         return AutoPick(pick)
     mine = next((s for s, m in scored if m is pick), math.inf)
@@ -139,6 +135,25 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
     return AutoPick(best, f"note: {_name(best)} plays this bow: it sounds truer there than {_name(pick)}, the most "
                           f"specialised model that covers it (auto windows score {best_s:.3g}{against}; "
                           f"1 meets the worst-case targets){unvalidated}{missed}", switched=True)
+
+
+def _scores(models: list[OperatorModel], bow: tuple) -> list[float | None]:
+    """auto_score at the bow (at its pitch too) of each model, None for one that cannot be measured here (a file of
+    ./models failing its physics check: not a candidate; the pick's own failure shows when it renders).
+
+    Over the cores (compiled.share; the rollouts and the FDM release the GIL): each model's score is its own
+    measurement, so the order they run in changes no number. At the band's floor 7-12 models cover a note, each
+    measured 0.3-1.5 s: a first render there waited 10 s for them on one core (session 54)."""
+    out: list[float | None] = [None] * len(models)
+
+    def one(i: int) -> None:
+        try:
+            out[i] = auto_score(models[i], *bow, at_pitch=True)
+        except BowsynthError:
+            out[i] = None
+
+    compiled.share(one, range(len(models)), min(compiled.usable_cores(), len(models)))
+    return out
 
 
 def _same_note_from(m: OperatorModel, scene: Scene) -> bool:
