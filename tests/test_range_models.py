@@ -584,6 +584,9 @@ BAND_BOWS = [
     # the band's floor at high-band's middle forces (session 53's draw): high-sill the pick; high-band, its parent and
     # the model chosen before, 10.9 cents sharp
     (216.68, 1.812914, 0.0708802, "high-sill", "high-sill", "high-band", 8),
+    # a stripe of the heavy band above its floor (session 54's draw): band-stripe the pick; high-band, its parent and
+    # the model chosen before, 4.7 cents sharp
+    (316.354, 1.747686, 0.0756006, "band-stripe", "band-stripe", "high-band", 3),
     # inside mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-core the
     # pick; mid-edge, its parent and the model chosen before, 2.7 cents sharp
     (69.655, 1.481454, 0.070872, "mid-core", "mid-core", "mid-edge", 2),
