@@ -313,6 +313,11 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # 1.30 % (2 voices over 1 % in seed 1) and 1.52 cents at its centre bow (F_B / w 1.742, v_B 0.0755); 30 s
                # +1.15 cents
                "band-stripe": (20, 1.7e-2, 2.0),
+               # session 54: halt-bottom refined on the band's very floor at F_B / w 1.32-1.40 x v_B 0.0708-0.0709,
+               # with the rollout term (validated, 0.95 cents): 7 / 14 / 19 of 64 leave (seeds 1-3), the rest within
+               # 1.74 % (2-4 voices over 1 %) and 4.62 cents at its centre bow (F_B / w 1.359, v_B 0.07085); 30 s
+               # +0.138 cents
+               "mid-sill": (12, 1.8e-2, 5.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
