@@ -115,6 +115,7 @@ def test_a_covering_model_that_cannot_be_measured_is_passed_over_not_fatal(monke
 
 # the band's floor on the seam, 0.17 % above vb_stop: its pick misses and 7-12 shipped models cover it
 FLOOR = (256.9, 1.690, 0.07083)
+BOW = (FLOOR[1], FLOOR[2], 100.0, FLOOR[0])  # as _auto_pick hands it to the measurements: beta, v_B, a, f0
 
 
 def test_the_covering_models_are_measured_over_the_cores_each_score_its_own(monkeypatch):
@@ -141,21 +142,20 @@ def test_the_covering_models_are_measured_over_the_cores_each_score_its_own(monk
         time.sleep(rng.uniform(0, 0.05))  # the threads finish out of order
         if m.path.stem == broken[0]:
             raise ModelFileError(f"{m.path}: fails its physics check")
-        assert kw == {"at_pitch": True} and bow == (1.690, 0.07083, 100.0, 256.9)
+        assert kw == {"at_pitch": True} and bow == BOW
         return want[m.path.stem]
     monkeypatch.setattr(auto_model, "auto_score", fake)
-    got = auto_model._scores(models, (1.690, 0.07083, 100.0, 256.9))
+    got = auto_model._scores(models, BOW)
     assert got == [want[m.path.stem] for m in models]
     assert sorted(calls) == sorted(want) and len(threads) == 2
     broken[0] = models[1].path.stem
-    got = auto_model._scores(models, (1.690, 0.07083, 100.0, 256.9))
+    got = auto_model._scores(models, BOW)
     assert got[1] is None and got[:1] + got[2:] == [want[m.path.stem] for m in models[:1] + models[2:]]
 
 
 def test_a_ctrl_c_while_the_candidates_are_measured_stops_them_and_raises_once_they_are_back(monkeypatch):
     import os
     import signal
-    import threading
     import time
 
     from bowsynth import compiled
@@ -177,10 +177,9 @@ def test_a_ctrl_c_while_the_candidates_are_measured_stops_them_and_raises_once_t
     assert len(models) >= 4
     try:
         with pytest.raises(KeyboardInterrupt):
-            auto_model._scores(models, (1.690, 0.07083, 100.0, 256.9))
+            auto_model._scores(models, BOW)
         assert len(started) < len(models)  # the rest were never measured
         assert len(ended) == len(started)  # none still running
-        assert threading.current_thread() is threading.main_thread()
     finally:
         signal.signal(signal.SIGINT, old)
 
