@@ -591,8 +591,11 @@ BAND_BOWS = [
     # chosen before, 8.8 cents sharp (halt-bottom, its parent, plays another note there)
     (311.47, 1.349698, 0.0708243, "mid-sill", "mid-sill", "halt-band", 5),
     # the band's very floor at halt-band's light edge (session 54's draw): halt-ledge the pick; halt-band, its parent
-    # and the model chosen before, 17 cents sharp
-    (382.686, 1.2849725, 0.0708236, "halt-ledge", "halt-ledge", "halt-band", 10),
+    # and the model chosen before, 3.2 cents flat
+    (209.211, 1.3017726, 0.0708685, "halt-ledge", "halt-ledge", "halt-band", 2),
+    # the band's very floor below halt-band's box (session 55's draw): floor-ledge the pick; bottom-band, the model
+    # chosen before, 18.8 cents sharp
+    (188.675, 1.2636758, 0.07085, "floor-ledge", "floor-ledge", "bottom-band", 10),
     # inside mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-core the
     # pick; mid-edge, its parent and the model chosen before, 2.7 cents sharp
     (69.655, 1.481454, 0.070872, "mid-core", "mid-core", "mid-edge", 2),
