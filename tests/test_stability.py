@@ -326,6 +326,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # with the rollout term (validated, 0.1 cents): 7 / 12 / 16 of 64 leave (seeds 1-3), the rest within
                # 0.45 % and 1.06 cents at its centre bow (F_B / w 1.275, v_B 0.07085); 30 s -0.433 cents
                "floor-ledge": (12, 1e-2, 2.0),
+               # session 55: bottom-band refined on the band's very floor at F_B / w 1.0-1.06 x v_B 0.0708-0.071, with
+               # the rollout term (validated, 2.2 cents): 5 / 5 / 8 of 64 leave (seeds 1-3), the rest within 0.27 %
+               # and 2.29 cents at its centre bow (F_B / w 1.030, v_B 0.0709); 30 s -0.059 cents
+               "light-ledge": (10, 6e-3, 3.0),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
