@@ -50,7 +50,7 @@ LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3, "slow-bow": 1.3, "floor-lon
               "edge-narrow": 7.0, "light-narrow": 5.0, "seam-bottom": 14.5, "seam-light": 5.0,
               "edge-low": 10.0, "edge-top": 10.5, "edge-sill": 2.5,
               "edge-roll": 3.0, "seam-corner": 2.0, "mid-corner": 1.5, "stripe-edge": 4.5, "high-sill": 2.0,
-              "band-stripe": 1.5}
+              "band-stripe": 1.5, "under-ledge": 1.5}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
@@ -330,6 +330,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # the rollout term (validated, 2.2 cents): 5 / 5 / 8 of 64 leave (seeds 1-3), the rest within 0.27 %
                # and 2.29 cents at its centre bow (F_B / w 1.030, v_B 0.0709); 30 s -0.059 cents
                "light-ledge": (10, 6e-3, 3.0),
+               # session 56: bottom-band refined on the band's very floor at F_B / w 0.90-0.97 x v_B 0.0708-0.071,
+               # with the rollout term (validated, 1.2 cents): 3 / 3 / 7 of 64 leave (seeds 1-3), the rest within
+               # 0.46 % and 1.81 cents at its centre bow (F_B / w 0.934, v_B 0.0709); 30 s -1.118 cents
+               "under-ledge": (10, 8e-3, 2.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
