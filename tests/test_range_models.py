@@ -602,6 +602,9 @@ BAND_BOWS = [
     # the band's very floor below the heavy band's light edge (session 56's draw): under-ledge the pick; bottom-band,
     # its parent and the model chosen before, 6.2 cents sharp
     (156.883, 0.918325, 0.070859, "under-ledge", "under-ledge", "bottom-band", 5),
+    # the band's very floor at bottom-band's lightest forces (session 56's draw): deep-ledge the pick; bottom-band, its
+    # parent and the model chosen before, 16.0 cents sharp
+    (65.260, 0.868111, 0.070821, "deep-ledge", "deep-ledge", "bottom-band", 10),
     # inside mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-core the
     # pick; mid-edge, its parent and the model chosen before, 2.7 cents sharp
     (69.655, 1.481454, 0.070872, "mid-core", "mid-core", "mid-edge", 2),

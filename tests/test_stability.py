@@ -334,6 +334,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # with the rollout term (validated, 1.2 cents): 3 / 3 / 7 of 64 leave (seeds 1-3), the rest within
                # 0.46 % and 1.81 cents at its centre bow (F_B / w 0.934, v_B 0.0709); 30 s -1.118 cents
                "under-ledge": (10, 8e-3, 2.5),
+               # session 56: bottom-band refined on the band's very floor at F_B / w 0.80-0.90 x v_B 0.0708-0.071,
+               # with the rollout term (validated, 0.001 cents): 5 / 4 / 7 of 64 leave (seeds 1-3), the rest within
+               # 0.25 % and 1.02 cents at its centre bow (F_B / w 0.849, v_B 0.0709); 30 s +0.062 cents
+               "deep-ledge": (10, 5e-3, 1.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
