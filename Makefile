@@ -34,8 +34,10 @@ demo: $(STAMP)
 	$(BOW) render --fb 50@0,200@2 --vb 0.15 -d 2 $(OUTDIR)/crescendo.wav
 	$(BOW) compare $(OUTDIR)/crescendo.wav
 
+# the suite on every core (pytest-xdist): its bulk is the held bows' rows, each a model chosen by listening from a
+# cold cache, seconds of single-threaded work apiece; on CI's two cores it halves the wait
 test: $(STAMP) chromium jackd
-	$(PY) -m pytest
+	$(PY) -m pytest -n auto
 
 # The shipped operators: each is trained by its recipe beside it (bowsynth/models/NAME.toml: the flags of
 # `bowsynth train`), on a 2-core CPU at most 15 minutes for each point model (40 for paper-fb1000-half and -knee, the
