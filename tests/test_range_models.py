@@ -605,6 +605,10 @@ BAND_BOWS = [
     # the band's very floor at bottom-band's lightest forces (session 56's draw): deep-ledge the pick; bottom-band, its
     # parent and the model chosen before, 16.0 cents sharp
     (65.260, 0.868111, 0.070821, "deep-ledge", "deep-ledge", "bottom-band", 10),
+    # the band's very floor at stops-band's lightest forces (session 56's draw): stick-stops the pick; stops-band, the
+    # model chosen before and stops-ledge's parent, 21 cents sharp; stops-ledge (failed its validation by ear) heard
+    # truer
+    (365.345, 0.671697, 0.070935, "stick-stops", "stops-ledge", "stops-band", 15),
     # inside mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-core the
     # pick; mid-edge, its parent and the model chosen before, 2.7 cents sharp
     (69.655, 1.481454, 0.070872, "mid-core", "mid-core", "mid-edge", 2),
