@@ -34,8 +34,8 @@ demo: $(STAMP)
 	$(BOW) render --fb 50@0,200@2 --vb 0.15 -d 2 $(OUTDIR)/crescendo.wav
 	$(BOW) compare $(OUTDIR)/crescendo.wav
 
-# the suite on every core (pytest-xdist): its bulk is the held bows' rows, each a model chosen by listening from a
-# cold cache, seconds of single-threaded work apiece; idle on 2 cores 1142 tests took 11m17s, 1151 on two workers 8m55s
+# the suite on every core (pytest-xdist): its bulk is the held bows' rows, each a model chosen by listening from a cold
+# cache, seconds of single-threaded work apiece; idle on 2 cores 1142 tests took 11m17s, 1151 on two workers 8m55s
 test: $(STAMP) chromium jackd
 	$(PY) -m pytest -n auto
 
