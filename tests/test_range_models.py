@@ -609,6 +609,9 @@ BAND_BOWS = [
     # model chosen before and stops-ledge's parent, 21 cents sharp; stops-ledge (failed its validation by ear) heard
     # truer
     (365.345, 0.671697, 0.070935, "stick-stops", "stops-ledge", "stops-band", 15),
+    # the band's very floor at stops-band's light forces, F_B / w 0.71-0.80 (session 57's draw): floor-high the pick;
+    # stops-band, its parent, 21.5 cents sharp, stops-ledge (the model chosen before) 7.0 flat
+    (401.247, 0.7715367, 0.0709195, "floor-high", "floor-high", "stops-band", 10),
     # inside mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-core the
     # pick; mid-edge, its parent and the model chosen before, 2.7 cents sharp
     (69.655, 1.481454, 0.070872, "mid-core", "mid-core", "mid-edge", 2),
