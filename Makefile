@@ -45,8 +45,9 @@ test: $(STAMP) chromium jackd
 # against its recipe is trained (`train --update`); an interrupted run continues from its checkpoint, so `make
 # models` can be stopped and run again. A wide stick-slip range failed its validation and is
 # not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops, loud-mid
-# the soft / stick-slip border at moderate bow speeds; stick-mid, -low, -slow, -high, -stops, -heavy, -creep, -top,
-# floor-long and creep-mid: stick-slip tiles on quarter-period windows; soft-top and soft-high: the soft bow's top
+# the soft / stick-slip border at moderate bow speeds, loud-seam the light fast bows between loud-mid and fast-bow;
+# stick-mid, -low, -slow, -high, -stops, -heavy, -creep, -top, floor-long and creep-mid: stick-slip tiles on
+# quarter-period windows; soft-top and soft-high: the soft bow's top
 # forces; soft-fast its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long,
 # creep-mid, fast-long and corner-long learnt from renders of 6, 6, 6 and 16 s: their notes take seconds to settle);
 # stick-halt the heavy bow stops (stick-halt-high those above F_B / w 1.72, halt-edge the damped bows at the space's

@@ -696,6 +696,28 @@ def test_a_model_that_failed_by_ear_plays_a_note_off_rest_only_where_it_settles_
     assert Path(r.info.model_path).stem == "halt-band"
 
 
+@pytest.mark.parametrize("f0,beta,vb,pick", [(637.468, 0.4536494, 0.2267539, "loud-stops"),
+                                             (219.251, 0.6028164, 0.2269739, "loud-seam")])
+def test_light_fast_stick_slip_between_loud_mid_and_fast_bow_plays_with_loud_seam(f0, beta, vb, pick):
+    """The seam at v_B 0.225-0.23 between loud-mid's bows and fast-bow's, F_B / w 0.45-0.62, where only loud-stops
+    covered a held bow and played its worst harmonic 1.1-1.8 dB off (session 56's whole-space draw, session 57's
+    draw). loud-seam, loud-stops refined there, plays both within a cent and half a dB: the pick deep in its box, and
+    heard truer by the model chosen by listening at its light edge, where loud-stops, deeper in its own box, is the
+    pick."""
+    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.api import render
+    from bowsynth.engines.operator.choose import covering_model
+
+    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
+    truth = render(sc, engine="fdm", oversample=100)
+    assert covering_model(sc).path.stem == pick
+    r = render(sc)
+    assert Path(r.info.model_path).stem == "loud-seam"
+    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5, e
+    assert listener_errors(render(sc, model="loud-stops").p, truth.p, sc.sample_rate)["harm_db_max"] > 1.1
+
+
 @pytest.mark.parametrize("f0,beta,vb,parent_db", [(74.5, 1.687, 0.2792, None), (77.3, 1.628, 0.27766, 3.0)])
 def test_stick_slips_top_rim_plays_with_rim_top(f0, beta, vb, parent_db):
     """Fast heavy bows at the top of stick-slip's box, between stick-gap's forces and stick-top's, where stick-high
