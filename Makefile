@@ -63,9 +63,9 @@ test: $(STAMP) chromium jackd
 # edge-top and edge-sill failed by ear and play only where measured truer; seam-bottom, seam-light, edge-low, edge-top
 # and edge-sill trained without the derivative term); seam-roll, edge-roll, seam-edge, seam-corner, mid-edge, mid-high,
 # mid-corner, mid-core, seam-stripe, stripe-edge, stripe-top, high-sill, band-stripe, mid-sill, halt-ledge,
-# floor-ledge, light-ledge, under-ledge, deep-ledge, stops-ledge (failed by ear) and floor-high are seam-light,
-# edge-top, seam-low, halt-bottom, mid-edge, halt-band, high-band, floor-band, bottom-band and stops-band refined with
-# the rollout term; rim-top stick-slip's top rim (BENCHMARKS.md).
+# floor-ledge, light-ledge, under-ledge, deep-ledge, stops-ledge (failed by ear), floor-high and floor-low are
+# seam-light, edge-top, seam-low, halt-bottom, mid-edge, halt-band, high-band, floor-band, bottom-band and stops-band
+# refined with the rollout term; rim-top stick-slip's top rim (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after the recipe of that model
 # (bowsynth.training.recipe.build_order).
 RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)

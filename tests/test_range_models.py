@@ -612,6 +612,9 @@ BAND_BOWS = [
     # the band's very floor at stops-band's light forces, F_B / w 0.71-0.80 (session 57's draw): floor-high the pick;
     # stops-band, its parent, 21.5 cents sharp, stops-ledge (the model chosen before) 7.0 flat
     (401.247, 0.7715367, 0.0709195, "floor-high", "floor-high", "stops-band", 10),
+    # the band's very floor at stops-band's lightest forces, F_B / w 0.62-0.71 (session 56's draw): floor-low the pick;
+    # stops-band, its parent, 34 cents sharp, stops-ledge (the model chosen before) 13.3
+    (400.760, 0.678106, 0.0708717, "floor-low", "floor-low", "stops-band", 20),
     # inside mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-core the
     # pick; mid-edge, its parent and the model chosen before, 2.7 cents sharp
     (69.655, 1.481454, 0.070872, "mid-core", "mid-core", "mid-edge", 2),

@@ -349,6 +349,10 @@ CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), 
                # with the rollout term (validated, 2.9 cents): 5 / 3 / 3 of 64 leave (seeds 1-3), the rest within
                # 0.35 % and 5.09 cents at its centre bow (F_B / w 0.754, v_B 0.0709); 30 s -2.64 cents
                "floor-high": (10, 8e-3, 6.5),
+               # session 57: stops-band refined on the band's very floor at F_B / w 0.62-0.71 x v_B 0.07083-0.071,
+               # with the rollout term (validated, 3.2 cents): 5 / 3 / 4 of 64 leave (seeds 1-3), the rest within
+               # 0.42 % and 0.79 cents at its centre bow (F_B / w 0.664, v_B 0.0709); 30 s +0.163 cents
+               "floor-low": (10, 8e-3, 1.5),
                # session 46: edge-narrow refined on F_B / w 1.93-1.96 x v_B 0.0708-0.071, without the derivative term
                # (failed by ear, 13.2 cents): 17 / 22 / 27 of 64 leave (seeds 1-3), the rest within 0.25 % and 15.8
                # cents at its centre bow (F_B / w 1.945, v_B 0.0709); 30 s +9.05 cents
