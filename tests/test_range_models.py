@@ -607,8 +607,8 @@ BAND_BOWS = [
     (65.260, 0.868111, 0.070821, "deep-ledge", "deep-ledge", "bottom-band", 10),
     # the band's very floor at stops-band's lightest forces (session 56's draw): stick-stops the pick; stops-band, the
     # model chosen before and stops-ledge's parent, 21 cents sharp; stops-ledge (failed its validation by ear) heard
-    # truer
-    (365.345, 0.671697, 0.070935, "stick-stops", "stops-ledge", "stops-band", 15),
+    # truer; since session 57 floor-low (validated), stops-band refined with the rollout term there, the pick
+    (365.345, 0.671697, 0.070935, "floor-low", "floor-low", "stops-band", 15),
     # the band's very floor at stops-band's light forces, F_B / w 0.71-0.80 (session 57's draw): floor-high the pick;
     # stops-band, its parent, 21.5 cents sharp, stops-ledge (the model chosen before) 7.0 flat
     (401.247, 0.7715367, 0.0709195, "floor-high", "floor-high", "stops-band", 10),
