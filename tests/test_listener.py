@@ -78,6 +78,26 @@ def test_a_creeping_waveform_with_a_ripple_at_its_mean_keeps_its_pitch(ripple):
     assert abs(listener_errors(x, creep_and_slip(10.7, 0.0, seconds=2.0), SR)["cents"]) < 0.3
 
 
+def test_a_segment_cut_where_the_creep_crosses_its_mean_keeps_its_pitch_and_harmonics():
+    """Session 58: a second of floor-high's note at 100 Hz (F_B / w 0.79, v_B 0.0709) began where the creep falls
+    slowly through the mean, and a bump there crossed it upward once: that crossing, 418 samples off the period's grid,
+    was kept and the true one half a period later dropped, so the pitch read 0.9 % low and the harmonics fitted there
+    up to 36 dB low (the model chosen by listening then chose a model 12 dB off). Each end now keeps the crossing on
+    the grid of the others."""
+    from bowsynth.analysis.metrics import f0_estimate, harmonic_levels
+
+    f0 = 16.8
+    x = creep_and_slip(f0, 0.0, seconds=3.0)
+    ref = harmonic_levels(x[:SR], SR, f0=f0)
+    for near in (1000, 5000, 9000):
+        mean = x[near:near + SR].mean()  # the segment's own mean, which the crossings are taken about
+        start = near + np.flatnonzero((x[near:-1] > mean) & (x[near + 1:] <= mean))[0] + 4
+        seg = x[start:start + SR].copy()
+        seg[:16] += 2e-3 * np.sin(np.pi * np.arange(16) / 16)  # the bump: one more upward crossing, at the start
+        assert f0_estimate(seg, SR, tail=1.0) == pytest.approx(f0, rel=2e-4)
+        assert np.nanmax(np.abs(harmonic_levels(seg, SR) - ref)) < 0.5  # before: 34.6 dB at harmonic 8
+
+
 def test_a_growing_note_keeps_its_early_crossings():
     """A note that grows tenfold while it glides 100 -> 101 Hz: its crossings all count, the low ones included, so the
     estimate is the glide's mean (a threshold on the segment's deepest dip would read only its loud end, ~100.7)."""

@@ -72,6 +72,15 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
             keep.append(tc)
     if len(keep) < 3:
         return float("nan")
+    # the estimate is the span between the end crossings, so each end keeps, of its cluster (crossings within half a
+    # period), the one on the period's grid of the others, not the first: a segment that starts on a slow edge near
+    # the mean can cross there twice, and session 58's first (a creeping note's, its dip cut by the segment's start)
+    # lay 418 samples of 2626 off the grid: harmonics fitted at that pitch, 0.9 % off, read 36 dB low
+    step = np.median(np.diff(keep[1:-1])) if len(keep) > 3 else np.median(np.diff(keep))
+    first = t[t <= keep[0] + 0.5 * period]
+    last = t[(t >= keep[-1]) & (t <= keep[-1] + 0.5 * period)]
+    keep[0] = first[np.argmin(np.abs(keep[1] - first - step))]
+    keep[-1] = last[np.argmin(np.abs(last - keep[-2] - step))]
     return float((len(keep) - 1) * sample_rate / (keep[-1] - keep[0]))
 
 

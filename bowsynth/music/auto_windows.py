@@ -85,7 +85,7 @@ TARGET_FRAME_CENTS = 1.0  # the gestures' target: the median over a note's 100 m
 # stick-fast's (1.199, 0.28) every candidate's onset scores 1.6-1.9, and free windows, 1.728 against the lock's 1.633,
 # played 1.04 cents flat where the lock is within 0.15.
 AUTO_MARGIN = 0.1
-_choices = DiskTable("auto-windows", f"10/{AUTO_SECONDS!r}/{AUTO_MAX_SECONDS!r}/{AUTO_OVERSAMPLE}/{PITCH_LADDER!r}/"
+_choices = DiskTable("auto-windows", f"11/{AUTO_SECONDS!r}/{AUTO_MAX_SECONDS!r}/{AUTO_OVERSAMPLE}/{PITCH_LADDER!r}/"
                                      f"{LADDER_MAX_SECONDS!r}/{FIT_SECONDS!r}/{MORE_TRIED}/{TARGET_HARMONIC_DB!r}/"
                                      f"{TARGET_CENTS!r}/{TARGET_FRAME_CENTS!r}")
 
