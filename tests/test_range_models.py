@@ -560,9 +560,10 @@ BAND_BOWS = [
     # seam-low, scored 0.28 by the ladder, plays 1.6 cents sharp at this pitch; seam-mid (failed its validation by
     # ear), scored 0.42, within 0.001: heard at the note's own pitch, the candidates rank as they sound (session 50)
     (91.082, 1.683211, 0.0710902, "stick-halt", "seam-mid", "seam-low", 1.2),
-    # at seam-corner's bottom edge, 0.27 % above vb_stop: halt-bottom (the model chosen by listening before) 8.5 cents
-    # flat, seam-low 10 sharp, stick-halt the pick; seam-corner (validated) heard truer (session 50's draw)
-    (85.037, 1.659217, 0.0709008, "stick-halt", "seam-corner", "halt-bottom", 5),
+    # at seam-corner's bottom edge, 0.27 % above vb_stop: seam-low 10 sharp, stick-halt the pick; seam-corner
+    # (validated) heard truer (session 50's draw; halt-bottom, read 8.5 cents flat then, plays within 0.2 since the
+    # pitch estimator's fix in session 58 changed its windows)
+    (85.037, 1.659217, 0.0709008, "stick-halt", "seam-corner", "seam-low", 5),
     # deep in mid-edge's box, the band's very floor at halt-bottom's middle forces (session 51's draw): mid-edge the
     # pick; halt-bottom, its parent and the model chosen by listening before, 18.6 cents sharp
     (165.42, 1.51911, 0.070885, "mid-edge", "mid-edge", "halt-bottom", 10),
@@ -654,11 +655,13 @@ def test_a_heavy_bow_held_just_above_vb_stop_plays_on_pitch(f0, beta, vb, pick, 
     assert abs(old["cents"]) > parent_cents and old["harm_db_max"] < 15
 
 
-def test_the_pick_is_heard_at_the_notes_own_pitch():
-    """(70.671 Hz, 1.66839, 0.0709725), the seam's light edge: seam-low, the pick, scores 0.47 by auto's ladder of
-    pitches (under the challenge's 0.5) and plays 28 cents flat and 25 dB off at this pitch (session 50's draw). Heard
-    at the note's own pitch it is challenged, and a model within a cent plays."""
-    from bowsynth.analysis.metrics import listener_errors
+def test_the_seam_light_edge_pick_is_read_at_its_true_pitch():
+    """(70.671 Hz, 1.66839, 0.0709725), the seam's light edge: session 50 read seam-low, the pick, 28 cents flat and 25
+    dB off here, and the model chosen by listening played another model. That was the pitch estimator's: the last
+    second began on the creep's slow fall through the mean, where one crossing off the period's grid was kept (session
+    58). An autocorrelation of the same second, which has no crossings, agrees with the estimate now within 0.1 cent,
+    and seam-low, the pick, plays within a cent and half a dB."""
+    from bowsynth.analysis.metrics import f0_estimate, listener_errors
     from bowsynth.api import render
     from bowsynth.engines.operator.choose import covering_model
 
@@ -666,11 +669,23 @@ def test_the_pick_is_heard_at_the_notes_own_pitch():
     truth = render(sc, engine="fdm", oversample=100)
     assert covering_model(sc).path.stem == "seam-low"
     r = render(sc)
-    assert Path(r.info.model_path).stem != "seam-low"
+    assert Path(r.info.model_path).stem == "seam-low"
     e = listener_errors(r.p, truth.p, sc.sample_rate)
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5
-    old = listener_errors(render(sc, model="seam-low").p, truth.p, sc.sample_rate)
-    assert abs(old["cents"]) > 10
+
+    def autocorrelation_hz(x, near):  # the lag of the autocorrelation's peak near one period, parabolic
+        x = x - x.mean()
+        spec = np.fft.rfft(x, 2 * len(x))
+        ac = np.fft.irfft(spec * np.conj(spec))[:len(x)]
+        lo = int(0.7 * sc.sample_rate / near)
+        k = lo + int(np.argmax(ac[lo:int(1.3 * sc.sample_rate / near)]))
+        y0, y1, y2 = ac[k - 1:k + 2]
+        return sc.sample_rate / (k + 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2))
+
+    for p in (r.p, truth.p):
+        last = p[-sc.sample_rate:]
+        hz = f0_estimate(last, sc.sample_rate, tail=1.0)
+        assert abs(1200 * math.log2(hz / autocorrelation_hz(last, hz))) < 0.1
 
 
 def test_a_model_that_failed_by_ear_plays_a_note_off_rest_only_where_it_settles_on_its_note_from_rest(monkeypatch):

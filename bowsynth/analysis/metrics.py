@@ -73,9 +73,8 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     if len(keep) < 3:
         return float("nan")
     # the estimate is the span between the end crossings, so each end keeps, of its cluster (crossings within half a
-    # period), the one on the period's grid of the others, not the first: a segment that starts on a slow edge near
-    # the mean can cross there twice, and session 58's first (a creeping note's, its dip cut by the segment's start)
-    # lay 418 samples of 2626 off the grid: harmonics fitted at that pitch, 0.9 % off, read 36 dB low
+    # period), the one on the grid of the others: a segment that starts on a creep's slow fall through the mean can
+    # cross there twice, its first crossing 418 samples of 2626 off the grid (session 58: 0.9 % low, harmonics 36 dB)
     step = np.median(np.diff(keep[1:-1])) if len(keep) > 3 else np.median(np.diff(keep))
     first = t[t <= keep[0] + 0.5 * period]
     last = t[(t >= keep[-1]) & (t <= keep[-1] + 0.5 * period)]
