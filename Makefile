@@ -65,7 +65,8 @@ test: $(STAMP) chromium jackd
 # mid-corner, mid-core, seam-stripe, stripe-edge, stripe-top, high-sill, band-stripe, mid-sill, halt-ledge,
 # floor-ledge, light-ledge, under-ledge, deep-ledge, stops-ledge (failed by ear), floor-high and floor-low are
 # seam-light, edge-top, seam-low, halt-bottom, mid-edge, halt-band, high-band, floor-band, bottom-band and stops-band
-# refined with the rollout term; rim-top stick-slip's top rim (BENCHMARKS.md).
+# refined with the rollout term; rim-top stick-slip's top rim; fast-onset stick-fast refined with the rollout term on
+# its fast heavy bows, where its notes spoke a cycle late (BENCHMARKS.md).
 # A recipe with a `from` key refines another model (`train --from`): it is built after the recipe of that model
 # (bowsynth.training.recipe.build_order).
 RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)
