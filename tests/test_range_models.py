@@ -637,9 +637,9 @@ BAND_BOWS = [
 ]
 
 
-@pytest.mark.parametrize("f0,beta,vb,pick,plays,parent,parent_cents", BAND_BOWS, ids=[b[4] for b in BAND_BOWS])
-def test_a_heavy_bow_held_just_above_vb_stop_plays_on_pitch(f0, beta, vb, pick, plays, parent, parent_cents):
-    """The tile plays the note within a cent and half a dB of the truth, where its parent misses the pitch."""
+def held_note(f0, beta, vb, pick, plays):
+    """A held note 2 s from rest as a render plays it, after checking the renderer's pick and the model that plays:
+    (scene, the x100 FDM's render, the operator's render, the listener's errors of the one against the other)."""
     from bowsynth.analysis.metrics import listener_errors
     from bowsynth.api import render
     from bowsynth.engines.operator.choose import covering_model
@@ -649,7 +649,16 @@ def test_a_heavy_bow_held_just_above_vb_stop_plays_on_pitch(f0, beta, vb, pick, 
     assert covering_model(sc).path.stem == pick
     r = render(sc)
     assert Path(r.info.model_path).stem == plays
-    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    return sc, truth, r, listener_errors(r.p, truth.p, sc.sample_rate)
+
+
+@pytest.mark.parametrize("f0,beta,vb,pick,plays,parent,parent_cents", BAND_BOWS, ids=[b[4] for b in BAND_BOWS])
+def test_a_heavy_bow_held_just_above_vb_stop_plays_on_pitch(f0, beta, vb, pick, plays, parent, parent_cents):
+    """The tile plays the note within a cent and half a dB of the truth, where its parent misses the pitch."""
+    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.api import render
+
+    sc, truth, r, e = held_note(f0, beta, vb, pick, plays)
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5
     old = listener_errors(render(sc, model=parent).p, truth.p, sc.sample_rate)
     assert abs(old["cents"]) > parent_cents and old["harm_db_max"] < 15
@@ -661,16 +670,9 @@ def test_the_seam_light_edge_pick_is_read_at_its_true_pitch():
     second began on the creep's slow fall through the mean, where one crossing off the period's grid was kept (session
     58). An autocorrelation of the same second, which has no crossings, agrees with the estimate now within 0.1 cent,
     and seam-low, the pick, plays within a cent and half a dB."""
-    from bowsynth.analysis.metrics import f0_estimate, listener_errors
-    from bowsynth.api import render
-    from bowsynth.engines.operator.choose import covering_model
+    from bowsynth.analysis.metrics import f0_estimate
 
-    sc = Scene(f0=70.671, fb=1.66839 * 2 * math.pi * 70.671, vb=0.0709725, duration=2.0)
-    truth = render(sc, engine="fdm", oversample=100)
-    assert covering_model(sc).path.stem == "seam-low"
-    r = render(sc)
-    assert Path(r.info.model_path).stem == "seam-low"
-    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    sc, truth, r, e = held_note(70.671, 1.66839, 0.0709725, "seam-low", "seam-low")
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5
 
     def autocorrelation_hz(x, near):  # the lag of the autocorrelation's peak near one period, parabolic
@@ -724,14 +726,8 @@ def test_light_fast_stick_slip_between_loud_mid_and_fast_bow_plays_with_loud_sea
     pick."""
     from bowsynth.analysis.metrics import listener_errors
     from bowsynth.api import render
-    from bowsynth.engines.operator.choose import covering_model
 
-    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
-    truth = render(sc, engine="fdm", oversample=100)
-    assert covering_model(sc).path.stem == pick
-    r = render(sc)
-    assert Path(r.info.model_path).stem == "loud-seam"
-    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    sc, truth, r, e = held_note(f0, beta, vb, pick, "loud-seam")
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5, e
     assert listener_errors(render(sc, model="loud-stops").p, truth.p, sc.sample_rate)["harm_db_max"] > 1.1
 
@@ -744,14 +740,8 @@ def test_fast_heavy_stick_slip_speaks_on_the_truths_cycle_with_fast_onset(f0, be
     and speaks within the limit, on pitch."""
     from bowsynth.analysis.metrics import listener_errors, onset_limit_ms
     from bowsynth.api import render
-    from bowsynth.engines.operator.choose import covering_model
 
-    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
-    truth = render(sc, engine="fdm", oversample=100)
-    assert covering_model(sc).path.stem == "fast-onset"
-    r = render(sc)
-    assert Path(r.info.model_path).stem == "fast-onset"
-    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    sc, truth, r, e = held_note(f0, beta, vb, "fast-onset", "fast-onset")
     assert abs(e["onset_err_ms"]) <= onset_limit_ms(e["onset_ref_ms"]), e
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5, e
     old = listener_errors(render(sc, model="stick-fast").p, truth.p, sc.sample_rate)
@@ -766,15 +756,9 @@ def test_stick_slips_top_rim_plays_with_rim_top(f0, beta, vb, parent_db):
     there, is the pick and plays both within a cent and half a dB."""
     from bowsynth.analysis.metrics import listener_errors
     from bowsynth.api import render
-    from bowsynth.engines.operator.choose import covering_model
     from bowsynth.errors import DomainError
 
-    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
-    truth = render(sc, engine="fdm", oversample=100)
-    assert covering_model(sc).path.stem == "rim-top"
-    r = render(sc)
-    assert Path(r.info.model_path).stem == "rim-top"
-    e = listener_errors(r.p, truth.p, sc.sample_rate)
+    sc, truth, r, e = held_note(f0, beta, vb, "rim-top", "rim-top")
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5, e
     if parent_db is None:
         with pytest.raises(DomainError, match="left the model's trained states"):
