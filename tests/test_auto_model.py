@@ -307,3 +307,31 @@ def test_a_bow_the_pick_cannot_hold_is_played_by_a_model_measured_there(tmp_path
     assert auto_pick(other).model.path.stem == "stick-stops"
     with pytest.raises(BowsynthError, match="method fdm"):
         render(other)
+
+
+def test_a_first_render_that_waits_for_models_to_be_measured_says_so_once(tmp_path):
+    """At the band's floor (96.8 Hz, F_B / w 1.672, v_B 0.07081) a first render waits seconds while the model chosen
+    by listening measures the models that cover the bow (sessions 54, 57: 6-9 s). A real process says why before the
+    wait, on stderr; with -q it says nothing; once measured (cached on disk) there is nothing to say."""
+    import os
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "bowsynth", "render", "--f0", "96.8", "--fb", str(1.672 * 2 * math.pi * 96.8),
+           "--vb", "0.07081", "-d", "0.2", "--force"]
+
+    def run(cache, *more):
+        env = {**os.environ, "BOWSYNTH_CACHE": str(cache)}
+        r = subprocess.run(cmd + [str(tmp_path / "x.wav"), *more], env=env, capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == 0, r.stderr
+        return r
+
+    quiet = run(tmp_path / "a", "-q")
+    assert quiet.stdout == "" and quiet.stderr == ""
+    again = run(tmp_path / "a")  # measured by the quiet run
+    assert "wrote" in again.stdout and "measuring" not in again.stdout + again.stderr
+    first = run(tmp_path / "b")
+    said = [line for line in first.stderr.splitlines() if "choosing the model by listening: measuring" in line]
+    assert len(said) == 1 and int(said[0].split("measuring ")[1].split()[0]) >= 2, first.stderr
+    assert "measuring" not in first.stdout

@@ -42,6 +42,7 @@ their notes are batched per model, and each window's lock is the playing model's
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 from .. import compiled
@@ -49,7 +50,7 @@ from ..engines.operator.choose import available_models, bow_key, covering_model
 from ..engines.operator.modelfile import OperatorModel, missed_by_ear
 from ..errors import BowsynthError
 from ..scene import Scene
-from .auto_windows import AUTO_MARGIN, auto_lock, auto_score
+from .auto_windows import AUTO_MARGIN, auto_lock, auto_score, is_measured
 from .tuning import SilentNoteError, sounding_ratio
 
 
@@ -58,6 +59,9 @@ CHALLENGE_SCORE = 0.5  # over this (1 meets the worst-case targets) the pick is 
 # or dB over the targets of 1 is a quarter tone off, another note. A refusal names `--method fdm`; a wrong note does
 # not (session 38: stops-band at 319.8 Hz, F_B / w 1.188, v_B 0.0711, where stick-stops leaves its states, 6060 cents).
 OTHER_NOTE_SCORE = 50.0
+# Told (a callable taking one line: `told`) before a render waits for the notes of models not yet measured at its bow:
+# 6-9 s at the band's floor, where 7-12 models cover a note, once per bow (sessions 54, 57); the CLI's render prints it
+notice = None
 NOTE_CENTS = 50.0  # a quarter tone: a note that starts off rest and settles this far from the note from rest is another
 CHECK_SECONDS = 2.0  # how long that note and the note from rest play before their pitches are compared
 
@@ -71,6 +75,17 @@ class AutoPick:
     model: OperatorModel | None
     note: str | None = None
     switched: bool = False
+
+
+@contextmanager
+def told(say):
+    """Within it, `say` (a callable taking one line, or None) hears when a pick waits for models to be measured."""
+    global notice
+    before, notice = notice, say
+    try:
+        yield
+    finally:
+        notice = before
 
 
 def _name(m: OperatorModel) -> str:
@@ -112,6 +127,10 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
     covering = [m for m in pool if m is not pick and _candidate(m) and m.covers(scene)]
     unheard = [m for m in covering if m.failure is not None and not at_rest and not _same_note_from(m, scene)]
     heard = [m for m in covering if m not in unheard]
+    todo = sum(not is_measured(m, *bow[:3]) for m in heard)
+    if todo and notice is not None:
+        notice(f"note: choosing the model by listening: measuring {todo} more model{'s' * (todo > 1)} that cover this "
+               f"bow, once (cached after)")
     scored += [(s, m) for s, m in zip(_scores(heard, bow), heard) if s is not None and math.isfinite(s)]
     if not scored:
         return AutoPick(pick)

@@ -311,11 +311,18 @@ def candidate_score(errors: dict | None, f0: float | None = None) -> float:
     return max([errors["base"], errors["cents"]] + ladder[lo:hi] + missed)
 
 
-def _cached_errors(model, beta: float, vb: float, a: float, lock) -> dict:
-    from ..engines.operator.choose import as_model
+def is_measured(model, beta: float, vb: float, a: float) -> bool:
+    """Whether the model's notes at this bow are measured already (on disk): a first render waits for them."""
+    return isinstance(_choices.get(_errors_key(model, beta, vb, a)), dict)
 
-    key = f"{as_model(model).key} {beta!r} {vb!r} {a!r}"
-    hit = _choices.get(key)
+
+def _errors_key(model, beta: float, vb: float, a: float) -> str:
+    from ..engines.operator.choose import as_model
+    return f"{as_model(model).key} {beta!r} {vb!r} {a!r}"
+
+
+def _cached_errors(model, beta: float, vb: float, a: float, lock) -> dict:
+    hit = _choices.get(key := _errors_key(model, beta, vb, a))
     # an entry of free windows alone (auto_score's, where the model held no lock) does not answer for a lock
     if not (isinstance(hit, dict) and "free" in hit and (lock is None or len(hit) > 1)):
         hit = candidate_errors(model, beta, vb, a, lock)
