@@ -110,8 +110,8 @@ def main() -> None:
                   flush=True)
         return
     if args.bows:
-        print(f"| f0 | F_B / w | v_B | cents per {args.rel * 100:g} % of v_B | of F_B / w | miss (cents) | as a bow error "
-              f"(v_B) |\n|---|---|---|---|---|---|---|")
+        print(f"| f0 | F_B / w | v_B | cents per {args.rel * 100:g} % of v_B | of F_B / w | miss (cents) | "
+              f"as a bow error (v_B) |\n|---|---|---|---|---|---|---|")
         for item in args.bows.split(","):
             f0, beta, vb, *miss = (float(x) for x in item.split(":"))
             cv, cb = cents_per(beta, vb, args.rel, "vb"), cents_per(beta, vb, args.rel, "beta")
@@ -120,7 +120,8 @@ def main() -> None:
                   flush=True)
         return
     betas = [float(b) for b in args.betas.split(",")]
-    print(f"|cents| of the truth's pitch for v_B moved {args.rel * 100:g} % (the worse sign) / for F_B / w moved as much\n")
+    print(f"|cents| of the truth's pitch for v_B moved {args.rel * 100:g} % (the worse sign) / for F_B / w moved "
+          f"as much\n")
     print("| v_B \\ F_B / w | " + " | ".join(f"{b:g}" for b in betas) + " |\n|---|" + "---|" * len(betas))
     for vb in (float(v) for v in args.vbs.split(",")):
         cells = [f"{fmt(cents_per(b, vb, args.rel, 'vb'))} / {fmt(cents_per(b, vb, args.rel, 'beta'))}"
