@@ -247,3 +247,56 @@ def test_the_avx512_and_avx2_loops_play_alike(tmp_path):
     assert np.array_equal(there["f"], here[2]) and np.isfinite(here[0]).all()
     for a, b in ((here[0], there["q"]), (here[1], there["p"])):
         assert np.abs(a - b).max() < 1e-5 * max(1.0, np.abs(b).max())
+
+
+# Every loop that runs one voice's branch a row at a time (one voice, the voice-after-voice loop, a batch's rows left
+# over by fours, a live voice), for a width-128 range model and the width-64 paper model, into an .npz
+_PANEL_PLAY = """
+import sys, numpy as np
+from bowsynth import compiled as core
+from bowsynth.engines.operator.bank import VoiceBank
+from bowsynth.engines.operator.choose import SHIPPED_DIR
+from bowsynth.engines.operator.modelfile import load_model
+from bowsynth.engines.operator.rollout import rollout_states
+out = {}
+for name, bow in (("soft-range", [0.15, 0.2]), ("paper-fb100", None)):
+    m = load_model(SHIPPED_DIR / f"{name}.safetensors")
+    kw = {} if bow is None else {"params": np.array(bow)}
+    x0 = np.stack([np.linspace(-0.02, 0.02, 5), np.linspace(0.01, -0.01, 5)], 1)
+    dtau = 2 * np.pi * np.array([880.0, 440.0, 311.1, 150.0, 100.0]) / 44100
+    for loop, B in (("core-1", 1), ("core-voices", 3), ("core-batch", 5)):
+        q, p, f = rollout_states(m, x0[:B], 3000, dtau[:B], check_domain=False, loop=loop, **kw)
+        out[f"{name}-{loop}"] = np.stack([q, p])
+    if bow is not None:
+        b = VoiceBank(44100, 64, 1, "operator", m, 440.0)
+        b.start_slot(0, 440.0, bow[0], bow[1], 100.0)
+        b.bow_inputs(0, bow[0], bow[1])
+        assert b.start_operator(0, 440.0)
+        live = np.zeros(64 * 40)
+        for i in range(40):
+            b.render(live, 64 * i, 64, 1.0)
+        out[f"{name}-live"] = live
+np.savez(sys.argv[1], **out)
+print(core.load().panels())
+"""
+
+
+def test_the_weights_in_panels_change_no_sample(tmp_path):
+    """One voice's branch reads its weights in panels of 64 columns (src/core/rollout.cpp: pack_net), each panel's
+    rows in a row: the products add in the same order, so every loop that uses them (one voice, voice after voice,
+    a batch's rows left over by fours, a live voice) plays the same samples to the bit as the strided products a
+    process with BOWSYNTH_NO_PANELS=1 runs, in the AVX-512 and the AVX2 loops."""
+    for extra in ({}, {"BOWSYNTH_NO_AVX512": "1"}):
+        runs = {}
+        for panels in ("0", "1"):
+            f = tmp_path / f"{panels}{len(extra)}.npz"
+            env = {**os.environ, **extra, "BOWSYNTH_NO_PANELS": "1" if panels == "0" else "0"}
+            r = subprocess.run([sys.executable, "-c", _PANEL_PLAY, str(f)], capture_output=True, text=True,
+                               timeout=300, env=env)
+            assert r.returncode == 0 and r.stdout.strip() == ("True" if panels == "1" else "False"), r.stderr
+            runs[panels] = np.load(f)
+        assert sorted(runs["1"].files) == sorted(runs["0"].files) and len(runs["1"].files) == 7
+        for key in runs["1"].files:
+            a, b = runs["1"][key], runs["0"][key]
+            assert np.isfinite(a).all() and np.abs(a).max() > 1e-3, key  # the voices sound
+            assert np.array_equal(a, b), key

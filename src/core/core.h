@@ -79,7 +79,15 @@ struct Net {
     const float *Gw, *Gb, *Hw, *Hb, *Ow, *Ob;
     const double* box;
     const bool* mask;
+    // Gw, Hw and Ow again in panels (pack_net), or none: the branch's products then read them as one stream each
+    const float *Gp = nullptr, *Hp = nullptr, *Op = nullptr;
 };
+// The floats pack_net writes for N (0 where its widths do not fall in whole panels), and the packing itself: N's
+// panel pointers set into buf (left none where the widths do not fit). The packed products add in the same order,
+// so a voice's samples are the same bits either way.
+int64_t panel_floats(const Net& N);
+bool use_panels();  // false where BOWSYNTH_NO_PANELS is set (panel_floats then 0)
+void pack_net(Net& N, float* buf);
 int64_t live_window(const Net& N, double& q, double& p, const double* center, const double* halfrange,
                     const double* pin, double g, const float* Bq, const float* Bp, int64_t ld, int64_t n,
                     const double* eb, const double* el, float* scratch, double* zd, float* qrow, float* prow);

@@ -193,7 +193,7 @@ size_t count(nb::handle tup, size_t n, const char* name) {
 struct VoicesPy {
     bowsynth::Voices V{};
     nb::object keep;  // the tuples, so that the arrays outlive this object
-    std::vector<float> s;
+    std::vector<float> s, panels;
     std::vector<double> zd, wts;
     std::vector<int64_t> idx;
 
@@ -302,8 +302,10 @@ struct VoicesPy {
         shape(fn, "wv", wv, {nv, 2});
         need(cp >= 1, "Voices: a pitch curve needs room for a breakpoint");
         need(maxit >= 1 && tol >= 0, "Voices: needs tol >= 0 and maxit >= 1");
-        const bowsynth::Net N{m, npar, width, layers, k, g, ff.data(), Gw.data(), Gb.data(), Hw.data(), Hb.data(),
-                              Ow.data(), Ob.data(), box.data(), mask.data()};
+        bowsynth::Net N{m, npar, width, layers, k, g, ff.data(), Gw.data(), Gb.data(), Hw.data(), Hb.data(),
+                        Ow.data(), Ob.data(), box.data(), mask.data()};
+        panels.resize(bowsynth::panel_floats(N));  // once: the blocks allocate nothing
+        bowsynth::pack_net(N, panels.data());
         s.resize(bowsynth::live_scratch(N));
         zd.resize(std::max<int64_t>(m, 1));
         idx.resize(n_max + 1);
@@ -548,4 +550,7 @@ NB_MODULE(_core, mod) {
     mod.def("vector_width", [] { return bowsynth::use_v16() ? 16 : 8; },
             "Floats in a matrix product's vector in the rollout loops this process runs: 16 where the CPU runs "
             "AVX-512 and BOWSYNTH_NO_AVX512 is not set, else 8.");
+    mod.def("panels", &bowsynth::use_panels,
+            "Whether one voice's branch reads its weights in panels (unless BOWSYNTH_NO_PANELS is set): the same "
+            "samples, faster.");
 }
