@@ -652,15 +652,18 @@ bool use_panels() {
     return yes;
 }
 
+// 16 floats of slack: the panels start on a 64-byte line, so that no 8-float load of a panel row straddles two
+// lines (a malloc'd buffer lies 16 bytes past one: every other load was split, and a process ran at either speed)
 int64_t panel_floats(const Net& N) {
     if (!use_panels() || N.width % PANEL != 0 || (2 * N.k) % PANEL != 0) return 0;
-    return 2 * N.m * 3 * N.width + N.layers * N.width * N.width + N.width * 2 * N.k;
+    return 2 * N.m * 3 * N.width + N.layers * N.width * N.width + N.width * 2 * N.k + 16;
 }
 
 void pack_net(Net& N, float* buf) {
     if (panel_floats(N) == 0) return;
     const int64_t w = N.width;
-    float *G = buf, *H = G + 2 * N.m * 3 * w, *O = H + N.layers * w * w;
+    float* G = buf + (16 - (reinterpret_cast<uintptr_t>(buf) / sizeof(float)) % 16) % 16;
+    float *H = G + 2 * N.m * 3 * w, *O = H + N.layers * w * w;
     to_panels(N.Gw, 2 * N.m, 3 * w, G);
     for (int64_t l = 0; l < N.layers; ++l) to_panels(N.Hw + l * w * w, w, w, H + l * w * w);
     to_panels(N.Ow, w, 2 * N.k, O);
