@@ -305,8 +305,8 @@ def test_the_weights_in_panels_change_no_sample(tmp_path):
 def test_the_weights_and_bases_the_loops_read_start_on_64_byte_lines():
     """The compiled products load 8 or 16 floats along a weight row or a basis row: the operator's weights and every
     row of a stack of window bases start on a 64-byte line (basis._lined), so that no load straddles two lines
-    (where the arrays fell 16 or 48 bytes past one, 64 voices ran 2688x against 3287x by the process). The values
-    are the model's."""
+    (where the arrays fell 16 or 48 bytes past one, 64 voices ran 2688-3287x by the process, 3602-3955x on lines).
+    The values are the model's."""
     from bowsynth.engines.operator.basis import _bases, _operator
 
     for name in ("paper-fb100", "soft-range"):

@@ -172,8 +172,8 @@ inline void dense(const float* X, int64_t ldx, int64_t K, const float* W, int64_
 
 // A one-row product's weights in panels of PANEL columns (dense_tile<1, 8, 1>'s tile), each panel's K rows one after
 // another: the product then streams each panel from memory in order, where the rows of a (K, N) matrix sit N floats
-// apart. A soft model's branch (width 128, 90k weights, held in L2) per window at 880 Hz: 3.6 -> 2.7 us in a
-// microbenchmark of the same tile (the strided rows ran at about L2's bandwidth); in float16 it gained nothing more.
+// apart. One voice of a soft model (width 128, 90k weights read from L2 once a window) at 880 Hz: 2-8 % faster than
+// the strided rows, both on 64-byte lines (benchmarks/one_voice.py); float16 panels 3-4 % more, other sums: not built.
 constexpr int64_t PANEL = 64;
 
 inline void to_panels(const float* W, int64_t K, int64_t N, float* P) {

@@ -15,8 +15,8 @@ from .modelfile import OperatorModel
 def _lined(a) -> np.ndarray:
     """a as a C-ordered float32 array that starts on a 64-byte line. The compiled products load 8 or 16 floats at
     a time along a weight row: an array 16 or 48 bytes past a line (where safetensors' buffers and numpy's copies
-    fall) split every other load, or every one, across two lines (64 voices 2688-2694x against 3268-3287x, a
-    process's arrays deciding)."""
+    fall) split every other load, or every one, across two lines (64 voices 2688-3287x by the process, 3602-3955x
+    with the weights and bases on lines: docs/BENCHMARKS.md, "Weights on 64-byte lines and in panels")."""
     a = np.asarray(a, dtype=np.float32)
     buf = np.empty(a.size + 16, np.float32)
     start = (-buf.ctypes.data // 4) % 16
