@@ -12,7 +12,7 @@ import numpy as np
 from ... import physics
 from ... import compiled as core
 from . import voices as V
-from .basis import TRUNK_H, TRUNK_POINTS, _lined, _operator, trunk_grid
+from .basis import TRUNK_H, TRUNK_POINTS, _lined, _operator, trunk_grid, whole_lines
 from .npnet import PARAM_SPAN
 from .onset import uses_rest_flow
 from .windows import locked_window
@@ -65,7 +65,7 @@ class VoiceBank:
         self.why = np.zeros(nv, np.int64)
         if self.engine == "operator":
             # rows of whole 64-byte lines, on a line (basis._lined; a slot's notes stay within n_max)
-            k, n, npar = self.op.cfg.k, -(-self.n_max // 16) * 16, self.op.cfg.params
+            k, n, npar = self.op.cfg.k, whole_lines(self.n_max), self.op.cfg.params
         else:  # the FDM alone: an operator of no size, which no slot plays (the core checks the shapes all the same)
             k, n, npar = 0, 3, 0
             self.net = (np.zeros((2, 1)), np.zeros((2, 3), np.float32), np.zeros(3, np.float32),

@@ -12,14 +12,22 @@ from . import npnet
 from .modelfile import OperatorModel
 
 
+LINE_FLOATS = 16  # float32 values in a 64-byte cache line
+
+
+def whole_lines(n: int) -> int:
+    """n floats rounded up to whole 64-byte lines: a row of that length keeps the next row on a line too."""
+    return -(-n // LINE_FLOATS) * LINE_FLOATS
+
+
 def _lined(a) -> np.ndarray:
     """a as a C-ordered float32 array that starts on a 64-byte line. The compiled products load 8 or 16 floats at
     a time along a weight row: an array 16 or 48 bytes past a line (where safetensors' buffers and numpy's copies
     fall) split every other load, or every one, across two lines (64 voices 2688-3287x by the process, 3602-3955x
     with the weights and bases on lines: docs/BENCHMARKS.md, "Weights on 64-byte lines and in panels")."""
     a = np.asarray(a, dtype=np.float32)
-    buf = np.empty(a.size + 16, np.float32)
-    start = (-buf.ctypes.data // 4) % 16
+    buf = np.empty(a.size + LINE_FLOATS, np.float32)
+    start = (-buf.ctypes.data // 4) % LINE_FLOATS
     out = buf[start:start + a.size].reshape(a.shape)
     out[...] = a
     return out
@@ -157,7 +165,7 @@ def _bases(model: OperatorModel, keys):
     if min(p[1] for p in parts) < 1:
         raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
     # rows of whole 64-byte lines, on a line (_lined): the windows' products load a row 8 or 16 floats at a time
-    n_max = -(-max(p[2].shape[1] for p in parts) // 16) * 16
+    n_max = whole_lines(max(p[2].shape[1] for p in parts))
     k3 = parts[0][2].shape[0]
     Bq = _lined(np.zeros((len(parts), k3, n_max), np.float32))
     Bp = _lined(np.zeros((len(parts), k3, n_max), np.float32))
