@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 from .. import compiled
@@ -61,7 +62,7 @@ CHALLENGE_SCORE = 0.5  # over this (1 meets the worst-case targets) the pick is 
 OTHER_NOTE_SCORE = 50.0
 # Told (a callable taking one line: `told`) before a render waits for the notes of models not yet measured at its bow:
 # 6-9 s at the band's floor, where 7-12 models cover a note, once per bow (sessions 54, 57); the CLI's render prints it
-notice = None
+_NOTICE: ContextVar = ContextVar("bowsynth_pick_notice", default=None)
 NOTE_CENTS = 50.0  # a quarter tone: a note that starts off rest and settles this far from the note from rest is another
 CHECK_SECONDS = 2.0  # how long that note and the note from rest play before their pitches are compared
 
@@ -80,12 +81,11 @@ class AutoPick:
 @contextmanager
 def told(say):
     """Within it, `say` (a callable taking one line, or None) hears when a pick waits for models to be measured."""
-    global notice
-    before, notice = notice, say
+    token = _NOTICE.set(say)
     try:
         yield
     finally:
-        notice = before
+        _NOTICE.reset(token)
 
 
 def _name(m: OperatorModel) -> str:
@@ -127,8 +127,9 @@ def _auto_pick(scene: Scene, held: Scene | None, pool: list[OperatorModel]) -> A
     covering = [m for m in pool if m is not pick and _candidate(m) and m.covers(scene)]
     unheard = [m for m in covering if m.failure is not None and not at_rest and not _same_note_from(m, scene)]
     heard = [m for m in covering if m not in unheard]
-    todo = sum(not is_measured(m, *bow[:3]) for m in heard)
-    if todo and notice is not None:
+    notice = _NOTICE.get()
+    todo = sum(not is_measured(m, *bow[:3]) for m in heard) if notice is not None else 0
+    if todo:
         notice(f"note: choosing the model by listening: measuring {todo} more model{'s' * (todo > 1)} that cover this "
                f"bow, once (cached after)")
     scored += [(s, m) for s, m in zip(_scores(heard, bow), heard) if s is not None and math.isfinite(s)]
