@@ -5,7 +5,7 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models bench bench-quick clean chromium jackd core
+.PHONY: setup demo test models tables bench bench-quick clean chromium jackd core
 
 $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -73,6 +73,12 @@ RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/
 models: $(STAMP)
 	order=$$($(PY) -m bowsynth.training.recipe $(RECIPES)) || exit 1; \
 	for r in $$order; do $(BOW) train --config $$r --update || exit 1; done
+
+# The tables a render reads instead of running the reference: the physics' sounding ratio over the bow plane, solved
+# on a grid (bowsynth/models/tables/physics-ratio.npz; ~2 min on two cores). `check` measures it off its grid.
+tables: $(STAMP)
+	$(PY) -m bowsynth.music.ratio_map build
+	$(PY) -m bowsynth.music.ratio_map check --n 80
 
 # The report tests open pages in Debian's chromium, driven by playwright (the test extra) with no browser download.
 chromium:

@@ -28,12 +28,11 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     the trained length; 'locked' a held bow's voice in windows locked to the period its playing model sounds at (the
     model's own, measured once per model and bow and cached: `music.engine_tuning.operator_sounding`); 'physics' in
     windows that divide the physics' period at its bow, which pulls the note onto the physical pitch where the model
-    holds it (`model_ratio.lock_ratio`);
-    'auto' per model, bow and pitch 'free' or 'physics', whichever sounds truest against the FDM (harmonics' dB and
-    cents over the issue's worst-case targets; measured once per model and bow, cached: `engine_tuning.auto_lock`).
+    holds it, else to the model's own (`model_ratio.lock_ratio`); 'auto' the physics' period where the model holds
+    it, else free (`engine_tuning.auto_lock`). The physics' period comes from the shipped map (`music.ratio_map`);
+    whether a model holds it, the operator measures of itself (once per model and bow, cached): no reference runs.
     A note whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture
-    rolls free. In auto windows with no model given, a held note whose renderer's pick is measured to miss the
-    targets at its bow is played by the truest model that covers it, and its notes say so (`music.auto_model`).
+    rolls free. With no model given, the model that covers the scene plays it (`engines.operator.choose.find_model`).
     Free windows spread the network's error into faint lines between and below the harmonics (60 dB
     down), locked ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics
     truer free, a chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked
@@ -57,26 +56,9 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
 
 def _render_operator(scene, model, fallback: str, windows: str | None):
     from .engines import render as _r
-    from .music.engine_tuning import auto_overrides, sounding_for
+    from .music.engine_tuning import sounding_for
 
-    over = auto_overrides(scene, windows, model)  # held notes whose measured pick is not the renderer's, or misses
-
-    def play(sc, m):
-        return _r(sc, engine="operator", model=m, fallback=fallback, sounding=sounding_for(sc, windows, m))
-    if not isinstance(scene, (list, tuple)):
-        if not over:
-            return play(scene, model)
-        r = play(scene, over[0].model if over[0].switched else model)
-        r.info.notes.insert(0, over[0].note)
-        return r
-    alone = {i: p for i, p in over.items() if p.switched}
-    rest = [i for i in range(len(scene)) if i not in alone]
-    out = dict(zip(rest, play([scene[i] for i in rest], model) if rest else []))
-    for i, pick in alone.items():
-        out[i] = play(scene[i], pick.model)
-    for i, pick in over.items():
-        out[i].info.notes.insert(0, pick.note)
-    return [out[i] for i in range(len(scene))]
+    return _r(scene, engine="operator", model=model, fallback=fallback, sounding=sounding_for(scene, windows, model))
 
 
 def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, windows: str | None = None):
@@ -84,7 +66,7 @@ def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: i
     `make_scene(pitch=..., ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
     from .music.engine_tuning import ratio_for_engine
 
-    return ratio_for_engine(scene, engine, model, oversample, windows=windows, listen=True)
+    return ratio_for_engine(scene, engine, model, oversample, windows=windows)
 
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):

@@ -208,154 +208,6 @@ def test_physics_windows_hold_the_physical_pitch_over_30_s():
     assert abs(span[1] / span[0] - 1) < 0.01
 
 
-def _auto_render_is(sc, m, lock):
-    """Is the auto render of sc with model m the render in free windows (lock None) or locked to the physics' ratio
-    with lock.more windows a period beyond the fewest?"""
-    from bowsynth.engines import render as engine_render
-    from bowsynth.music.tuning import sounding_ratio
-
-    auto = render(sc, model=m, windows="auto")
-    r = sounding_ratio(sc.beta, sc.vb, sc.a).r
-    same = engine_render(sc, model=m, sounding=None if lock is None else Lock(sc.f0 * r, lock.more))
-    return np.array_equal(auto.p, same.p)
-
-
-def test_auto_windows_play_the_candidate_that_sounds_truest():
-    """--windows auto: per model and bow the candidate (free windows, or locked to the physics in the fewest windows
-    that hold it or up to 3 more) whose note scores best against the truth (harmonics' worst in dB, |cents|, each over
-    its 1-unit worst-case target). velocity-soft at F_B / w 0.291, v_B 0.213 (a held-out bow of session 23), at 220
-    Hz: free windows 1.0 dB and 0.8 cent off, the fewest windows locked 2.13 dB, two more 0.89 dB and 0.00 cent
-    (measured). SLOW_1 at 1.324 / 0.149: free 2.46 cents sharp, locked 1.02 dB in the fewest windows, 0.19 dB in
-    three more. Each auto render is its candidate's, sample for sample."""
-    from bowsynth.engines.operator.choose import as_model
-    from bowsynth.music.auto_windows import auto_lock, window_scores
-    from bowsynth.music.model_ratio import lock_ratio
-
-    for model, beta, vb, more in (("velocity-soft", 0.291, 0.213, 2), (SLOW_1, 1.324, 0.149, 3)):
-        m = as_model(model)
-        scores = window_scores(m, beta, vb, 100.0, lock_ratio(m, beta, vb, 100.0), f0=220.0)
-        fewest = min(k for k in scores if k != "free")
-        assert scores[f"physics{more}"] == min(scores.values()), (model, scores)
-        assert scores[fewest] > 1.5 * scores[f"physics{more}"] and scores["free"] > scores[f"physics{more}"]
-        lock = auto_lock(m, beta, vb, 100.0, 220.0)
-        assert lock.more == more
-        sc = Scene(f0=220.0, fb=beta * 2 * math.pi * 220.0, vb=vb, duration=0.5)
-        assert _auto_render_is(sc, m, lock) and not _auto_render_is(sc, m, None)
-
-
-def test_auto_windows_keep_free_ones_a_lock_barely_beats_unless_free_ones_miss_a_target():
-    """A lock must score AUTO_MARGIN better than free windows where these meet the targets: paper-fb10 at its own bow
-    scores ~0.004 either way (measured), and a lock chosen on that noise took its NMSE from rest 4.4e-7 -> 2.2e-5, so
-    it plays free. Where free windows miss a target the best candidate plays: stick-fast at F_B / w 1.199, v_B 0.28
-    (`bench map`'s cell), whose onset scores 1.6-1.9 in every candidate, free 1.04 cents flat at 110 Hz."""
-    from bowsynth.engines.operator.choose import as_model
-    from bowsynth.music.auto_windows import AUTO_MARGIN, auto_lock, window_scores
-    from bowsynth.music.model_ratio import lock_ratio
-
-    m = as_model("paper-fb10")
-    beta = 10.0 / (2 * math.pi * 100.0)
-    scores = window_scores(m, beta, 0.2, 100.0, lock_ratio(m, beta, 0.2, 100.0))
-    assert scores["free"] <= 1.0 and min(scores.values()) + AUTO_MARGIN > scores["free"], scores
-    assert auto_lock(m, beta, 0.2, 100.0, 100.0) is None
-    sc = Scene(f0=100.0, fb=10.0, vb=0.2, duration=0.3)
-    assert _auto_render_is(sc, m, None)
-    m, beta, vb = as_model("stick-fast"), 0.02 * 100 ** (8 / 9), 0.28
-    scores = window_scores(m, beta, vb, 100.0, lock_ratio(m, beta, vb, 100.0), f0=110.0)
-    best = min(scores, key=scores.get)
-    assert scores["free"] > 1.0 and best != "free" and scores[best] + AUTO_MARGIN > scores["free"], scores
-    assert auto_lock(m, beta, vb, 100.0, 110.0).more == int(best[len("physics"):])
-
-
-def test_auto_windows_score_a_slow_bow_once_it_has_spoken_and_by_its_onset_too():
-    """A light fast bow speaks late: at F_B / w 0.02, v_B 0.28 a note from rest at f0 100 speaks after ~9.8 s, so
-    the 2 s note auto windows used to score was the flow at rest's, and the pitch alone chose the lock. Now the note
-    lasts 2 s past the time the physics speaks, and its onset counts: corner-long there scores 0.06 free against 1.10
-    locked (measured; the lock moves the onset 37 ms at 440 Hz, where free windows are 2.4 ms off), so auto plays free."""
-    from bowsynth.engines.operator.choose import as_model
-    from bowsynth.engines.operator.onset import settled_seconds
-    from bowsynth.music.auto_windows import window_scores
-    from bowsynth.music.model_ratio import lock_ratio
-
-    def at(beta, vb):
-        return Scene(f0=100.0, fb=beta * 2 * math.pi * 100.0, vb=vb, duration=1.0)
-    assert settled_seconds(at(0.291, 0.213)) == 2.0  # speaks within a second: as before
-    assert 11.0 < settled_seconds(at(0.02, 0.28)) < 12.5 and settled_seconds(at(0.02, 0.3)) == 30.0
-    m, beta, vb = as_model("corner-long"), 0.02, 0.28
-    scores = window_scores(m, beta, vb, 100.0, lock_ratio(m, beta, vb, 100.0), f0=440.0)
-    locked = min(v for k, v in scores.items() if k != "free")
-    assert scores["free"] < 0.2 and locked > 5 * scores["free"], scores
-    sc = Scene(f0=440.0, fb=beta * 2 * math.pi * 440.0, vb=vb, duration=2.0)
-    assert np.array_equal(render(sc, windows="auto").p, render(sc, model=m, windows="free").p)
-
-
-def test_ladder_spans_hold_the_last_second_of_a_2_s_note_at_each_pitch_in_the_periods_of_f0_100():
-    """A note that speaks within a second: at pitch f its last second is periods f r .. 2 f r, which at f0 100 are
-    the seconds f / 100 .. 2 f / 100; one that speaks late is longer at low pitches (settled_seconds)."""
-    from bowsynth.music.auto_windows import LADDER_MAX_SECONDS, PITCH_LADDER, ladder_spans
-
-    sc = Scene(f0=100.0, fb=1.565 * 2 * math.pi * 100.0, vb=0.181, duration=2.0)
-    spans = ladder_spans(sc)
-    assert len(spans) == len(PITCH_LADDER)
-    for (a, b), f in zip(spans, PITCH_LADDER):
-        assert math.isclose(a, f / 100.0) and math.isclose(b, 2 * f / 100.0)
-    late = ladder_spans(Scene(f0=100.0, fb=0.02 * 2 * math.pi * 100.0, vb=0.28, duration=2.0))
-    assert late[0][0] > 0.65 * 10 and all(b - a == pytest.approx(f / 100.0) for (a, b), f in zip(late, PITCH_LADDER))
-    assert all(b <= LADDER_MAX_SECONDS for _, b in late)
-
-
-def test_auto_windows_choose_by_the_note_at_its_own_f0():
-    """stick-halt at F_B / w 1.565, v_B 0.181 (a held-out bow of session 28, sounding at 0.286 f0) holds the physics'
-    period in the fewest windows after ~80 periods, but slips on its way there: a 2 s note at 141.4 Hz, whose last
-    second is periods 40-81, is over a cent sharp against a x100 FDM (measured +1.14), where the note at f0 100
-    (periods 29-57) is within 0.1. Scored at its own pitch, one window more wins there (measured 0.000 cents, 0.34 dB);
-    at f0 100 the fewest windows score better than at 141.4, and another candidate wins."""
-    from bowsynth.analysis.metrics import listener_errors
-    from bowsynth.engines.operator.choose import as_model
-    from bowsynth.music.auto_windows import auto_lock, window_scores
-    from bowsynth.music.model_ratio import lock_ratio, sounding_ratio
-
-    m, beta, vb = as_model("stick-halt"), 1.565, 0.181
-    lock = lock_ratio(m, beta, vb, 100.0)
-    assert lock == sounding_ratio(beta, vb, 100.0).r and lock.more == 0  # after 600 periods it holds the physics'
-    sc = Scene(f0=141.4, fb=beta * 2 * math.pi * 141.4, vb=vb, duration=2.0)
-    truth = render(sc, engine="fdm", oversample=100)
-    fewest = listener_errors(render(sc, model=m, windows="physics").p, truth.p, sc.sample_rate)
-    assert fewest["cents"] > 1.0, fewest
-    at141, at100 = (window_scores(m, beta, vb, 100.0, lock, f0=f) for f in (141.4, 100.0))
-    assert at141["physics0"] > 1.0 > at100["physics0"]
-    chosen = auto_lock(m, beta, vb, 100.0, 141.4)
-    assert chosen is not None and chosen.more > 0 and auto_lock(m, beta, vb, 100.0, 100.0) is not None
-    assert _auto_render_is(sc, m, chosen)
-    e = listener_errors(render(sc, model=m, windows="auto").p, truth.p, sc.sample_rate)
-    assert abs(e["cents"]) < 0.2 and e["harm_db_max"] < 1.0, e
-
-
-def test_a_soft_voice_is_scored_at_its_own_pitch_on_the_output_grid():
-    """A soft model's windows end at the output sample nearest their length, so its chain depends on the pitch:
-    slow-bow at F_B / w 0.358, v_B 0.093 locked in the fewest windows (9 a period) is within 0.2 dB at f0 100 and at
-    444.9 Hz, but does not hold the lock at 438.2 (measured 1.54 dB, +0.45 cents; 7 of 13 pitches over 400-480 Hz).
-    auto windows scored it at f0 100 and played it there (session 36's 1.53 dB at 435.4 Hz); now each candidate is
-    also scored by its note at the note's own pitch, and a lock that holds plays."""
-    from bowsynth.analysis.metrics import listener_errors
-    from bowsynth.engines.operator.choose import as_model
-    from bowsynth.music.auto_windows import auto_lock
-    from bowsynth.music.model_ratio import sounding_ratio
-
-    m, beta, vb, f0 = as_model("slow-bow"), 0.358, 0.093, 438.2
-    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
-    truth = render(sc, engine="fdm", oversample=100)
-    fewest = render(sc, model=m, windows="physics")
-    assert fewest.info.windows == 9
-    e = listener_errors(fewest.p, truth.p, sc.sample_rate)
-    assert e["harm_db_max"] > 1.0 and abs(e["cents"]) > 0.3, e
-    chosen = auto_lock(m, beta, vb, 100.0, f0)
-    assert chosen == sounding_ratio(beta, vb, 100.0).r and chosen.more > 0
-    auto = render(sc, windows="auto")
-    assert Path(auto.info.model_path).stem == "slow-bow" and auto.info.windows == 9 + chosen.more
-    e = listener_errors(auto.p, truth.p, sc.sample_rate)
-    assert e["harm_db_max"] < 0.5 and abs(e["cents"]) < 0.05, e
-
-
 def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does():
     """stick-stops at F_B / w 0.7188, v_B 0.08 (bench map's worst pitch in session 21): the physics' period is 16.9 of
     its trained windows; 17 windows of 0.994 T leave its cycle at its own period, 5.3 cents sharp at 110 Hz
@@ -423,40 +275,13 @@ def test_a_note_with_a_bow_stop_locks_its_windows_to_the_bow_it_holds():
         assert np.std(r.p[after]) < 1e-6 * np.std(r.p[held])
 
 
-def test_auto_windows_lock_a_note_whose_pitch_wanders_from_frame_to_frame():
-    """stick-halt-high at F_B / w 1.9, v_B 0.15: in free windows a 150 Hz note's last second is within 0.15 cent,
-    but frame to frame its own cycle wanders (a median 0.9-1.2 cents per 100 ms frame at 130-164 Hz, measured), so
-    auto locks it. The heaviest bow stop (a second of that bow, stopped over 50 ms) then plays within a tenth of the
-    gestures' 1-cent median per frame; free windows miss it."""
-    from bowsynth.analysis.metrics import frame_errors
-    from bowsynth.engines.fdm import render_fdm
-    from bowsynth.engines.operator.choose import as_model
-    from bowsynth.music.auto_windows import auto_lock, window_scores
-    from bowsynth.music.model_ratio import lock_ratio
-
-    m, beta, vb, f0 = as_model("stick-halt-high"), 1.9, 0.15, 150.0
-    scores = window_scores(m, beta, vb, 100.0, lock_ratio(m, beta, vb, 100.0), f0=f0)
-    assert scores["free"] > 1.0 and min(scores.values()) < 0.2, scores
-    assert auto_lock(m, beta, vb, 100.0, f0) is not None
-    sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=[(1.0, vb), (1.05, 0.0)], duration=1.6)
-    truth = render_fdm(sc, oversample=20)
-    auto = render(sc, windows="auto")
-    assert Path(auto.info.model_path).stem == "stick-halt-high" and auto.info.windows
-    free = frame_errors(render(sc, model=m, windows="free").p, truth.p, sc.sample_rate)
-    locked = frame_errors(auto.p, truth.p, sc.sample_rate)
-    assert free["cents_median"] > 1.0 and locked["cents_median"] < 0.1, (free, locked)
-    assert locked["harm_db_median"] < 0.2 and locked["frames"] >= 9
-
-
 def test_unsaved_models_keep_their_measurements_apart(monkeypatch, tmp_path):
-    """A training validates its model before it has an id. Keyed by that empty id, the on-disk answers (auto
-    windows' scores, the model's sounding ratios) of every unsaved model were one: the second training of a box was
-    validated in the windows measured for the first. Now each is kept under a digest of what it plays by."""
-    import bowsynth.music.auto_windows as aw
+    """A training validates its model before it has an id. Each unsaved model's on-disk answers (its sounding ratios)
+    are kept under a digest of what it plays by, so the second training of a box is not tuned with the first's."""
     from bowsynth.engines.operator.modelfile import OperatorModel
+    from bowsynth.music import model_ratio
 
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
-    monkeypatch.setattr(aw, "_choices", aw.DiskTable("auto-windows", "test"))
     shipped = load_model(Path(bowsynth.__file__).parent / "models" / "paper-fb100.safetensors")
     meta = dataclasses.replace(shipped.meta, id="", digest="")
     first = OperatorModel(None, meta, weights=shipped.weights)
@@ -465,7 +290,9 @@ def test_unsaved_models_keep_their_measurements_apart(monkeypatch, tmp_path):
     assert shipped.key == shipped.id and first.key != second.key and first.key.startswith("unsaved@")
     assert first.key == OperatorModel(None, dataclasses.replace(meta), weights=dict(shipped.weights)).key
     measured = []
-    monkeypatch.setattr(aw, "candidate_errors", lambda m, *bow: measured.append(m) or {"free": {"m": m.key}})
+    real = model_ratio.engine_ratio
+    monkeypatch.setattr(model_ratio, "engine_ratio",
+                        lambda engine, *a, **k: measured.append(engine) or real(engine, *a, **k))
     for m in (first, second, first):
-        assert aw._cached_errors(m, 0.159, 0.2, 100.0, None) == {"free": {"m": m.key}}
-    assert measured == [first, second]  # the first's answer kept, the second measured for itself
+        model_ratio.operator_ratio(m)(0.159, 0.2, 100.0, 100.0)
+    assert len(set(measured)) == 2 and measured[0] == measured[2]  # each model's answers under its own key

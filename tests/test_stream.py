@@ -46,9 +46,11 @@ def offline(tmp_path, events, n, method, amp, dc_r, windows="free"):
     path = tmp_path / "e.mid"
     write_midi(path, events)
     # tuned as `bowsynth score` tunes (the operator model's own ratio in free windows, the physics' in locked ones);
-    # the live FDM tunes with the truth's (docs/live.md): the FDM's ratio depends on each pitch, too many to measure
-    # before playing
-    ratio_for = None
+    # the live FDM tunes with the physics' from the shipped map (docs/live.md): the FDM's own ratio depends on each
+    # pitch, too many to measure before playing
+    from bowsynth.music.ratio_map import map_ratio
+
+    ratio_for = lambda sc: map_ratio  # noqa: E731
     if method == "operator":
         from bowsynth.music.engine_tuning import ratio_for_engine
 

@@ -22,7 +22,7 @@ import numpy as np
 from ..engines import render
 from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..errors import BowsynthError
-from ..music.engine_tuning import auto_overrides, check_windows, sounding_for
+from ..music.engine_tuning import check_windows, sounding_for
 from ..scene import Scene
 from .metrics import listener_errors, nmse, note_sounds
 
@@ -56,9 +56,7 @@ def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            over = auto_overrides(sc, windows, model)  # api.render's choice of model in auto windows
-            m = over[0].model if over and over[0].switched else model
-            op = render(sc, engine="operator", model=m, sounding=sounding_for(sc, windows, m))
+            op = render(sc, engine="operator", model=model, sounding=sounding_for(sc, windows, model))
     except BowsynthError as e:
         cell.update(status="not played", why=str(e).splitlines()[0].split(";")[0][:200])
         return cell

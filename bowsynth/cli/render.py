@@ -57,7 +57,6 @@ def render(
     from .. import api
     from ..engines import Engine, Fallback, parse_choice
     from ..io.audio import check_audio_output, check_dc, check_gain_db, check_meta_fits, render_meta, write_wav
-    from ..music.auto_model import told
     from ..music.engine_tuning import check_windows
 
     method, fallback = parse_choice(Engine, method, "--method").value, parse_choice(Fallback, fallback, "--fallback").value
@@ -72,22 +71,18 @@ def render(
     scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4)
     check_audio_output(output, force=force)
     check_meta_fits(render_meta(scene, "operator fallback fdm", signal, 1.0, 0.0, "x" * 64, dc), output)
-    heard = None if quiet else (lambda line: err.print(line, soft_wrap=True))  # a first render's wait, said
     if pitch is not None:  # tuned again with the sounding ratio of the engine that plays (its own pitch)
         from ..music.notes import note_name
 
-        with told(heard):
-            ratio, by = api.tuning_for(scene, method, model, oversample, windows=windows)
-        if ratio is not None:
-            scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4, ratio=ratio)
+        ratio, by = api.tuning_for(scene, method, model, oversample, windows=windows)
+        scene = scene_from_flags(preset, f0, fb, vb, a, duration, sample_rate, q0, p0, pitch, a4, ratio=ratio)
         hz = pitch_hz(pitch, a4)
         held = "" if not scene.varying else ", at the values the bow holds"
-        how = f"tuned for {by}" if ratio is not None else f"tuned with the FDM's ratio: {by}"
+        how = f"tuned for {by}"
         tell(quiet, f"pitch {hz:.2f} Hz ({note_name(hz, a4 or 440.0)}): f0 {scene.f0:.4f} Hz ({how}{held})",
              console_for(output))
-    with told(heard):
-        r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force,
-                       windows=windows)
+    r = api.render(scene, engine=method, model=model, fallback=fallback, oversample=oversample, force=force,
+                   windows=windows)
     write_wav(output, r, signal=signal, dc=dc, gain_db=gain, force=force)
     model_note = f", model {r.info.model_id}" if r.info.model_id else ""
     if r.info.chain:  # models in turn: their names (the note below says when each took over)

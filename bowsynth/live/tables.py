@@ -1,7 +1,8 @@
-"""What the live engine measures before it activates: the bow of every velocity at neutral controllers and the f0
+"""What the live engine works out before it activates: the bow of every velocity at neutral controllers and the f0
 of every (velocity, note), tuned by `music.tuning.tune` exactly as `score` tunes a MIDI file's note (with the sounding
-ratio of the engine that plays it: `music.engine_tuning.ratio_for_engine`), a spline of the ratio over the bows CC2 /
-CC11 reach, and the model that plays the most of the keyboard."""
+ratio of the engine that plays it: `music.engine_tuning.ratio_for_engine`), the physics' ratio over the bows CC2 /
+CC11 reach (from the shipped map, `music.ratio_map`: no reference runs), and the model that plays the most of the
+keyboard."""
 
 from __future__ import annotations
 
@@ -14,7 +15,8 @@ from ..errors import DomainError
 from ..engines.operator.grid import needs_whole_windows
 from ..music import midi as M
 from ..music.notes import midi_to_hz
-from ..music.tuning import SilentNoteError, sounding_ratio, tune
+from ..music.ratio_map import physics_ratio
+from ..music.tuning import SilentNoteError, tune
 from ..scene import Scene
 
 # the tuning grid for bows off the velocity table: F_B / w over the velocities' span (0.040..0.637) and a little
@@ -41,12 +43,13 @@ class Tuning:
         for v in range(1, 128):
             beta, vb = float(self.v_beta[v]), float(self.v_vb[v])
             try:
-                sounding_ratio(beta, vb, a)
+                physics_ratio(beta, vb, a)
             except SilentNoteError:
                 continue  # a velocity whose note does not speak stays NaN: its notes are dropped (`silent`)
             for n in range(12, 120):
                 hz = midi_to_hz(n, a4)
-                self.f0[v, n] = tune(hz, None, beta=beta, vb=vb, a=a, a4=a4, ratio=rf(hz, beta, vb)).f0
+                self.f0[v, n] = tune(hz, None, beta=beta, vb=vb, a=a, a4=a4, ratio=rf(hz, beta, vb),
+                                     physics_ratio=physics_ratio).f0
         # the truth's ratios: smooth in the bow, so a 9 x 8 spline holds them to 0.01-0.22 cents. The operator's own
         # (what `score` tunes an operator note with) are not: its pitch error varies from bow to bow, and a spline
         # through 72 of them was 1-9 cents off between them; the truth's are 0.2-2.5 cents from them (docs/live.md)
@@ -58,7 +61,7 @@ class Tuning:
             for j, vb in enumerate(vbs):
                 b = float(math.exp(lb))
                 try:
-                    r[i, j] = sounding_ratio(b, float(vb), a).r
+                    r[i, j] = physics_ratio(b, float(vb), a).r
                 except SilentNoteError:
                     pass
         # bicubic through the measured points (bilinear was 4-7 cents off between them; this 0.01-0.22), sampled

@@ -1,7 +1,8 @@
 """The sounding ratio of the engine that plays a note: the FDM at its rate and oversampling (its dispersion included),
 or an operator model: in free windows and in windows locked to its note its own pitch (measured once per model and
 bow and cached), in windows locked to the physics' period that period where the model holds it (`lock_ratio`). So a
-note asked at a pitch sounds there whichever engine plays it. The truth's ratio and the solve for f0 are in `tuning`."""
+note asked at a pitch sounds there whichever engine plays it. The operator's notes take the physics' period from the
+shipped map (`ratio_map`), never from the reference; the solve for f0 is in `tuning`."""
 
 from __future__ import annotations
 
@@ -9,9 +10,8 @@ from .. import physics
 from ..engines.operator.windows import lock_at
 from ..errors import DomainError, UsageError
 from ..scene import Scene
-from .auto_model import AutoPick, auto_pick
-from .auto_windows import auto_lock
 from .model_ratio import lock_ratio, operator_ratio, own_ratio
+from .ratio_map import physics_ratio
 from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
 
 
@@ -38,35 +38,50 @@ def fdm_ratio(sample_rate: float, oversample: int = 1):
 
 def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float | None = None) -> float | None:
     """The sounding ratio a held note's windows lock to in these windows: 'locked' the model's own (own_ratio; a
-    clock at the physics' period would pull the note there: see lock_ratio), 'physics' lock_ratio's, 'auto'
-    auto_lock's for a note at f0 (None: for every pitch); None where they lock to nothing (free windows, or no period
-    known)."""
+    clock at the physics' period would pull the note there: see lock_ratio), 'physics' lock_ratio's (the physics'
+    period where the model holds it, else its own), 'auto' the physics' period where the model holds it, else free
+    (auto_lock); None where they lock to nothing (free windows, or no period known). f0 is not used: a model's window
+    chain does not depend on it."""
     if windows == "auto":
-        return auto_lock(model, beta, vb, a, f0)
+        return auto_lock(model, beta, vb, a)
     how = {"locked": own_ratio, "physics": lock_ratio}.get(windows)
     return None if how is None else how(model, beta, vb, a)
 
 
+def auto_lock(model, beta: float, vb: float, a: float):
+    """--windows auto, a render's default: a point model plays free windows (the cycle it was trained and validated
+    on at its one bow: the paper's three scenes' NMSE(p) over 1 s 4e-8 / 1e-6 / 7e-5 free against 2e-7 / 7e-5 / 4e-3
+    locked); a range model windows locked to the physics' period (the shipped map's) where it holds that period
+    (lock_ratio's Lock, the operator measuring itself), else free windows (None): where a model cannot be pulled onto
+    the physics' period, its own free cycle keeps its harmonics truer than a lock to its own period would (a lock
+    moves the network's error onto the harmonics)."""
+    from ..engines.operator.choose import as_model
+    from ..engines.operator.windows import Lock
+
+    if not as_model(model).domain.is_range:
+        return None
+    r = lock_ratio(model, beta, vb, a)
+    return r if isinstance(r, Lock) else None
+
+
 def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None,
-                     windows: str | None = None, by_pitch: bool = True, listen: bool = False):
+                     windows: str | None = None, by_pitch: bool = True):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
     scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it: its own
     pitch, or in windows locked to the physics the period it holds there), so that the asked note sounds there
-    whichever engine plays. (None, why) when no model covers the scene: the note is then tuned with the truth's ratio
-    (what compare scores against). models: those to choose among (default: available_models(), looked up again on
-    each call). by_pitch: auto windows chosen for the note's f0 (a render's, a score's); False: one choice for every
-    pitch (the live engine's, whose windows are fixed per velocity). listen: in auto windows with no model given, the
-    model auto_model chooses (api.render's: it plays that one); else the renderer's pick (a score's, the live
-    engine's)."""
+    whichever engine plays. When no model covers the scene, the physics' ratio from the shipped map, with why. models:
+    those to choose among (default: available_models(), looked up again on each call). by_pitch: kept for callers
+    (a model's windows do not depend on the note's f0). The operator's ratios carry `physics`, the shipped map, which
+    `tune` solves from: no reference runs."""
     if str(getattr(engine, "value", engine)) == "fdm":
         from ..engines.fdm import check_oversample
 
         os_ = check_oversample(scene, oversample, warn=False)
         return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
     windows = check_windows(windows)
-    m, why = _playing_model(scene, model, models, listen and windows == "auto")
+    m, why = _playing_model(scene, model, models)
     if m is None:
-        return None, why
+        return _physics_only, f"the physics' pitch map ({why})"
     held = windows in ("physics", "auto") and scene.held_bow() is not None  # else free
 
     def ratio(beta, vb, a, f0):
@@ -76,20 +91,26 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
                 r = operator_ratio(m)(beta, vb, a, f0)
         except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
             r = None
-        return sounding_ratio(beta, vb, a).r if r is None else r
+        return physics_ratio(beta, vb, a).r if r is None else r
+    ratio.physics = physics_ratio
     return ratio, f"model {m.id}" + (f" in {windows} windows" if held else "")
 
 
-def _playing_model(scene: Scene, model=None, models=None, listen: bool = False):
-    """(the operator model that plays the scene: the one given, else find_model's pick among `models`, or with
-    `listen` auto_pick's; None) or (None, why) where that model does not cover it or none does."""
+def _physics_only(beta: float, vb: float, a: float, f0: float) -> float:
+    """The physics' sounding ratio from the shipped map (a note no model covers: it is refused, or the FDM plays it)."""
+    return physics_ratio(beta, vb, a).r
+
+
+_physics_only.physics = physics_ratio
+
+
+def _playing_model(scene: Scene, model=None, models=None):
+    """(the operator model that plays the scene: the one given, else find_model's pick among `models`; None) or (None,
+    why) where that model does not cover it or none does."""
     from ..engines.operator.choose import as_model, find_model
 
     try:
-        if model is None and listen:
-            m = auto_pick(scene, models).model or find_model(scene, models)  # none covers it: find_model says why
-        else:
-            m = find_model(scene, models) if model is None else as_model(model)
+        m = find_model(scene, models) if model is None else as_model(model)
     except DomainError as e:
         return None, str(e).split(";")[0]
     if not m.covers(scene):
@@ -118,10 +139,10 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
 
 
 WINDOWS = ("locked", "free", "physics", "auto")  # how an operator voice's windows lie against its note (api.render's)
-# A render's default (session 30): what a listener hears. Free windows play the stick-slip tiles' own cycles, cents off
-# (held-out stick-slip bows 0.54-1.22 cents median, 2.3-3.9 worst; auto 0.0004-0.0018 / 0.003-0.28); auto measures
-# once per model and bow (0.5-3 s, cached). A score keeps locked windows (a mix's voices fill each other's gaps;
-# docs/BENCHMARKS.md), the live engine free ones (its windows are fixed when a voice starts).
+# A render's default is what a listener hears from one note: the physics' period where the model holds it, else the
+# model's free cycle. A score keeps windows locked to each model's own period (a mix's voices fill each other's gaps,
+# and a short note does not sound a lock's pull-in), the live engine free ones (its windows are fixed when a voice
+# starts).
 RENDER_WINDOWS, SCORE_WINDOWS, LIVE_WINDOWS = "auto", "locked", "free"
 
 
@@ -152,17 +173,3 @@ def sounding_for(scene, windows: str | None = None, model=None, held=None):
         pool = available_models()  # the model directories looked at once for all the scenes
     out = [operator_sounding(sc, model, models=pool, held=h, windows=windows) for sc, h in zip(scenes, helds)]
     return out if many else out[0]
-
-
-def auto_overrides(scene, windows: str | None = None, model=None) -> dict[int, AutoPick]:
-    """{index: AutoPick} of the scenes (one, or a list) whose model auto windows choose by measurement instead of the
-    renderer's pick (AutoPick.switched), or whose playing model was measured to miss the targets there (a note to
-    show): auto_model. None where a model is given or the windows are not auto."""
-    if model is not None or check_windows(windows) != "auto":
-        return {}
-    from ..engines.operator.choose import available_models
-
-    scenes = list(scene) if isinstance(scene, (list, tuple)) else [scene]
-    pool = available_models()
-    picks = {i: auto_pick(sc, pool) for i, sc in enumerate(scenes)}
-    return {i: p for i, p in picks.items() if p.note is not None}

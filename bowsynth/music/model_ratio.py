@@ -1,6 +1,7 @@
-"""An operator model's own sounding ratio at a bow (measured once per model and bow, cached), in free windows and in
-windows locked to a period, and the lock a held note takes in windows locked to the physics' period where the model
-holds it (`lock_ratio`). engine_tuning tunes notes with them; auto_windows chooses among them."""
+"""An operator model's own sounding ratio at a bow (the operator measuring itself: once per model and bow, cached), in
+free windows and in windows locked to a period, and the lock a held note takes in windows locked to the physics'
+period where the model holds it (`lock_ratio`). The physics' period comes from the shipped map (ratio_map), never
+from the reference. engine_tuning tunes notes and locks windows with them."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ from .. import physics
 from ..engines.operator.windows import Lock
 from ..errors import DomainError
 from ..scene import Scene
-from .tuning import SilentNoteError, engine_ratio, sounding_ratio
+from .ratio_map import physics_ratio
+from .tuning import SilentNoteError, engine_ratio
 
 RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain does not depend on f0, only the samples
 RATIO_PERIODS = 300  # sounding periods measured after the truth's settling time
@@ -28,7 +30,7 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
 
     def ratio(beta: float, vb: float, a: float, f0: float) -> float:
         def measure():
-            truth = sounding_ratio(beta, vb, a)
+            truth = physics_ratio(beta, vb, a)
             # a lock pulls the cycle in over tens to hundreds of periods (stick-slow at F_B / w 1.46, v_B 0.152: +0.2
             # cents over the first 300, +0.0008 over the next): measured after as many again
             periods = RATIO_PERIODS * (2 if locked else 1)
@@ -38,13 +40,13 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
             tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
             return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
         how = f"-locked2x{f'+{more}' if more else ''}" if locked else ""
-        return engine_ratio(f"operator{how}{RATIO_PERIODS} {m.key}", beta, vb, a, measure)
+        return engine_ratio(f"operator{how}{RATIO_PERIODS} {m.key}", beta, vb, a, measure, physics_ratio)
+    ratio.physics = physics_ratio
     return ratio
 
 
 # Windows locked to the physics (--windows physics) divide the period of the physics' limit cycle at the held bow (the
-# truth's sounding ratio, `tuning.sounding_ratio`: the reference integration `--pitch` has always run, Richardson-
-# extrapolated, once per bow, 30-100 ms, cached on disk), where the model holds that period. Such a clock pulls the
+# shipped map of the reference's sounding ratio, ratio_map.physics_ratio), where the model holds that period. Such a clock pulls the
 # operator's cycle onto it, as an oscillator is pulled within its locking range, and the network plays the wave within
 # each period. Measured (session 21, `benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows):
 # 0.0005 / 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics
@@ -71,7 +73,7 @@ def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
     from ..analysis.metrics import cents
 
     try:
-        truth = sounding_ratio(beta, vb, a).r
+        truth = physics_ratio(beta, vb, a).r
     except SilentNoteError:
         return None
     for more in LOCK_MORE:

@@ -17,7 +17,8 @@ def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, b
     pitch with the scene's bow (see `bowsynth.music.tuning`); a preset's f0 gives way to it, an explicit f0 conflicts.
     beta (F_B / w, a number or a curve) replaces fb by beta 2 pi f0: the same timbre at every pitch. A preset may
     itself say pitch = "A3" and beta = ... instead of f0 and fb. ratio: the sounding ratio of the engine that will
-    play the note (`pitch.tune`; `api.tuning_for` gives it), else the truth's."""
+    play the note (`pitch.tune`; `api.tuning_for` gives it), else the physics' from the shipped map
+    (`ratio_map.map_ratio`: no reference runs)."""
     fields = load_preset(preset) if preset else {}
     if overrides.get("f0") is not None and pitch is not None:
         raise UsageError("give the note as pitch or as f0, not both")
@@ -40,7 +41,9 @@ def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, b
         return Scene.from_dict(fields)
     from . import tuning as P
     from .notes import A4_HZ, parse_pitch
+    from .ratio_map import map_ratio
 
+    ratio = map_ratio if ratio is None else ratio
     hz = parse_pitch(pitch, A4_HZ if a4 is None else a4)
     probe = {**fields, "f0": hz}
     if beta is not None:

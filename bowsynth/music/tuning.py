@@ -199,10 +199,12 @@ def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> 
 _FAILS = {"DomainError": DomainError, "SilentNoteError": SilentNoteError}
 
 
-def engine_ratio(engine: str, beta: float, vb: float, a: float, measure) -> float:
-    """An engine's sounding ratio at a bow, from the on-disk table or measured (a silent note raises, as the truth's
-    does: sounding_ratio is asked first); a measurement that raised DomainError or SilentNoteError raises it again."""
-    sounding_ratio(beta, vb, a)
+def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics_ratio=None) -> float:
+    """An engine's sounding ratio at a bow, from the on-disk table or measured (a silent note raises, as the physics'
+    does: `physics_ratio`, the source of the physics' Ratio, is asked first: sounding_ratio, the reference, by default; the
+    operator's path passes the shipped map, ratio_map.physics_ratio); a measurement that raised DomainError or
+    SilentNoteError raises it again."""
+    (physics_ratio or sounding_ratio)(beta, vb, a)
     key = f"{engine} {beta!r} {vb!r} {a!r}"
     hit = _ratios.get(key)
     if isinstance(hit, dict) and isinstance(hit.get("r"), float) and hit["r"] > 0:
@@ -262,20 +264,24 @@ def held_value(control, duration: float | None = None) -> float:
 
 
 def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, beta: float | None = None,
-         a4: float = A4_HZ, ratio=None) -> Tuning:
+         a4: float = A4_HZ, ratio=None, physics_ratio=None) -> Tuning:
     """Solve for the oscillator f0 that sounds at `pitch` (Hz or a note name) when bowed with force fb (held
     fixed) or, with `beta` given instead, with the force that keeps F_B / w = beta (fb = beta 2 pi f0).
 
     ratio: the engine that will play the note, as a function (beta, v_B, a, f0) -> sounding ratio (`fdm_ratio`,
-    `operator_ratio` below); None: the truth's (sounding_ratio), which is what `compare` scores against."""
+    `operator_ratio` below); None: the physics' own. physics_ratio: where the physics' ratio comes from, a function (beta,
+    v_B, a) -> Ratio: None for the ratio's own `physics` attribute if it has one (an operator's ratio carries the
+    shipped map, `ratio_map.physics_ratio`: no reference at render time), else sounding_ratio (the reference, which
+    `compare` scores against)."""
     p = parse_pitch(pitch, a4)
+    source = physics_ratio or getattr(ratio, "physics", None) or sounding_ratio
     vb, a = float(vb), float(a)
     if ratio is not None:
-        return _tune_with(p, fb, vb, a, beta, ratio)
+        return _tune_with(p, fb, vb, a, beta, ratio, source)
     if beta is not None:
         if fb is not None:
             raise UsageError("give the bow force as fb or as beta (F_B / w), not both")
-        rat = sounding_ratio(float(beta), vb, a)
+        rat = source(float(beta), vb, a)
         f0 = p / rat.r
         return Tuning(p, f0, float(beta) * physics.omega(f0), vb, a, rat)
     if fb is None:
@@ -285,7 +291,7 @@ def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, 
         return Tuning(p, p, 0.0, vb, a, Ratio(1.0, 0.0, 0.0, 0.0, vb, a))  # the free oscillator: r = 1
 
     def ratio(f0):
-        return sounding_ratio(physics.beta(fb, f0), vb, a)
+        return source(physics.beta(fb, f0), vb, a)
 
     def h(logf):  # cents from the asked pitch; increasing in f0 (a lighter beta sounds nearer f0)
         f0 = math.exp(logf)
@@ -337,13 +343,13 @@ def _bracketed_root(h, lo: float, hi: float, h_lo: float, h_hi: float, xtol: flo
     return x
 
 
-def _tune_with(p: float, fb, vb: float, a: float, beta, ratio) -> Tuning:
+def _tune_with(p: float, fb, vb: float, a: float, beta, ratio, source) -> Tuning:
     """tune() with an engine's ratio: the secant method on the cents error over log f0, from the truth's solution
     (the engine's ratio differs from the truth's by cents), to PITCH_TOL_CENTS. Not a fixed-point iteration: in
     stick-slip r falls like 1 / beta, and f0 = pitch / r(f0) would not converge."""
     if beta is not None and fb is not None:
         raise UsageError("give the bow force as fb or as beta (F_B / w), not both")
-    first = tune(p, fb, vb, a, beta=beta)
+    first = tune(p, fb, vb, a, beta=beta, physics_ratio=source)
 
     def err(x):  # cents from the asked pitch at f0 = e^x
         f0 = math.exp(x)

@@ -125,9 +125,8 @@ def validation_failure(meta: ModelMeta) -> str | None:
 
 def missed_by_ear(meta: ModelMeta) -> bool:
     """Whether a range model failed its validation by a listener error at some grid bow alone (harmonics or pitch over
-    their limits; not an error, a sound where the truth rests, or no score). Never picked by default, music.auto_model
-    may play it at a held bow where it is measured truer than the pick: session 37's tile for the band just above
-    vb_stop at F_B / w 0.62-1.3 missed by 45 cents at one grid bow and played the bows no validated model plays."""
+    their limits; not an error, a sound where the truth rests, or no score). Such a model is never picked; it plays
+    only with --model."""
     v = meta.validation or {}
     listened = v.get("points") is not None and is_finite(v.get("harm_db_median")) and is_finite(v.get("cents_abs_max"))
     return listened and not v.get("error") and not v.get("silent_sounding") and validation_failure(meta) is not None
@@ -135,9 +134,6 @@ def missed_by_ear(meta: ModelMeta) -> bool:
 
 def unpicked_text(meta: ModelMeta) -> str:
     """What a failed validation means for a model's use, for the listings (`bowsynth models`, the report)."""
-    if missed_by_ear(meta):
-        return ("not picked by default; a render plays it at a held bow where it is measured truer than the model "
-                "picked there (music.auto_model), or with --model")
     return "not picked by default (only with --model)"
 
 
