@@ -32,7 +32,8 @@ def render(scene, engine: str = "operator", model=None, fallback: str = "none", 
     it, else free (`engine_tuning.auto_lock`). The physics' period comes from the shipped map (`music.ratio_map`);
     whether a model holds it, the operator measures of itself (once per model and bow, cached): no reference runs.
     A note whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture
-    rolls free. With no model given, the model that covers the scene plays it (`engines.operator.choose.find_model`).
+    rolls free. With no model given, of the models that cover a held note the one whose own cycle lies nearest the
+    physics' period plays it (`music.pick.heard_pick`; a gesture: `engines.operator.choose.find_model`'s pick).
     Free windows spread the network's error into faint lines between and below the harmonics (60 dB
     down), locked ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics
     truer free, a chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked
@@ -58,7 +59,24 @@ def _render_operator(scene, model, fallback: str, windows: str | None):
     from .engines import render as _r
     from .music.engine_tuning import sounding_for
 
-    return _r(scene, engine="operator", model=model, fallback=fallback, sounding=sounding_for(scene, windows, model))
+    def play(sc, m):
+        return _r(sc, engine="operator", model=m, fallback=fallback, sounding=sounding_for(sc, windows, m))
+    if model is not None:
+        return play(scene, model)
+    from .engines.operator.choose import available_models, covering_model
+    from .music.pick import heard_pick
+
+    pool = available_models()
+    scenes = list(scene) if isinstance(scene, (list, tuple)) else [scene]
+    # a held note whose covering models know its bow unequally plays the one whose own cycle is nearest the physics'
+    alone = {i: m for i, sc in enumerate(scenes) for m in [heard_pick(sc, pool)] if m is not covering_model(sc, pool)}
+    if not isinstance(scene, (list, tuple)):
+        return play(scene, alone.get(0))
+    rest = [i for i in range(len(scenes)) if i not in alone]
+    out = dict(zip(rest, play([scenes[i] for i in rest], None) if rest else []))
+    for i, m in alone.items():
+        out[i] = play(scenes[i], m)
+    return [out[i] for i in range(len(scenes))]
 
 
 def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, windows: str | None = None):
@@ -66,7 +84,7 @@ def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: i
     `make_scene(pitch=..., ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
     from .music.engine_tuning import ratio_for_engine
 
-    return ratio_for_engine(scene, engine, model, oversample, windows=windows)
+    return ratio_for_engine(scene, engine, model, oversample, windows=windows, heard=True)
 
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):

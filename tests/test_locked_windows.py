@@ -211,15 +211,15 @@ def test_physics_windows_hold_the_physical_pitch_over_30_s():
 def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does():
     """stick-stops at F_B / w 0.7188, v_B 0.08 (bench map's worst pitch in session 21): the physics' period is 16.9 of
     its trained windows; 17 windows of 0.994 T leave its cycle at its own period, 5.3 cents sharp at 110 Hz
-    (measured), 18 hold the physics' within 0.02 cent. lock_ratio takes the 18 (a Lock with more = 1), and a
-    physics render plays them."""
+    (measured), 18 hold the physics' within 0.02 cent. lock_ratio takes the 18 (a Lock with more = 1) at the shipped
+    map's period, and a physics render plays them."""
     from bowsynth.analysis.metrics import f0_estimate
     from bowsynth.engines.operator.choose import as_model
     from bowsynth.music.model_ratio import LOCK_HOLDS_CENTS, lock_ratio, operator_ratio
-    from bowsynth.music.tuning import sounding_ratio
+    from bowsynth.music.ratio_map import physics_ratio
 
     m, beta, vb = as_model("stick-stops"), 0.7188, 0.08
-    truth = sounding_ratio(beta, vb).r
+    truth = physics_ratio(beta, vb).r
     fewest = operator_ratio(m, locked=True)(beta, vb, 100.0, 100.0)
     assert abs(1200 * math.log2(fewest / truth)) > 1.0
     lock = lock_ratio(m, beta, vb, 100.0)
@@ -239,11 +239,11 @@ def test_a_slow_heavy_bow_holds_the_physics_period_in_two_windows_more():
     from bowsynth.analysis.metrics import listener_errors
     from bowsynth.engines.operator.choose import as_model
     from bowsynth.music.model_ratio import lock_ratio
-    from bowsynth.music.tuning import sounding_ratio
+    from bowsynth.music.ratio_map import physics_ratio
 
     m, beta, vb = as_model("floor-long"), 1.919373352550227, 0.08490201157334584
     lock = lock_ratio(m, beta, vb, 100.0)
-    assert lock == sounding_ratio(beta, vb).r and lock.more == 2
+    assert lock == physics_ratio(beta, vb).r and lock.more == 2
     sc = Scene(f0=807.4, fb=beta * 2 * math.pi * 807.4, vb=vb, duration=2.0)
     truth = render(sc, engine="fdm", oversample=100)
     for windows in ("physics", "auto"):
@@ -259,11 +259,11 @@ def test_a_note_with_a_bow_stop_locks_its_windows_to_the_bow_it_holds():
     the physics while it holds (free windows: 1.3-1.5 cents flat, measured), then stopped as the free render is.
     Before, a bow that moved at all (to stop) rolled free."""
     from bowsynth.analysis.metrics import f0_estimate
-    from bowsynth.music.tuning import sounding_ratio
+    from bowsynth.music.ratio_map import physics_ratio
 
     f0, beta, vb = 220.0, 1.0, 0.2
     sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=[(1.8, vb), (1.9, 0.0)], duration=2.5)
-    truth, sr = f0 * sounding_ratio(beta, vb).r, sc.sample_rate
+    truth, sr = f0 * physics_ratio(beta, vb).r, sc.sample_rate
     phys = render(sc, model="stick-stops", windows="physics")
     free = render(sc, model="stick-stops", windows="free")
     assert phys.info.windows and not free.info.windows
@@ -293,6 +293,7 @@ def test_unsaved_models_keep_their_measurements_apart(monkeypatch, tmp_path):
     real = model_ratio.engine_ratio
     monkeypatch.setattr(model_ratio, "engine_ratio",
                         lambda engine, *a, **k: measured.append(engine) or real(engine, *a, **k))
+    sc = Scene(**shipped.meta.scene)
     for m in (first, second, first):
-        model_ratio.operator_ratio(m)(0.159, 0.2, 100.0, 100.0)
+        model_ratio.operator_ratio(m)(sc.beta, sc.vb, 100.0, 100.0)
     assert len(set(measured)) == 2 and measured[0] == measured[2]  # each model's answers under its own key

@@ -53,6 +53,21 @@ def pitch_hz(pitch, a4) -> float:
     return parse_pitch(pitch, A4_HZ if a4 is None else a4)
 
 
+def process_seconds() -> float | None:
+    """Wall seconds since this process started (the interpreter's start-up and imports included), from the kernel's
+    accounting (Linux /proc); None where that is not available."""
+    import os
+
+    try:
+        with open("/proc/self/stat", "rb") as f:
+            start_ticks = int(f.read().rsplit(b")", 1)[1].split()[19])
+        with open("/proc/uptime", "rb") as f:
+            uptime = float(f.read().split()[0])
+        return max(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 0.0)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def tell(quiet: bool, msg: str, console: Console | None = None) -> None:
     if not quiet:
         (console or out).print(msg, soft_wrap=True)

@@ -28,6 +28,7 @@ from .app import (
     console_for,
     err,
     pitch_hz,
+    process_seconds,
     range_validation_text,
     scene_from_flags,
     tell,
@@ -91,6 +92,9 @@ def render(
         model_note += f" ({r.info.model_path})"
     setup = r.info.setup_seconds
     setup_note = f" after {setup * 1e3:.0f} ms of start-up" if setup else ""
+    whole = process_seconds()
+    if whole is not None:  # what the user waited for: the interpreter, imports, tuning, model loads and the render
+        setup_note += f"; the whole command {whole:.2f} s so far"
     say = console_for(output)
     if not quiet:
         if r.info.windows:

@@ -6,12 +6,15 @@ shipped map (`ratio_map`), never from the reference; the solve for f0 is in `tun
 
 from __future__ import annotations
 
+import math
+
 from .. import physics
 from ..engines.operator.windows import lock_at
 from ..errors import DomainError, UsageError
+from ..io.cache import DiskTable
 from ..scene import Scene
 from .model_ratio import lock_ratio, operator_ratio, own_ratio
-from .ratio_map import physics_ratio
+from .ratio_map import physics_or_solve, physics_ratio
 from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
 
 
@@ -48,38 +51,86 @@ def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float |
     return None if how is None else how(model, beta, vb, a)
 
 
+# --windows auto: free windows keep a model's harmonics (they are the windows it was trained in), a lock to the
+# physics' period keeps its pitch. Each is judged by the operator against itself and the shipped map, never against the
+# reference: free windows by how far the model's own free cycle lies from the map's period (they play that far off),
+# the lock by how far it moves the note's harmonics from the free note's (a lock puts the network's error on them).
+# Each error over its worst-case target (1 cent, 1 dB); the smaller plays. Free windows within FREE_CENTS of the map's
+# period play without the lock's measurement.
+FREE_CENTS = 0.2
+TARGET_CENTS, TARGET_DB = 1.0, 1.0
+_choices = DiskTable("auto-windows", f"truth-free-1/{FREE_CENTS!r}/{TARGET_CENTS!r}/{TARGET_DB!r}")
+
+
 def auto_lock(model, beta: float, vb: float, a: float):
-    """--windows auto, a render's default: a point model plays free windows (the cycle it was trained and validated
-    on at its one bow: the paper's three scenes' NMSE(p) over 1 s 4e-8 / 1e-6 / 7e-5 free against 2e-7 / 7e-5 / 4e-3
-    locked); a range model windows locked to the physics' period (the shipped map's) where it holds that period
-    (lock_ratio's Lock, the operator measuring itself), else free windows (None): where a model cannot be pulled onto
-    the physics' period, its own free cycle keeps its harmonics truer than a lock to its own period would (a lock
-    moves the network's error onto the harmonics)."""
+    """--windows auto, a render's default: None (free windows) or the Lock a held note's windows take.
+
+    A point model plays free windows (the cycle it was trained and validated on at its one bow: the paper's three
+    scenes' NMSE(p) over 1 s 4e-8 / 1e-6 / 7e-5 free against 2e-7 / 7e-5 / 4e-3 locked). A range model plays the
+    lock (lock_ratio: the map's period, where the model holds it) where the lock's harmonic shift, over 1 dB, is
+    smaller than the free cycle's pitch error, over 1 cent; else free windows. Measured once per model and bow (two
+    notes of the operator at f0 100), cached on disk."""
+    from ..analysis.metrics import cents
     from ..engines.operator.choose import as_model
     from ..engines.operator.windows import Lock
 
-    if not as_model(model).domain.is_range:
+    m = as_model(model)
+    if not m.domain.is_range:
         return None
-    r = lock_ratio(model, beta, vb, a)
-    return r if isinstance(r, Lock) else None
+    lock = lock_ratio(m, beta, vb, a)
+    if not isinstance(lock, Lock):
+        return None
+    own = own_ratio(m, beta, vb, a)
+    free_score = abs(cents(own, float(lock))) / TARGET_CENTS if own else math.inf
+    if free_score <= FREE_CENTS / TARGET_CENTS:
+        return None
+    key = f"{m.key} {beta!r} {vb!r} {a!r}"
+    hit = _choices.get(key)
+    if isinstance(hit, dict) and isinstance(hit.get("lock"), bool):
+        return lock if hit["lock"] else None
+    shift = lock_harmonic_shift(m, beta, vb, a, lock)
+    use = shift / TARGET_DB < free_score
+    _choices.put(key, {"lock": bool(use)})
+    return lock if use else None
+
+
+def lock_harmonic_shift(model, beta: float, vb: float, a: float, lock) -> float:
+    """The most a lock moves a held note's harmonics 1-10 (dB) from the same note in free windows: both notes from
+    rest at f0 100 until the map's settling time and two seconds more, each fitted at its own pitch over its last
+    second. inf where either note fails to play."""
+    from ..analysis.metrics import listener_errors
+    from ..engines.operator.engine import render_operator
+    from ..engines.operator.windows import Lock
+    from .model_ratio import RATIO_F0
+
+    settle = physics_ratio(beta, vb, a).settle_seconds(RATIO_F0)
+    sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=min(settle + 2.0, 30.0))
+    try:
+        free = render_operator(sc, model=model)
+        locked = render_operator(sc, model=model, sounding=Lock(RATIO_F0 * float(lock), lock.more))
+    except DomainError:
+        return math.inf
+    e = listener_errors(locked.p, free.p, sc.sample_rate)
+    return float(e["harm_db_max"]) if math.isfinite(e["harm_db_max"]) else math.inf
 
 
 def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, models=None,
-                     windows: str | None = None, by_pitch: bool = True):
+                     windows: str | None = None, by_pitch: bool = True, heard: bool = False):
     """(ratio, what) for `make_scene(pitch=..., ratio=ratio)`: the sounding ratio of the engine that will play the
     scene (the FDM at its rate and oversampling, dispersion included; or the operator model that covers it: its own
     pitch, or in windows locked to the physics the period it holds there), so that the asked note sounds there
     whichever engine plays. When no model covers the scene, the physics' ratio from the shipped map, with why. models:
     those to choose among (default: available_models(), looked up again on each call). by_pitch: kept for callers
-    (a model's windows do not depend on the note's f0). The operator's ratios carry `physics`, the shipped map, which
-    `tune` solves from: no reference runs."""
+    (a model's windows do not depend on the note's f0). heard: with no model given, the model `pick.heard_pick`
+    chooses (api.render's: it plays that one); else the renderer's static pick (a score's, the live engine's). The
+    operator's ratios carry `physics`, the shipped map, which `tune` solves from: no reference runs."""
     if str(getattr(engine, "value", engine)) == "fdm":
         from ..engines.fdm import check_oversample
 
         os_ = check_oversample(scene, oversample, warn=False)
         return fdm_ratio(scene.sample_rate, os_), f"the FDM at x{os_}"
     windows = check_windows(windows)
-    m, why = _playing_model(scene, model, models)
+    m, why = _playing_model(scene, model, models, heard)
     if m is None:
         return _physics_only, f"the physics' pitch map ({why})"
     held = windows in ("physics", "auto") and scene.held_bow() is not None  # else free
@@ -97,20 +148,25 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
 
 
 def _physics_only(beta: float, vb: float, a: float, f0: float) -> float:
-    """The physics' sounding ratio from the shipped map (a note no model covers: it is refused, or the FDM plays it)."""
-    return physics_ratio(beta, vb, a).r
+    """The physics' sounding ratio from the shipped map, off it the reference's solve: a note no model covers, which
+    is refused, or which the FDM plays (--fallback fdm)."""
+    return physics_or_solve(beta, vb, a).r
 
 
-_physics_only.physics = physics_ratio
+_physics_only.physics = physics_or_solve
 
 
-def _playing_model(scene: Scene, model=None, models=None):
-    """(the operator model that plays the scene: the one given, else find_model's pick among `models`; None) or (None,
-    why) where that model does not cover it or none does."""
+def _playing_model(scene: Scene, model=None, models=None, heard: bool = False):
+    """(the operator model that plays the scene: the one given, else find_model's pick among `models`, or with
+    `heard` pick.heard_pick's; None) or (None, why) where that model does not cover it or none does."""
     from ..engines.operator.choose import as_model, find_model
+    from .pick import heard_pick
 
     try:
-        m = find_model(scene, models) if model is None else as_model(model)
+        if model is None and heard:
+            m = heard_pick(scene, models) or find_model(scene, models)  # none covers it: find_model says why
+        else:
+            m = find_model(scene, models) if model is None else as_model(model)
     except DomainError as e:
         return None, str(e).split(";")[0]
     if not m.covers(scene):

@@ -219,18 +219,18 @@ def preference(m: OperatorModel, depth: float) -> tuple:
 
 
 def validation_rank(m: OperatorModel) -> tuple:
-    """How two models of the same bows compare at validation, lowest first. Point models at one bow go by the
-    log-spectral distance of their validation render (the whole spectrum to 80 dB below its peak, on the float
-    signal), then NMSE(p): NMSE from rest weighs a phase offset no listener hears, and picked paper-fb1000-half
-    (1.9e-5) over paper-fb1000-knee (4.0e-4), whose spectrum is 3.1 dB from the truth's against 11.8 and whose
-    stick capture is within 0.5 % of the p range against 1.5-1.8 % (docs/BENCHMARKS.md, session 40). A range model's
-    validation records no spectrum: NMSE; a box where every grid bow rests has none on record: last among equals."""
+    """How two models of the same bows compare at validation, lowest first: NMSE(p) from rest. A point model plays
+    free windows (music.engine_tuning.auto_lock), the windows its validation rolled: at the paper's F_B 1000 scene
+    paper-fb1000-half (1.9e-5) plays free windows 0.017 dB and 0.002 cents from the truth, its stick capture 1.8 % of
+    the p range off; paper-fb1000-knee in free windows 0.11 dB, 0.13 cents, 10 % (locked to the physics' period its
+    capture is within 0.6 %, but the lock's pull-in puts its NMSE over 1 s at 1.8e-2, over the paper's 1e-2). A box
+    where every grid bow rests has no NMSE on record: last among equals."""
     v = m.meta.validation or {}
 
     def recorded(key):  # inf for one missing or not a finite number: an edited file's null or text must not break it
         x = v.get(key)
         return float(x) if is_finite(x) else math.inf
-    return math.inf if m.domain.is_range else recorded("lsd_db"), recorded("nmse")
+    return (recorded("nmse"),)
 
 
 def find_model(scene: Scene, models: list[OperatorModel] | None = None) -> OperatorModel:
