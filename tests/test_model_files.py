@@ -17,7 +17,7 @@ from bowsynth.engines.operator import npnet
 from bowsynth.engines.operator.check import PHYSICS_MAX_ERROR, check_physics
 from bowsynth.engines.operator.choose import SHIPPED_DIR, available_models
 from bowsynth.engines.operator.engine import render_operator
-from bowsynth.engines.operator.modelfile import OperatorModel, digest, load_model, missed_by_ear
+from bowsynth.engines.operator.modelfile import OperatorModel, digest, load_model
 
 FB100 = SHIPPED_DIR / "paper-fb100.safetensors"
 ROOT = Path(__file__).resolve().parents[1]
@@ -233,8 +233,8 @@ def test_the_best_validated_covering_model_wins(tmp_path, monkeypatch):
     here = models.resolve()
     assert {m.path.name for m in failed if m.path.parent.resolve() == here} == {"broken.safetensors",
                                                                                 "poor.safetensors", "nan.safetensors"}
-    # shipped, only models that failed by ear (played where a render measures them truer, music.auto_model)
-    assert all(missed_by_ear(m.meta) for m in failed if m.path.parent.resolve() != here)
+    # a failed model is never the default render's
+    assert render_operator(sc).info.model_path not in {str(m.path) for m in failed}
 
 
 def test_a_render_reads_the_model_directories_once_and_the_next_render_sees_a_new_file(tmp_path, monkeypatch):
@@ -798,3 +798,50 @@ def test_the_live_instrument_keeps_the_largest_box_among_those_covering_the_most
     for order in (shipped, shipped[::-1]):
         assert Tuning.default_model(order, 100.0) is soft
     assert Tuning.default_model([vel], 100.0) is vel
+
+
+def test_a_listed_shipped_file_is_looked_up_by_its_header_and_its_weights_checked_when_played(tmp_path, monkeypatch):
+    """A file the build listed in the manifest (name, size, digest) is read from its header alone; its weights are
+    hashed when a render reads them. One whose weights were edited after the build (its metadata's digest kept, its
+    size the same) is refused by name then; an unlisted file with the same edit is refused at once."""
+    from bowsynth.engines.operator import manifest, modelfile
+
+    shipped = tmp_path / "models"
+    shipped.mkdir()
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(manifest, "MANIFEST", shipped / "MANIFEST.json")
+    manifest._listed.cache_clear()
+    good = shipped / "good.safetensors"
+    good.write_bytes(FB100.read_bytes())
+    edited = shipped / "edited.safetensors"
+    edited.write_bytes(FB100.read_bytes())
+    manifest.write_manifest(shipped)
+    data = bytearray(edited.read_bytes())
+    data[-8] ^= 0x01  # one bit of the last tensor's bytes: size and metadata unchanged
+    edited.write_bytes(bytes(data))
+    try:
+        assert np.array_equal(load_model(good).weights["branch.U.weight"], load_model(FB100).weights["branch.U.weight"])
+        m = load_model(edited)  # listed: its header is all a lookup reads
+        assert m.meta.digest == load_model(FB100).meta.digest
+        with pytest.raises(ModelFileError, match="edited after the build"):
+            m.weights
+        monkeypatch.setattr(manifest, "MANIFEST", tmp_path / "elsewhere" / "MANIFEST.json")
+        with pytest.raises(ModelFileError, match="digest mismatch"):
+            load_model(edited)
+    finally:
+        manifest._listed.cache_clear()
+    assert modelfile.in_manifest is manifest.in_manifest
+
+
+def test_the_manifest_lists_every_shipped_model_as_it_is():
+    """The shipped manifest names each shipped file with its size and digest: a retrained or edited model is stale
+    against it until `make models` writes it again."""
+    from bowsynth.engines.operator import manifest
+
+    listed = json.loads(manifest.MANIFEST.read_text())["models"]
+    files = sorted(SHIPPED_DIR.glob("*.safetensors"))
+    assert sorted(listed) == [p.name for p in files]
+    for p in files:
+        assert listed[p.name]["size"] == p.stat().st_size
+        assert manifest.in_manifest(p, p.stat().st_size, load_model(p).meta.digest)
+

@@ -22,6 +22,7 @@ from ...errors import ModelFileError
 from ...io.infile import regular_file
 from ...scene import Scene
 from .domain import PLAYS_BELOW_STIFFNESS, Domain
+from .manifest import in_manifest
 from .npnet import NetConfig, weight_shapes
 
 FORMAT = "bowsynth-operator"
@@ -178,7 +179,7 @@ class OperatorModel:
         if self._net is not None:  # the trainer's net may still change: read it afresh
             return {k: v.detach().cpu().float().contiguous().numpy().copy() for k, v in self._net.state_dict().items()}
         if self._weights is None:
-            self._weights = _read_weights(self.path, self._identity)
+            self._weights = _read_weights(self.path, self._identity, getattr(self, "_unhashed", None))
         return self._weights
 
     @property
@@ -270,12 +271,17 @@ def load_model(path) -> OperatorModel:
     path = Path(path)
     # a regular file or one line saying what it is: a FIFO (which blocks) or a device (/dev/zero never ends) is never
     # opened
-    ident, hashed = _identity(regular_file(path, "model file", "a model file", ModelFileError)), None
+    st = regular_file(path, "model file", "a model file", ModelFileError)
+    ident, hashed, listed = _identity(st), None, False
     try:
         with safe_open(str(path), framework="numpy") as f:
             raw = (f.metadata() or {}).get(META_KEY)
             d = _json_object(raw)  # None where missing or not a JSON object: refused below, with the reason
             known = d is not None and _checked_before(d, ident)
+            if d is not None and not known:
+                # a shipped file the build listed (its name, size and claimed digest): its weights are hashed when a
+                # render first reads them (_read_weights), not in every process that looks up a model
+                known = listed = in_manifest(path, st.st_size, d.get("digest"))
             # a file checked whole before and unchanged since: its header and the tensors the checks below read
             # now, the weights when a render first needs them (_read_weights)
             tensors = {k: f.get_tensor(k) for k in f.keys() if not known or k in HEADER_TENSORS}
@@ -329,7 +335,9 @@ def load_model(path) -> OperatorModel:
     if hashed:
         _hashed_files().put(ident, hashed)
     if known:
-        return OperatorModel(None, meta, path, identity=ident)
+        m = OperatorModel(None, meta, path, identity=ident)
+        m._unhashed = d if listed else None  # the digest to check when the weights are read
+        return m
     return OperatorModel(None, meta, path, weights=tensors)
 
 
@@ -356,9 +364,10 @@ def _checked_before(d: dict, ident: str) -> bool:
             and _hashed_files().get(ident) == claimed)
 
 
-def _read_weights(path: Path, identity: str) -> dict:
+def _read_weights(path: Path, identity: str, unhashed: dict | None = None) -> dict:
     """The weights of a model file load_model read the header of, if the file is still the one it read (the same
-    identity, fstat of the open file, before and after reading); else ModelFileError."""
+    identity, fstat of the open file, before and after reading); else ModelFileError. unhashed: the metadata of a
+    file listed in the manifest and not hashed yet, whose digest the weights must match."""
     from safetensors.numpy import load
 
     changed = ModelFileError(f"model file {path} changed since bowsynth read it; run the command again")
@@ -375,6 +384,11 @@ def _read_weights(path: Path, identity: str) -> dict:
         raise
     except Exception as e:
         raise ModelFileError(f"{path} is not a readable model file ({type(e).__name__}: {e})") from None
+    if unhashed is not None:
+        if digest(unhashed, tensors) != unhashed.get("digest"):
+            raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited after the build "
+                                 f"listed it (digest mismatch); `make models` rebuilds it")
+        _hashed_files().put(identity, unhashed["digest"])
     tensors.pop("domain.mask", None)
     for k, v in tensors.items():
         if not np.all(np.isfinite(v)):
