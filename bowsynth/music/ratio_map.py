@@ -199,6 +199,7 @@ def shipped(path: str = str(MAP_PATH)) -> RatioMap:
     return RatioMap(Path(path))
 
 
+@functools.lru_cache(maxsize=8192)
 def physics_ratio(beta: float, vb: float, a: float = MAP_A) -> Ratio:
     """The physics' sounding ratio at a bow from the shipped map (no reference run): what the render path asks
     where `tuning.sounding_ratio` would solve. SilentNoteError where the note does not speak, OffMapError off the map."""

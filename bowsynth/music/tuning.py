@@ -197,6 +197,7 @@ def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> 
 # fails the same way every time, and a render there measured it afresh in every process (session 50: the four locks
 # of stick-halt at the band's floor, 1.1 s of a 1.7 s warm render).
 _FAILS = {"DomainError": DomainError, "SilentNoteError": SilentNoteError}
+_ENGINE_RATIOS: dict[str, float] = {}  # this process's answers, ahead of the disk
 
 
 def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics_ratio=None) -> float:
@@ -206,8 +207,11 @@ def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics
     SilentNoteError raises it again."""
     (physics_ratio or sounding_ratio)(beta, vb, a)
     key = f"{engine} {beta!r} {vb!r} {a!r}"
+    if key in _ENGINE_RATIOS:  # asked again in this process (the live engine's tables ask each bow ~100 times)
+        return _ENGINE_RATIOS[key]
     hit = _ratios.get(key)
-    if isinstance(hit, dict) and isinstance(hit.get("r"), float) and hit["r"] > 0:
+    if isinstance(hit, dict) and isinstance(hit.get("r"), float) and math.isfinite(hit["r"]) and hit["r"] > 0:
+        _ENGINE_RATIOS[key] = hit["r"]
         return hit["r"]
     if isinstance(hit, dict) and hit.get("fails") in _FAILS:
         raise _FAILS[hit["fails"]](str(hit.get("why", "")))
@@ -219,6 +223,7 @@ def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics
         _ratios.put(key, {"fails": "DomainError" if isinstance(e, DomainError) else "SilentNoteError", "why": str(e)})
         raise
     _ratios.put(key, {"r": r})
+    _ENGINE_RATIOS[key] = r
     return r
 
 
