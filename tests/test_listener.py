@@ -228,7 +228,8 @@ def stop_model(tmp_path_factory):
 
 def test_a_model_that_reaches_v_b_0_plays_a_notes_release_too(stop_model):
     """A range model whose box reaches v_B = 0 (its data holds bow stops) covers a score note whole: the operator plays
-    its bow stop and tail, no FDM in its path; a model that does not reach 0 leaves the release to the FDM."""
+    its bow stop and tail, no FDM in its path; a model that does not reach 0 leaves the release to a model that covers
+    the bow stop (the FDM only when asked: --releases fdm)."""
     from bowsynth import api
     from bowsynth.music.perform import render_notes
     from bowsynth.music.score import note_from_fields
@@ -241,7 +242,10 @@ def test_a_model_that_reaches_v_b_0_plays_a_notes_release_too(stop_model):
     paper = api.model_path("paper-fb100")  # a point model: its v_B is 0.2 only, the release is the FDM's
     (r2,) = render_notes([note_from_fields("v", {"f0": 100.0, "beta": 0.159155, "vb": 0.2, "duration": 0.2},
                                            "test")], model=paper)
-    assert r2.info.release == "fdm"
+    assert r2.info.release == "operator" and "paper-fb100" not in r2.info.release_model
+    (r3,) = render_notes([note_from_fields("v", {"f0": 100.0, "beta": 0.159155, "vb": 0.2, "duration": 0.2},
+                                           "test")], model=paper, releases="fdm")
+    assert r3.info.release == "fdm"
 
 
 def test_a_release_is_handed_over_at_the_hold_to_a_model_that_covers_the_bow_stop(stop_model):

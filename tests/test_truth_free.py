@@ -140,3 +140,21 @@ def test_an_edited_map_is_refused_by_name(tmp_path):
     (tmp_path / "t.npz").write_bytes(ratio_map.MAP_PATH.read_bytes()[:1000])
     with pytest.raises(ModelFileError, match="make tables"):
         ratio_map.RatioMap(tmp_path / "t.npz")
+
+
+def test_a_bow_stop_no_model_covers_is_refused_unless_the_fdm_is_asked_for(monkeypatch):
+    """A score's bow stop that no model covers is not handed to the FDM behind the user's back: one line naming the
+    train command and --releases fdm; with --releases fdm (or --fallback fdm) the FDM plays it."""
+    from bowsynth.engines.operator import choose
+    from bowsynth.music.perform import render_notes
+    from bowsynth.music.score import ScoreError, note_from_fields
+
+    point = choose.as_model("paper-fb100")  # v_B 0.2 alone: it cannot play a bow stop
+    monkeypatch.setattr(choose, "available_models", lambda: [point])
+    note = note_from_fields("v", {"f0": 100.0, "beta": 0.159155, "vb": 0.2, "duration": 0.2}, "test")
+    with pytest.raises(ScoreError, match="bow stop.*bowsynth train.*--releases fdm"):
+        render_notes([note], model=point)
+    (r,) = render_notes([note], model=point, releases="fdm")
+    assert r.info.release == "fdm"
+    (r,) = render_notes([note], model=point, fallback="fdm")
+    assert r.info.release == "fdm"

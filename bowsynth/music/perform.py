@@ -134,7 +134,9 @@ def _render_notes(notes: list[Note], method: str = "operator", model=None, fallb
     # a note whose bow stop and tail its sustain's model covers too (a box reaching v_B = 0) is played whole by it
     from ..engines.operator.choose import available_models
 
-    pool = available_models() if model is None else None  # one look at the model directories for all the notes
+    # one look at the model directories for all the notes; a bow stop is played by a model that covers it even where
+    # the sustains' model is given
+    pool = available_models()
     by_model = releases == "auto"
     whole = [i for i in op if by_model and notes[i].release > 0 and _plays_whole(notes[i], model, pool)]
     from .engine_tuning import SCORE_WINDOWS, check_windows, sounding_for
@@ -155,8 +157,11 @@ def _render_notes(notes: list[Note], method: str = "operator", model=None, fallb
         sustains = [notes[i].rollout_scene() for i in part]
         # the sustains are the held bows themselves
         rs = render(sustains, engine="operator", model=model, fallback=fallback, sounding=hints(sustains))
-        # the other releases: by a model that covers the bow stop (picked among the same models), else the FDM
-        for i, r in zip(part, finish_releases([notes[i] for i in part], rs, models=pool if by_model else None)):
+        # the other releases: by a model that covers the bow stop (picked among the same models); the FDM plays
+        # those no model covers only when asked (--releases fdm, --fallback fdm)
+        strict = by_model and fb_mode is not Fallback.fdm
+        for i, r in zip(part, finish_releases([notes[i] for i in part], rs, models=pool if by_model else None,
+                                              source=source if strict else False)):
             out[i] = r
     return out
 
@@ -183,7 +188,8 @@ def _release_scene(note: Note, sus: Render) -> Scene:
                  q0=float(sus.q[h]), p0=float(sus.p[h]))
 
 
-def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto", models=None) -> list[Render]:
+def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto", models=None,
+                    source=False) -> list[Render]:
     """Each note's release from its sustain's state at the hold, written over the sustain's samples from there on
     (`sustains` rendered from `Note.rollout_scene`, so they already span the whole note): by the operator where one of
     `models` (a list, e.g. `available_models()`; None: none) covers the release's bow stop, else by the FDM.
@@ -191,7 +197,8 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
     Each release runs `render_fdm`'s compiled loop (src/core/fdm.cpp): same scheme, start and Newton iteration, in
     a few milliseconds (a chorale's 151 releases took 0.96 s in the numpy batch). loop: 'core' ('auto' is the same),
     or 'numpy': all releases of a sample rate and oversampling in one numpy batch (`fdm.fdm_batch`), the readable
-    reference the tests hold the compiled loop to."""
+    reference the tests hold the compiled loop to. source: not False (a score's file, or None), the FDM plays no
+    release: one that no model covers is refused (ScoreError) naming the train command and --releases fdm."""
     from ..engines.fdm import check_oversample, fdm_batch, render_fdm
 
     if loop == "auto":
@@ -215,6 +222,13 @@ def finish_releases(notes: list[Note], sustains: list[Render], loop: str = "auto
         groups.setdefault((rel.sample_rate, os_, rel.a, rel.pitch_varies), []).append(i)
     if models:
         _operator_releases(notes, sustains, scenes, groups, models, out)
+    left = [i for idx in groups.values() for i in idx]
+    if left and source is not False:
+        shown = "; ".join(notes[i].describe() for i in left[:3]) + (f"; and {len(left) - 3} more" if len(left) > 3
+                                                                      else "")
+        train = f"bowsynth train --score {source}" if source else "bowsynth train"
+        raise ScoreError(f"{len(left)} bow stop(s) fall outside every model's range: {shown}. Train a model that "
+                         f"covers them with `{train}`, or play them with the FDM: --releases fdm (or --fallback fdm)")
     for (sr, os_, a, moving), idx in groups.items():
         rel = [scenes[i] for i in idx]
         if not rel:
