@@ -426,3 +426,18 @@ def test_the_server_going_away_is_one_line_and_exit_1(jackd, player):
     assert p.proc.returncode == 1, out
     err = [l for l in out.splitlines() if l.startswith("error")]
     assert len(err) == 1 and "went away" in err[0], out
+
+
+@pytest.mark.parametrize("args,what", [(["--gain", "nan"], "--gain"), (["--gain", "inf"], "--gain"),
+                                       (["--gain", "400"], "--gain"), (["--gain", "1e308"], "--gain"),
+                                       (["--voices", "5000"], "--voices"), (["--voices", "100000"], "--voices"),
+                                       (["--name", ""], "--name"), (["--name", "x" * 300], "--name"),
+                                       (["--name", "a:b"], "--name")])
+def test_play_refuses_what_no_callback_could_hold_before_it_starts(args, what):
+    """A gain that is not a finite level or only clips, more voices than a block's callback holds, and a name JACK
+    cannot take: one line, exit 2, before any server is asked (none runs here)."""
+    r = subprocess.run([sys.executable, "-m", "bowsynth", "play", "--server", f"none-{os.getpid()}", *args],
+                       capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=120)
+    assert r.returncode == 2, r.stdout + r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error") and what in lines[0], r.stderr

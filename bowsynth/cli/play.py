@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Optional
 
@@ -9,6 +10,13 @@ import typer
 
 from ..errors import UsageError
 from .app import LiveWindowsOpt, app
+
+# The most voices a 512-frame block holds: the callback of 256 sounding operator voices takes 6.4 ms (median) of the
+# block's 11.6 ms at 44.1 kHz (benchmarks/live.py callback), so ~1.5x that fills two thirds of it; more would drop
+# blocks under any other load.
+MAX_VOICES = 384
+MAX_GAIN_DB = 40.0  # x100 on the sum of the notes' q = w u (about 1 a voice at full bow): louder only clips
+NAME_MAX = 63  # JACK's client names: 64 bytes with the terminating NUL
 
 
 @app.command()
@@ -42,8 +50,14 @@ def play(
     from ..music.notes import A4_HZ
 
     method = parse_choice(Engine, method, "--method").value
-    if voices < 1:
-        raise UsageError(f"--voices must be >= 1, got {voices}")
+    if not 1 <= voices <= MAX_VOICES:
+        raise UsageError(f"--voices must be 1..{MAX_VOICES} (a 512-frame block's callback holds about that many "
+                         f"sounding voices), got {voices}")
+    if not name or len(name.encode()) > NAME_MAX or ":" in name or not name.isprintable():
+        raise UsageError(f"--name must be 1..{NAME_MAX} printable bytes without ':' (a JACK client name), got "
+                         f"{name[:40]!r}{'...' if len(name) > 40 else ''}")
+    if gain is not None and not (math.isfinite(gain) and -400 < gain <= MAX_GAIN_DB):
+        raise UsageError(f"--gain must be a number of dB in (-400, {MAX_GAIN_DB:g}] (louder only clips), got {gain}")
     if not 0 <= bend_range <= 24:
         raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
     from ..music.engine_tuning import LIVE_WINDOWS, check_windows
