@@ -276,3 +276,32 @@ def test_odd_reflection_is_numpys(n, pad):
     x = np.random.default_rng(n).standard_normal(n)
     assert np.array_equal(odd_reflection(x, pad), np.pad(x, pad, mode="reflect", reflect_type="odd"))
     assert gain_for(x, None) == gain_for(-x, None) == PEAK / np.abs(x).max()
+
+
+def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path, capsys, monkeypatch):
+    """compare's --report / --plot on the file it reads (its path, a symlink or a hard link to it), a score's mix on
+    the score file, and a mix inside its own stems' directory: one line, exit 2, the input untouched and nothing
+    written."""
+    from conftest import run_main
+
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["render", "--fb", "100", "-d", "0.3", "in.wav"], capsys, monkeypatch)
+    assert code == 0, err
+    before = (tmp_path / "in.wav").read_bytes()
+    (tmp_path / "link.html").symlink_to(tmp_path / "in.wav")
+    os.link(tmp_path / "in.wav", tmp_path / "hard.png")
+    for args in (["--report", "in.wav"], ["--report", "link.html"], ["--plot", "hard.png"]):
+        code, out, err = run_main(["compare", "in.wav", *args], capsys, monkeypatch)
+        assert code == 2 and "is the input" in err and len(err.strip().splitlines()) == 1, err
+    assert (tmp_path / "in.wav").read_bytes() == before
+    (tmp_path / "piece.toml").write_text('[[voice]]\nname = "a"\nduration = 0.1\nfb = 100.0\n')
+    score = (tmp_path / "piece.toml").read_bytes()
+    code, out, err = run_main(["score", "--score", "piece.toml", "--mix", "piece.toml", "--force"], capsys,
+                              monkeypatch)
+    assert code == 2 and "is the input" in err and (tmp_path / "piece.toml").read_bytes() == score
+    (tmp_path / "st").mkdir()
+    for mix, stems in (("st/v.wav", "st"), ("m.wav", "m.wav")):
+        code, out, err = run_main(["score", "--score", "piece.toml", "--mix", mix, "--stems", stems], capsys,
+                                  monkeypatch)
+        assert code == 2 and "collide" in err, err
+    assert not (tmp_path / "m.wav").exists() and list((tmp_path / "st").iterdir()) == []

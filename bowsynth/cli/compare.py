@@ -33,6 +33,12 @@ def compare(
 
     if reference not in ("audio", "high"):
         raise UsageError(f"--reference must be audio or high, got {reference!r}")
+    from ..io.outfile import check_not_input
+
+    for flag, out in (("--plot", plot), ("--report", report)):
+        check_not_input(out, [wav, other], flag)
+    if plot is not None and report is not None:
+        check_not_input(report, [plot], "--report")
     if plot is not None:
         check_output_path(plot, force=force)
         if plot.suffix.lower() != ".png" and str(plot) != "-":

@@ -89,6 +89,14 @@ def score(
         raise UsageError("no voices to render")
     for line in getattr(notes, "remarks", []):  # what the MIDI reader changed or dropped, counted
         tell(quiet, f"note: {Path(score_file).name}: {line}", console_for(output))
+    from ..io.outfile import check_not_input
+
+    check_not_input(output, [score_file], "the output" if mix else "the output directory")
+    if mix and stems is not None:
+        check_not_input(stems, [score_file, output], "--stems")
+        if Path(output).resolve().parent == Path(stems).resolve() or Path(output).resolve() == Path(stems).resolve():
+            raise UsageError(f"--mix {output} and --stems {stems} collide: the mix would be written among the stems "
+                             f"(or be the stems' directory); give the mix another place")
     if mix:
         check_audio_output(output, force=force)
     elif str(output) == "-":

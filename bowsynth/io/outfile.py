@@ -108,6 +108,24 @@ def _temp_dir() -> str:
                             "directory): set TMPDIR to a writable directory") from None
 
 
+def check_not_input(output, inputs, flag: str) -> None:
+    """Refuse an output that is one of the command's inputs (the same file by any name: the path, a hard link, a
+    symlink to it), or a directory that holds one: writing it would replace what the command reads. UsageError."""
+    if output is None or is_stdout(output):
+        return
+    out = Path(output)
+    for inp in inputs:
+        if inp is None or is_stdout(inp):
+            continue
+        try:
+            same = out.exists() and Path(inp).exists() and os.path.samefile(out, inp)
+        except OSError:
+            same = False
+        if same:
+            raise UsageError(f"{flag} {output} is the input {inp} (the same file): writing it would replace what "
+                             f"this command reads; choose another name")
+
+
 def check_output_path(path, force: bool = False) -> Path:
     """Fail early, before any work, when an output path can't be written. Returns the path as given."""
     return resolve(path, force).path
