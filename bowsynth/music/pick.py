@@ -45,5 +45,8 @@ def heard_pick(scene: Scene, models=None):
     def off(m) -> float:
         r = own_ratio(m, held.beta, held.vb, held.a)
         return abs(cents(r, target)) if r else math.inf
+    mine = off(pick)
+    if mine <= PICK_CENTS:  # no other can be nearer by more than PICK_CENTS: none is measured
+        return pick
     best = min(others, key=off)
-    return best if off(best) < off(pick) - PICK_CENTS else pick
+    return best if off(best) < mine - PICK_CENTS else pick
