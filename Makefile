@@ -73,7 +73,7 @@ RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/
 models: $(STAMP)
 	order=$$($(PY) -m bowsynth.training.recipe $(RECIPES)) || exit 1; \
 	for r in $$order; do $(BOW) train --config $$r --update || exit 1; done
-	$(PY) -m bowsynth.engines.operator.manifest
+	$(PY) -m bowsynth.training.manifest
 
 # The tables a render reads instead of running the reference: the physics' sounding ratio over the bow plane, solved
 # on a grid (bowsynth/models/tables/physics-ratio.npz; ~2 min on two cores). `check` measures it off its grid.

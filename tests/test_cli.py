@@ -298,7 +298,7 @@ def test_models_names_a_shipped_unit_that_is_missing_or_stale_and_lists_the_rest
                                                                                          "minutes = 9"))
     monkeypatch.setattr("bowsynth.engines.operator.choose.SHIPPED_DIR", shipped)
     monkeypatch.chdir(tmp_path)
-    code, out, err = run_main(["models"], capsys, monkeypatch)
+    code, out, err = run_main(["models", "--long"], capsys, monkeypatch)
     lines = out.splitlines()
     assert code == 0, err
     assert any("soft-range.safetensors" in ln and "MISSING" in ln and "make models" in ln for ln in lines), out
@@ -311,7 +311,7 @@ def test_models_names_a_shipped_unit_that_is_missing_or_stale_and_lists_the_rest
 def test_a_model_of_damped_bows_says_it_rests_where_render_and_models_state_its_validation(tmp_path, capsys,
                                                                                            monkeypatch):
     # halt-edge's grid bows all damp the mass: no pitch or NMSE to state ("n/a" before), but whether it rests
-    code, out, err = run_main(["models"], capsys, monkeypatch)
+    code, out, err = run_main(["models", "--long"], capsys, monkeypatch)
     lines = out.splitlines()
     line = lines[next(i for i, ln in enumerate(lines) if "halt-edge.safetensors" in ln) + 1]  # its details
     assert "F_B/w 1.9..2.02" in line and "vb 0..0.08" in line, line
@@ -426,3 +426,23 @@ def test_train_config_fills_flags_and_flags_override(tmp_path, capsys, monkeypat
 
     m = load_model(tmp_path / "m.safetensors")  # out resolved against the recipe's folder
     assert m.meta.scene["fb"] == 100 and m.meta.training["steps_done"] == 2
+
+
+def test_models_is_a_table_of_where_each_model_plays_and_draws_the_tiling(tmp_path, capsys, monkeypatch):
+    """`bowsynth models`: a row a model (its box of F_B / w and v_B, its windows, its validation or why it failed,
+    its size), whole lines in a pipe; --map draws the tiling to a PNG, and refuses another kind of file."""
+    from bowsynth.engines.operator.choose import available_models
+
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["models", "--map", str(tmp_path / "atlas.png")], capsys, monkeypatch)
+    assert code == 0, err
+    rows = {ln.split()[0]: ln for ln in out.splitlines()[1:] if ln.strip() and not ln.startswith("map written")}
+    for m in available_models():
+        row = rows[m.path.stem]
+        if m.domain.is_range:
+            b0, b1, v0, v1 = m.domain.box
+            assert f"{b0:.3g}-{b1:.3g}" in row and f"{v0:.3g}-{v1:.3g}" in row, row
+        assert ("FAILED" in row) == (m.failure is not None), row
+    assert (tmp_path / "atlas.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    code, out, err = run_main(["models", "--map", str(tmp_path / "atlas.txt")], capsys, monkeypatch)
+    assert code == 2 and "PNG" in err and not (tmp_path / "atlas.txt").exists()

@@ -206,7 +206,7 @@ def test_a_failed_model_in_models_does_not_shadow_the_shipped_one(tmp_path, monk
     assert load_model(trained).failure is not None and load_model(trained).covers(Scene(fb=100))
     code, out, err = run_main(["render", "--fb", "100", "-d", "0.2", str(tmp_path / "x.wav")], capsys, monkeypatch)
     assert code == 0 and f"({FB100})" in out, out + err
-    code, out, _ = run_main(["models"], capsys, monkeypatch)
+    code, out, _ = run_main(["models", "--long"], capsys, monkeypatch)
     line = next(x for x in out.splitlines() if trained.name in x)
     assert "FAILED" in line and "not picked by default" in line
     assert "FAILED" not in next(x for x in out.splitlines() if "paper-fb100" in x)
@@ -805,6 +805,7 @@ def test_a_listed_shipped_file_is_looked_up_by_its_header_and_its_weights_checke
     hashed when a render reads them. One whose weights were edited after the build (its metadata's digest kept, its
     size the same) is refused by name then; an unlisted file with the same edit is refused at once."""
     from bowsynth.engines.operator import manifest, modelfile
+    from bowsynth.training.manifest import write_manifest
 
     shipped = tmp_path / "models"
     shipped.mkdir()
@@ -815,7 +816,7 @@ def test_a_listed_shipped_file_is_looked_up_by_its_header_and_its_weights_checke
     good.write_bytes(FB100.read_bytes())
     edited = shipped / "edited.safetensors"
     edited.write_bytes(FB100.read_bytes())
-    manifest.write_manifest(shipped)
+    write_manifest(shipped)
     data = bytearray(edited.read_bytes())
     data[-8] ^= 0x01  # one bit of the last tensor's bytes: size and metadata unchanged
     edited.write_bytes(bytes(data))

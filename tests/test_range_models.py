@@ -241,7 +241,7 @@ def test_train_score_trains_the_box_the_score_plays(capsys, monkeypatch, tmp_pat
     assert (v0, v1) == (0.2, 0.25)
     notes = load_score(score)
     assert uncovered(notes, model=m) == []
-    code, so, err = run_main(["models"], capsys, monkeypatch)
+    code, so, err = run_main(["models", "--long"], capsys, monkeypatch)
     assert "range model" in so
 
 

@@ -35,8 +35,8 @@ def compare(
         raise UsageError(f"--reference must be audio or high, got {reference!r}")
     from ..io.outfile import check_not_input
 
-    for flag, out in (("--plot", plot), ("--report", report)):
-        check_not_input(out, [wav, other], flag)
+    for flag, target in (("--plot", plot), ("--report", report)):
+        check_not_input(target, [wav, other], flag)
     if plot is not None and report is not None:
         check_not_input(report, [plot], "--report")
     if plot is not None:

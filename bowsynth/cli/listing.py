@@ -47,8 +47,11 @@ def models(
     report_grid: int = typer.Option(3, "--report-grid", help="--report: held-out bows per side of a range model's box (N x N FDM runs)."),
     force: bool = typer.Option(False, "--force", help="Replace a read-only --report file."),
     only: Optional[str] = typer.Option(None, "--only", help="These models only, by name (comma-separated, e.g. soft-range,stick-heavy): listed and, with --report, reported (a report of every model renders for about a minute)."),
+    long: bool = typer.Option(False, "--long", "-l", help="Each model in full: its id, box in F_B, window, validation record and training time."),
+    map_png: Optional[Path] = typer.Option(None, "--map", help="Also draw the tiling of the bow plane (F_B / w x v_B) to this PNG: each model's box, failed ones hatched."),
 ):
-    """List the operator models found in ./models and the shipped ones, with their domains and scores."""
+    """List the operator models found in ./models and the shipped ones: a table of where each plays, how accurate its
+    validation was, and its size (--long: in full)."""
     from rich.markup import escape
 
     from ..engines.operator.choose import scan_models
@@ -58,6 +61,13 @@ def models(
         from ..report.models_page import check_report_path
 
         check_report_path(report, report_grid, force)
+    if map_png is not None:
+        from ..io.outfile import check_output_path
+        from ..errors import UsageError
+
+        if map_png.suffix.lower() != ".png":
+            raise UsageError(f"--map draws a PNG; give a .png file name, got {map_png}")
+        check_output_path(map_png, force=force)
     found = _only(scan_models(), only)
     if not found:
         out.print("no models found (train one with `bowsynth train --fb 100`)")
@@ -65,7 +75,9 @@ def models(
         out.print(f"[bold]{escape(str(recipe.with_suffix('.safetensors')))}[/bold]  {escape(why.upper() if why == 'missing' else why)}: "
                   f"`make models` (or `bowsynth train --config {escape(str(recipe))} --update`) trains it",
                   soft_wrap=True)
-    for path, m, why in found:
+    if not long:
+        _table(found)
+    for path, m, why in found if long else []:
         if m is None:
             out.print(f"[bold]{escape(str(path))}[/bold]  UNREADABLE: {escape(why)}", soft_wrap=True)
             continue
@@ -90,11 +102,52 @@ def models(
                     f"{d.window:.3g} tau; validation NMSE(p) {fmt_num(v.get('nmse'), '.3g')}")
         out.print(f"[bold]{escape(str(m.path))}[/bold]  {m.id}{mark}{fmt}\n    {escape(what)}, "
                   f"{m.meta.training.get('seconds')} s of training", soft_wrap=True)
+    if map_png is not None:
+        from ..report.atlas import draw_atlas
+
+        draw_atlas([m for _, m, _ in found if m is not None], map_png)
+        out.print(f"map written to {map_png}")
     if report is not None:
         from ..report.models_page import write_models_report
 
         write_models_report(report, found, report_grid, force, progress=lambda s: err.print(s, soft_wrap=True))
         out.print(f"report written to {report}")
+
+
+def _table(found) -> None:
+    """The models at a glance: where each plays (its box of F_B / w and v_B; its windows, a share of the free period
+    T), its validation (harmonics dB median / pitch cents worst, or a point model's NMSE), its size."""
+    import math
+
+    from rich.markup import escape
+    from rich.table import Table
+
+    t = Table(box=None, pad_edge=False, header_style="bold")
+    for col in ("model", "window", "F_B / w", "v_B", "validation", "KB"):
+        t.add_column(col, justify="right" if col == "KB" else "left", no_wrap=col != "validation")
+    for path, m, why in found:
+        if m is None:
+            t.add_row(escape(path.name), "", "", "", f"UNREADABLE: {escape(why[:70])}", "")
+            continue
+        d, v = m.domain, m.meta.validation or {}
+        share = d.window / (2 * math.pi)
+        window = {1.0: "T", 0.5: "T/2", 0.25: "T/4"}.get(round(share, 2), f"{share:.2g} T")
+        if d.is_range:
+            b0, b1, v0, v1 = d.box
+            beta, vb = f"{b0:.3g}-{b1:.3g}", f"{v0:.3g}-{v1:.3g}"
+            score = "rests at its grid" if resting_grid_text(v) else (
+                f"{fmt_num(v.get('harm_db_median'), '.2g')} dB / {fmt_num(v.get('cents_abs_max'), '.2g')} cents")
+        else:
+            beta, vb = f"{d.beta:.4g}", f"{d.vb:g}"
+            score = f"NMSE {fmt_num(v.get('nmse'), '.2g')}"
+        if m.failure:
+            score = f"FAILED ({m.failure[:48]})"
+        size = f"{path.stat().st_size / 1024:.0f}" if path.exists() else ""
+        t.add_row(escape(path.stem), window, beta, vb, escape(score), size)
+    from rich.console import Console
+
+    # a pipe or a log (80 columns) reads the rows whole
+    Console(file=out.file, width=max(out.width, 112), highlight=False, emoji=False, soft_wrap=False).print(t)
 
 
 def _only(found: list, only: str | None) -> list:

@@ -92,7 +92,7 @@ def score(
     from ..io.outfile import check_not_input
 
     check_not_input(output, [score_file], "the output" if mix else "the output directory")
-    if mix and stems is not None:
+    if mix and stems is not None and "-" not in (str(output), str(stems)):
         check_not_input(stems, [score_file, output], "--stems")
         if Path(output).resolve().parent == Path(stems).resolve() or Path(output).resolve() == Path(stems).resolve():
             raise UsageError(f"--mix {output} and --stems {stems} collide: the mix would be written among the stems "

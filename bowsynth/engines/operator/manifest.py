@@ -2,9 +2,7 @@
 
 A listed file is looked up from its header alone; its weights are checked against its digest when a render first
 reads them (`modelfile._read_weights`), so a new install's first render hashes the one model it plays, not the whole
-catalogue (84 files: ~0.2 s of a cold process). `make models` writes it:
-
-    python -m bowsynth.engines.operator.manifest
+catalogue (84 files: ~0.2 s of a cold process). `make models` writes it (`python -m bowsynth.training.manifest`).
 """
 
 from __future__ import annotations
@@ -34,23 +32,3 @@ def in_manifest(path: Path, size: int, claimed) -> bool:
         return False
     entry = _listed().get(Path(path).name)
     return isinstance(entry, dict) and entry.get("size") == size and entry.get("digest") == claimed
-
-
-def write_manifest(directory: Path = MANIFEST.parent) -> Path:
-    """List every model file of the shipped directory in MANIFEST, each loaded and its digest checked whole first."""
-    from ...io.outfile import atomic_write
-    from .modelfile import load_model
-
-    models = {}
-    for p in sorted(directory.glob("*.safetensors")):
-        m = load_model(p)
-        _ = m.weights  # read whole: the digest checked
-        models[p.name] = {"digest": m.meta.digest, "size": p.stat().st_size}
-    text = json.dumps({"format": FORMAT, "version": 1, "models": models}, indent=1, sort_keys=True) + "\n"
-    atomic_write(MANIFEST, lambda tmp: Path(tmp).write_text(text))
-    _listed.cache_clear()
-    return MANIFEST
-
-
-if __name__ == "__main__":
-    print(write_manifest())

@@ -34,12 +34,9 @@ META_KEY = "bowsynth"
 # A point model whose validation NMSE(p) (1 s from the training scene's initial state against a x100 FDM) is above
 # this is not picked by default: the shipped models score 1e-7 to 3e-4; 0.1 is a note visibly off in phase or pitch.
 MAX_VALIDATION_NMSE = 0.1
-# A range model is judged by what a listener hears over its validation grid (issue 21: NMSE from rest asks for the bow
-# exact to 1e-4 and is not the target, GUIDE section 9): not picked by default where the grid's median harmonic error
-# is above MAX_VALIDATION_HARM_DB or a bow's pitch is off by more than MAX_VALIDATION_CENTS. Measured (session 11):
-# soft-range 0.19 dB / 3.5 cents, the stick-slip tile velocity-loud 0.16 dB / 7.4 cents (NMSE 1.1: phase, where its
-# held-out pitch is as close as the audio-rate FDM's, 0.5 / 4.0 against 0.5 / 4.5 cents); round 3's failed stick-slip
-# tiles were 10-210 cents off.
+# A range model is judged by what a listener hears over its validation grid (NMSE from rest would ask for the bow to
+# 1e-4): not picked by default where the grid's median harmonic error is above MAX_VALIDATION_HARM_DB or a bow's pitch
+# is off by more than MAX_VALIDATION_CENTS (failed stick-slip tiles are tens to hundreds of cents off).
 MAX_VALIDATION_HARM_DB = 1.0
 MAX_VALIDATION_CENTS = 10.0
 
@@ -146,12 +143,13 @@ class OperatorModel:
     """
 
     def __init__(self, net, meta: ModelMeta, path: Path | None = None, weights: dict | None = None,
-                 identity: str | None = None):
+                 identity: str | None = None, unhashed: dict | None = None):
         if net is None and weights is None and identity is None:
             raise ValueError("an OperatorModel needs a torch network, its weights or the file to read them from")
         self._net = net.eval() if net is not None else None
         self._weights = weights
         self._identity = identity  # weights=None: read from path on first use, if the file is still this one
+        self._unhashed = unhashed  # a manifest's file: the metadata whose digest its weights must match when read
         # read from a file (load_model): its metadata are claims about its weights, checked at render time
         self.from_file = net is None
         self.meta = meta
@@ -179,7 +177,7 @@ class OperatorModel:
         if self._net is not None:  # the trainer's net may still change: read it afresh
             return {k: v.detach().cpu().float().contiguous().numpy().copy() for k, v in self._net.state_dict().items()}
         if self._weights is None:
-            self._weights = _read_weights(self.path, self._identity, getattr(self, "_unhashed", None))
+            self._weights = _read_weights(self.path, self._identity, self._unhashed)
         return self._weights
 
     @property
@@ -278,9 +276,7 @@ def load_model(path) -> OperatorModel:
             raw = (f.metadata() or {}).get(META_KEY)
             d = _json_object(raw)  # None where missing or not a JSON object: refused below, with the reason
             known = d is not None and _checked_before(d, ident)
-            if d is not None and not known:
-                # a shipped file the build listed (its name, size and claimed digest): its weights are hashed when a
-                # render first reads them (_read_weights), not in every process that looks up a model
+            if d is not None and not known:  # a shipped file the build listed: hashed when its weights are read
                 known = listed = in_manifest(path, st.st_size, d.get("digest"))
             # a file checked whole before and unchanged since: its header and the tensors the checks below read
             # now, the weights when a render first needs them (_read_weights)
@@ -335,9 +331,7 @@ def load_model(path) -> OperatorModel:
     if hashed:
         _hashed_files().put(ident, hashed)
     if known:
-        m = OperatorModel(None, meta, path, identity=ident)
-        m._unhashed = d if listed else None  # the digest to check when the weights are read
-        return m
+        return OperatorModel(None, meta, path, identity=ident, unhashed=d if listed else None)
     return OperatorModel(None, meta, path, weights=tensors)
 
 
@@ -366,8 +360,8 @@ def _checked_before(d: dict, ident: str) -> bool:
 
 def _read_weights(path: Path, identity: str, unhashed: dict | None = None) -> dict:
     """The weights of a model file load_model read the header of, if the file is still the one it read (the same
-    identity, fstat of the open file, before and after reading); else ModelFileError. unhashed: the metadata of a
-    file listed in the manifest and not hashed yet, whose digest the weights must match."""
+    identity, fstat of the open file, before and after reading) and, `unhashed` (a manifest's file not hashed yet: its
+    metadata), its digest matches; else ModelFileError."""
     from safetensors.numpy import load
 
     changed = ModelFileError(f"model file {path} changed since bowsynth read it; run the command again")
@@ -384,10 +378,10 @@ def _read_weights(path: Path, identity: str, unhashed: dict | None = None) -> di
         raise
     except Exception as e:
         raise ModelFileError(f"{path} is not a readable model file ({type(e).__name__}: {e})") from None
+    if unhashed is not None and digest(unhashed, tensors) != unhashed.get("digest"):
+        raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited after the build "
+                             f"listed it (digest mismatch); `make models` rebuilds it")
     if unhashed is not None:
-        if digest(unhashed, tensors) != unhashed.get("digest"):
-            raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited after the build "
-                                 f"listed it (digest mismatch); `make models` rebuilds it")
         _hashed_files().put(identity, unhashed["digest"])
     tensors.pop("domain.mask", None)
     for k, v in tensors.items():
