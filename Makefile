@@ -5,7 +5,7 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models tables bench bench-quick clean chromium jackd core
+.PHONY: setup demo test models tables docs-models bench bench-quick clean chromium jackd core
 
 $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -80,6 +80,14 @@ models: $(STAMP)
 tables: $(STAMP)
 	$(PY) -m bowsynth.music.ratio_map build
 	$(PY) -m bowsynth.music.ratio_map check --n 80
+
+# docs/models.md and docs/atlas.png: the shipped catalogue as `bowsynth models` lists it, and its tiling
+docs-models: $(STAMP)
+	{ echo "# The shipped models"; echo; echo "bowsynth models, as it prints them (make docs-models writes this page):"; \
+	  echo "where each plays (its box of F_B / w and v_B), its windows (T the free period), its validation (harmonics dB"; \
+	  echo "median / pitch cents worst over its grid, or a point model's NMSE) and its size."; echo; \
+	  echo "![The tiling of the bow plane](atlas.png)"; echo; echo '```'; \
+	  COLUMNS=120 $(BOW) models --map docs/atlas.png --force | grep -v '^map written'; echo '```'; } > docs/models.md
 
 # The report tests open pages in Debian's chromium, driven by playwright (the test extra) with no browser download.
 chromium:
