@@ -46,30 +46,34 @@ def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float |
     (auto_lock); None where they lock to nothing (free windows, or no period known). f0 is not used: a model's window
     chain does not depend on it."""
     if windows == "auto":
-        return auto_lock(model, beta, vb, a)
+        return auto_lock(model, beta, vb, a, f0)
     how = {"locked": own_ratio, "physics": lock_ratio}.get(windows)
     return None if how is None else how(model, beta, vb, a)
 
 
 # --windows auto: free windows keep a model's harmonics (they are the windows it was trained in), a lock to the
 # physics' period keeps its pitch. Each is judged by the operator against itself and the shipped map, never against the
-# reference: free windows by how far the model's own free cycle lies from the map's period (they play that far off),
-# the lock by how far it moves the note's harmonics from the free note's (a lock puts the network's error on them).
-# Each error over its worst-case target (1 cent, 1 dB); the smaller plays. Free windows within FREE_CENTS of the map's
-# period play without the lock's measurement.
+# reference: free windows by how far the model's own free cycle lies from the map's period, over the long run and in
+# the median 100 ms frame of a held note (a cycle that wanders frame to frame is heard so: a gesture is scored per
+# frame), the lock by how far it moves the note's harmonics from the free note's (a lock puts the network's error on
+# them). Each error over its worst-case target (1 cent, 1 dB); the smaller plays. Free windows within FREE_CENTS of the
+# map's period play without the lock's measurement.
 FREE_CENTS = 0.2
 TARGET_CENTS, TARGET_DB = 1.0, 1.0
-_choices = DiskTable("auto-windows", f"truth-free-1/{FREE_CENTS!r}/{TARGET_CENTS!r}/{TARGET_DB!r}")
+NOTE_SECONDS = 2.0  # the held note each measures: from rest until the map's settling time and this much more
+FRAME_F0 = 150.0  # the pitch whose frames a choice for every pitch is made by (the live engine's)
+_choices = DiskTable("auto-windows", f"truth-free-3/{FRAME_F0!r}/{FREE_CENTS!r}/{TARGET_CENTS!r}/{TARGET_DB!r}/{NOTE_SECONDS!r}")
 
 
-def auto_lock(model, beta: float, vb: float, a: float):
-    """--windows auto, a render's default: None (free windows) or the Lock a held note's windows take.
+def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None):
+    """--windows auto, a render's default: None (free windows) or the Lock a held note's windows take, for a note at
+    f0 (its frames: 100 ms at f0 hold as many periods as frames of 0.1 f0 / 100 s of a note at f0 100; None: as at
+    FRAME_F0, the live engine's one choice for every pitch).
 
     A point model plays free windows (the cycle it was trained and validated on at its one bow: the paper's three
-    scenes' NMSE(p) over 1 s 4e-8 / 1e-6 / 7e-5 free against 2e-7 / 7e-5 / 4e-3 locked). A range model plays the
-    lock (lock_ratio: the map's period, where the model holds it) where the lock's harmonic shift, over 1 dB, is
-    smaller than the free cycle's pitch error, over 1 cent; else free windows. Measured once per model and bow (two
-    notes of the operator at f0 100), cached on disk."""
+    scenes' NMSE(p) over 1 s 4e-8 / 1e-6 / 9e-7 free). A range model plays the lock (lock_ratio: the map's period,
+    where the model holds it) where the lock's harmonic shift, over 1 dB, is smaller than the free cycle's pitch error,
+    over 1 cent; else free windows. Measured once per model and bow (notes of the operator at f0 100), cached."""
     from ..analysis.metrics import cents
     from ..engines.operator.choose import as_model
     from ..engines.operator.windows import Lock
@@ -80,35 +84,63 @@ def auto_lock(model, beta: float, vb: float, a: float):
     lock = lock_ratio(m, beta, vb, a)
     if not isinstance(lock, Lock):
         return None
-    own = own_ratio(m, beta, vb, a)
-    free_score = abs(cents(own, float(lock))) / TARGET_CENTS if own else math.inf
-    if free_score <= FREE_CENTS / TARGET_CENTS:
-        return None
-    key = f"{m.key} {beta!r} {vb!r} {a!r}"
+    frame = round(0.1 * (FRAME_F0 if f0 is None else f0) / 100.0, 3)  # at f0 100: a 100 ms frame at the note's f0
+    key = f"{m.key} {beta!r} {vb!r} {a!r} {frame!r}"
     hit = _choices.get(key)
     if isinstance(hit, dict) and isinstance(hit.get("lock"), bool):
         return lock if hit["lock"] else None
-    shift = lock_harmonic_shift(m, beta, vb, a, lock)
-    use = shift / TARGET_DB < free_score
+    own = own_ratio(m, beta, vb, a)
+    free_score = abs(cents(own, float(lock))) / TARGET_CENTS if own else math.inf
+    sc, free = _held_note(m, beta, vb, a, None)
+    if free is not None:
+        free_score = max(free_score, frame_wander(free.q, sc.sample_rate, sc.f0 * float(lock), frame) / TARGET_CENTS)
+    use = False
+    if free is None or free_score > FREE_CENTS / TARGET_CENTS:
+        use = lock_harmonic_shift(m, beta, vb, a, lock, free) / TARGET_DB < free_score
     _choices.put(key, {"lock": bool(use)})
     return lock if use else None
 
 
-def lock_harmonic_shift(model, beta: float, vb: float, a: float, lock) -> float:
-    """The most a lock moves a held note's harmonics 1-10 (dB) from the same note in free windows: both notes from
-    rest at f0 100 until the map's settling time and two seconds more, each fitted at its own pitch over its last
-    second. inf where either note fails to play."""
-    from ..analysis.metrics import listener_errors
+def _held_note(model, beta: float, vb: float, a: float, lock):
+    """(scene, render): a held note of the model from rest at f0 100 until the map's settling time and NOTE_SECONDS
+    more, in free windows (lock None) or locked; render None where the model cannot play it."""
     from ..engines.operator.engine import render_operator
     from ..engines.operator.windows import Lock
     from .model_ratio import RATIO_F0
 
     settle = physics_ratio(beta, vb, a).settle_seconds(RATIO_F0)
-    sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=min(settle + 2.0, 30.0))
+    sc = Scene(f0=RATIO_F0, fb=beta * physics.omega(RATIO_F0), vb=vb, a=a, duration=min(settle + NOTE_SECONDS, 30.0))
     try:
-        free = render_operator(sc, model=model)
-        locked = render_operator(sc, model=model, sounding=Lock(RATIO_F0 * float(lock), lock.more))
+        return sc, render_operator(sc, model=model, sounding=None if lock is None else
+                                   Lock(RATIO_F0 * float(lock), lock.more))
     except DomainError:
+        return sc, None
+
+
+def frame_wander(x, sample_rate: float, hz: float, frame: float, seconds: float = 1.0) -> float:
+    """The median |cents| from `hz` of the pitch of each `frame`-second frame of x's last `seconds` (frames holding
+    at least three periods; 0 where none does: no pitch a frame is heard)."""
+    from ..analysis.metrics import cents, f0_estimate
+
+    n = int(frame * sample_rate)
+    tail = x[-max(int(seconds * sample_rate), n):]
+    if n * hz / sample_rate < 3:
+        return 0.0
+    off = [abs(cents(f0_estimate(tail[i:i + n], sample_rate, tail=1.0), hz)) for i in range(0, len(tail) - n + 1, n)]
+    off = [c for c in off if math.isfinite(c)]
+    return float(sorted(off)[len(off) // 2]) if off else math.inf
+
+
+def lock_harmonic_shift(model, beta: float, vb: float, a: float, lock, free=None) -> float:
+    """The most a lock moves a held note's harmonics 1-10 (dB) from the same note in free windows (`free`, else
+    rendered): both notes from _held_note, each fitted at its own pitch over its last second. inf where either note
+    fails to play."""
+    from ..analysis.metrics import listener_errors
+
+    sc, locked = _held_note(model, beta, vb, a, lock)
+    if free is None:
+        free = _held_note(model, beta, vb, a, None)[1]
+    if free is None or locked is None:
         return math.inf
     e = listener_errors(locked.p, free.p, sc.sample_rate)
     return float(e["harm_db_max"]) if math.isfinite(e["harm_db_max"]) else math.inf
