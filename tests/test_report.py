@@ -225,7 +225,8 @@ def test_models_report(browser, tmp_path, capsys, monkeypatch):
     points = [p for p, m in found if m is not None and not m.domain.is_range]
     ranges = [p for p, m in found if m is not None and m.domain.is_range]
     assert len(points) == 1 and len(ranges) == 2
-    listed = [l.split()[0] for l in out.splitlines()[1:] if l.strip() and not l.startswith("report written")]
+    rows = out.split("report written")[0].splitlines()[1:]  # the table's rows, before the line after it
+    listed = [l.split()[0] for l in rows if l.strip()]
     assert sorted(listed) == ["paper-fb10", "soft-range", "stick-heavy"], out
     info = open_report(browser, page)
     # a point model: its own scene, model and truth; a range model: best, median, worst of the held-out bows, each
