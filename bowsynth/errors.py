@@ -4,7 +4,7 @@ SIGTERM raised as exceptions, and held where one raised between two bytecodes wo
 Python runs a signal's handler in the main thread between two bytecodes, wherever that thread is, and the CLI's raises
 (KeyboardInterrupt, Terminated). Most code is safe from that; some is not: threading's locks and concurrent.futures'
 waits are written in Python, and an exception raised half-way through them left a lock held or released twice. A
-Ctrl-C at the start of training's FDM data (a wait on 15625 futures) hung the process for good (CI, session 52), or
+Ctrl-C at the start of training's FDM data (a wait on 15625 futures) hung the process for good (CI), or
 ended it with "internal error: RuntimeError: release unlocked lock". `held()` keeps the signals from such a block and
 acts on them once it is done; `compiled.share()` runs work over threads inside it.
 """
@@ -67,7 +67,7 @@ def held():
     Done in the main thread (where Python runs handlers) by swapping the handlers for one that only records, whichever
     thread the kernel hands the signal to (torch's threads do not block it); elsewhere a no-op. Not by blocking the
     signals in this thread: the kernel then hands them to another thread, and 3 in 100 signals sent that way during
-    share() were never seen by Python at all (session 52; 0 in 100 with the handlers swapped). Nested
+    share() were never seen by Python at all (0 in 100 with the handlers swapped). Nested
     blocks hold once, for the outermost."""
     if threading.current_thread() is not threading.main_thread() or _holding[0]:
         yield

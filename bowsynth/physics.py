@@ -31,7 +31,7 @@ def _exp(x):
 
 
 # The friction's slope at rest in dimensionless time, beta sqrt(2a) e^{1/2}, above which a bow plays stick-slip: 10
-# (beta 0.43 at a = 100) was round 1's soft/stick-slip boundary (shared/GUIDE.md 8). Training drops the friction
+# (beta 0.43 at a = 100) is the soft / stick-slip boundary the models are split by. Training drops the friction
 # residual above it (training.losses); the operator computes such voices on whole windows (engines.operator.grid).
 STIFF = 10.0
 
@@ -116,7 +116,7 @@ def rest_linearisation(b: float, vb: float, a: float) -> tuple[float, float]:
 MAX_REST_DAMPING = 1.9
 
 # How far the friction's slope phi' may move from its value at rest over a swing of the relative velocity before the
-# flow linearised at rest stops describing the mass (rest_radius). Measured (session 14, eight slow-corner bows at
+# flow linearised at rest stops describing the mass (rest_radius). Measured (eight slow-corner bows at
 # 66-714 Hz, 2 s from rest: the exact linear flow to the radius, then the operator, against a x100 FDM): onsets
 # within 5.0 ms of the truth's 0.2-1.9 s at 0.2, within 22 ms at 0.1 and 33 ms at 0.4; the operator alone 2-700 ms.
 REST_TOL = 0.2

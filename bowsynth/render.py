@@ -12,7 +12,7 @@ from .scene import Scene
 
 class LazyControls(Mapping):
     """A render's controls (fb, vb per output sample), computed on first use by `make`: two float64 arrays per voice
-    are a measurable share of a many-voice score that never reads them (issue 12; a 172-note chorale spent 35 ms
+    are a measurable share of a many-voice score that never reads them (a 172-note chorale spent 35 ms
     expanding the operator's per-window bows)."""
 
     def __init__(self, make):

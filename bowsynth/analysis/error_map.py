@@ -1,4 +1,4 @@
-"""The error over the playing space (issue 21): a grid of bows, F_B / w by v_B, at one pitch or several, each note
+"""The error over the playing space: a grid of bows, F_B / w by v_B, at one pitch or several, each note
 rendered from rest by the operator the renderer picks (no --model) and by the audio-rate FDM, both against a x100 FDM
 at the same f0 and bow. Per cell: who plays (a model, or why none), and what a listener hears (harmonic dB, pitch
 cents, onset ms: `metrics.listener_errors`), NMSE beside them.

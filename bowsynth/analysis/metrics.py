@@ -74,7 +74,7 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
         return float("nan")
     # the estimate is the span between the end crossings, so each end keeps, of its cluster (crossings within half a
     # period), the one on the grid of the others: a segment that starts on a creep's slow fall through the mean can
-    # cross there twice, its first crossing 418 samples of 2626 off the grid (session 58: 0.9 % low, harmonics 36 dB)
+    # cross there twice, its first crossing 418 samples of 2626 off the grid (0.9 % low, harmonics 36 dB)
     step = np.median(np.diff(keep[1:-1])) if len(keep) > 3 else np.median(np.diff(keep))
     first = t[t <= keep[0] + 0.5 * period]
     last = t[(t >= keep[-1]) & (t <= keep[-1] + 0.5 * period)]
@@ -283,7 +283,7 @@ def onset_time(x, sample_rate: float, f0: float | None = None, end: int | None =
 
 
 def onset_limit_ms(ref_ms: float) -> float:
-    """The onset error a listener's target allows (issue 21): max(5 ms, 2 % of the truth's onset)."""
+    """The onset error a listener's target allows: max(5 ms, 2 % of the truth's onset)."""
     return max(5.0, 0.02 * ref_ms)
 
 
@@ -337,7 +337,7 @@ def note_sounds(p) -> bool:
     return late_rms(p) > SILENT
 
 
-FRAME_SECONDS = 0.1  # a gesture is scored per 100 ms frame (issue 21)
+FRAME_SECONDS = 0.1  # a gesture is scored per 100 ms frame
 
 
 def frame_errors(x, ref, sample_rate: float, frame: float = FRAME_SECONDS, harmonics: bool = True) -> dict:
@@ -384,9 +384,9 @@ def accuracy(x, ref, sample_rate: float) -> dict:
     return {"harm_db": le["harm_db_median"], "cents": abs(le["cents"]), "nmse": nmse(x, ref)}
 
 
-# The FDMs an equal-accuracy search tries, cheapest first (each costs less than the x100 truth beside it). x64
-# (session 34): locked to the physics, a stick-slip tile's pitch is exact, and at 880 Hz no FDM up to x32 matched it, so
-# `bench equal` could only say "5-6x or more" for 17 model-pitches
+# The FDMs an equal-accuracy search tries, cheapest first (each costs less than the x100 truth beside it). x64 is
+# there because, locked to the physics, a stick-slip tile's pitch is exact, and at 880 Hz no FDM up to x32 matches it:
+# without it `bench equal` could only say "5-6x or more" for 17 model-pitches
 EQUAL_OVERSAMPLES = (1, 2, 4, 8, 16, 32, 64)
 
 # Two renders of equal accuracy differ by their storage (a float32 file against the float64 render it holds): 1 % of

@@ -202,9 +202,9 @@ def _replace(path: Path, write) -> None:
 
 
 MAX_ARRAY_BYTES = 64 << 20  # an array cached here is a few MB (a model's trunk grid: 8 MB at 64 features)
-# All arrays together: ~30 models' trunk grids at 64 features. Before session 43 nothing bounded them, and each model
-# retrained or replaced (its id changes) left its old 8 MB behind for good; the least recently used go first (one is
-# computed again in ~0.1-0.2 s).
+# All arrays together: ~30 models' trunk grids at 64 features. Unbounded, each model retrained or replaced (its id
+# changes) would leave its old 8 MB behind for good; the least recently used go first (one is computed again in
+# ~0.1-0.2 s).
 MAX_ARRAYS_TOTAL = 256 << 20
 
 

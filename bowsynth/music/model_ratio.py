@@ -48,7 +48,7 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
 # Windows locked to the physics (--windows physics) divide the period of the physics' limit cycle at the held bow (the
 # shipped map of the reference's sounding ratio, ratio_map.physics_ratio), where the model holds that period. Such a clock pulls the
 # operator's cycle onto it, as an oscillator is pulled within its locking range, and the network plays the wave within
-# each period. Measured (session 21, `benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows):
+# each period. Measured (`benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows):
 # 0.0005 / 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics
 # 0.028 / 1.12 dB against 0.030 / 0.81, onsets 12/12 both; the 12 soft bows 0.009 / 0.11 cents against 0.072 / 0.36. Not
 # every model holds it: velocity-loud's C3 at velocity 112 came out 0.92 cents off the physics' pitch, a barely trained
@@ -60,7 +60,7 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
 LOCK_HOLDS_CENTS = 0.05
 # Windows a period beyond the fewest, tried in turn: windows of nearly T do not always pull the cycle (stick-stops at
 # F_B / w 0.719, v_B 0.08: 17 windows of 0.994 T leave it 5.3-5.8 cents off, 18 hold it within 0.01; windows.Lock).
-# Up to three more (session 29): floor-long's slowest heavy bows hold it in two more only (F_B / w 1.919, v_B 0.0849
+# Up to three more: floor-long's slowest heavy bows hold it in two more only (F_B / w 1.919, v_B 0.0849
 # at 807 Hz: -1.65 / -0.54 / -0.008 cents in the fewest / one more / two more, -9.5 free; benchmarks/lock_more.py).
 LOCK_MORE = (0, 1, 2, 3)
 

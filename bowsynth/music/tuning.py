@@ -194,7 +194,7 @@ def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> 
 
 
 # A measurement that fails is kept too, and raised again from the table: a model that cannot hold a bow from rest
-# fails the same way every time, and a render there measured it afresh in every process (session 50: the four locks
+# fails the same way every time, and a render there measured it afresh in every process (the four locks
 # of stick-halt at the band's floor, 1.1 s of a 1.7 s warm render).
 _FAILS = {"DomainError": DomainError, "SilentNoteError": SilentNoteError}
 _ENGINE_RATIOS: dict[str, float] = {}  # this process's answers, ahead of the disk

@@ -117,7 +117,7 @@ def _validation_table(v: dict) -> str:
     cols = [("nmse", "NMSE(p)", ".3g"), ("ncc_percent", "NCC (%)", ".4f"), ("cents", "pitch (cents)", "+.3f"),
             ("harmonic_error_db", "harmonic error (dB)", ".3f"), ("lsd_db", "log-spectral distance (dB)", ".3f")]
     if "points" in v:
-        def speaks(p) -> str:  # where the truth rests (session 34's records say), whether the model does too
+        def speaks(p) -> str:  # where the truth rests (the validation records say), whether the model does too
             if p.get("speaks") or p.get("truth_sounds") is not False or "op_sounds" not in p:
                 return "yes" if p.get("speaks") else "no"
             return "no; the model " + ("sounds" if p["op_sounds"] else "rests")

@@ -121,7 +121,7 @@ class TrainingData:
 def add_chains(data: TrainingData, scene: Scene, cfg: TrainConfig, window: float, on_progress=None) -> TrainingData:
     """The rollout term's chains: K windows of the FDM from band states, not jittered as the data's are (the sampler's
     rng comes after every other draw, so a recipe without the term draws the same data as before it existed). Why not
-    jittered (session 49): from jittered starts a few chains leave the states any render visits and their errors,
+    jittered: from jittered starts a few chains leave the states any render visits and their errors,
     0.1-0.6 of the correction scale where the median chain's is 1e-8, made the whole term; its first training raised
     the data loss from 2.4e-7 to 3e-3 in 500 steps."""
     if not cfg.rollout > 0:

@@ -127,7 +127,7 @@ class RangeBand:
 
 def _balanced(states: np.ndarray, grid: int = 64) -> np.ndarray:
     """Weights 1 / (states in the same cell of a grid over their own box): a render passes its onset once and
-    then circles its limit cycle, and uniform sampling in time would leave the onset untrained (round 1)."""
+    then circles its limit cycle, and uniform sampling in time would leave the onset untrained."""
     lo, hi = states.min(0), states.max(0)
     cell = np.floor((states - lo) / np.maximum(hi - lo, 1e-9) * (grid - 1e-9)).astype(int)
     key = cell[:, 0] * grid + cell[:, 1]

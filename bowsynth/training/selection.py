@@ -164,8 +164,8 @@ def validate(model, scene: Scene, seconds: float = 1.0, ref_oversample: int = TR
     the record: 'free', or the windows a sounding period of a lock.
 
     Why the render's windows: a model is picked, or not, by this record, and a render plays auto windows. Validated
-    in free windows, `stick-halt-high` (session 29) failed at F_B / w 1.767, v_B 0.125: -12.2 cents, where auto locks
-    it to the physics' period (24 windows a period) and it plays -0.10 cents at 1 s, -0.004 at 2 s (session 33)."""
+    in free windows, `stick-halt-high` failed at F_B / w 1.767, v_B 0.125: -12.2 cents, where auto locks
+    it to the physics' period (24 windows a period) and it plays -0.10 cents at 1 s, -0.004 at 2 s."""
     from ..engines.operator.engine import render_operator
     from ..music.engine_tuning import sounding_for
 

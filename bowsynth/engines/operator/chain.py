@@ -82,7 +82,7 @@ def chain_plan(scene: Scene, models: list[OperatorModel]) -> list[tuple[int, Ope
                 cur, since = nxt, int(k[j - 1])
                 plan.append([since, cur])
         elif k[j] - since >= min_len:  # one that has the bow away from its own edges takes over (one only a little
-            # deeper is no better: session 19) where the current one nears its edge, or where it is a smaller box:
+            # deeper is no better) where the current one nears its edge, or where it is a smaller box:
             # the voice follows choose.covering_model's pick for a held bow
             nxt = pick(col, col >= EDGE)
             if nxt >= 0 and (col[cur] < EDGE or extent[nxt] < extent[cur]):
@@ -106,7 +106,7 @@ def render_chain(scene: Scene, plan: list[tuple[int, OperatorModel]], play, voic
 
     Why: a held note that stops at the space's edge (F_B / w 2.0, v_B 0.12 stopped at 440 Hz) holds its bow with
     stick-heavy and stops through floor-long into halt-edge; with the held stretch in free windows it played 5.0 cents
-    off (median per 100 ms frame), with it locked to the physics' period 0.019 (session 34)."""
+    off (median per 100 ms frame), with it locked to the physics' period 0.019."""
     n, sr = scene.n_samples, scene.sample_rate
     held = scene.held_bow() if sounding is not None else None
     held_model = covering_model(held) if held is not None else None

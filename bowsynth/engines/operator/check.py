@@ -115,10 +115,10 @@ NEIGHBOURS = ((1 / 1.1, 1.0), (1.1, 1.0), (1.0, 1 / 1.05), (1.0, 1.05))
 MISLABEL_MARGIN = 2.0
 # Where the first windows do not tell the bows apart, a longer span decides. A stick-slip range model's onset from rest
 # is its least accurate part: velocity-loud (F_B / w 0.42-0.66) is 0.21 off its claim over 2 windows and 0.035 off the
-# bow 10 % stronger, but over 16 windows 0.30 off its claim and 1.7-3.5 off every neighbour (session 11); soft-range
+# bow 10 % stronger, but over 16 windows 0.30 off its claim and 1.7-3.5 off every neighbour; soft-range
 # fits its claim 50-200x better than its neighbours over 16 windows too. The span is in periods of the free
 # oscillator (2 pi in tau), not in windows: on quarter-period windows 16 windows are 4 periods, where the stuck onset
-# of a fast bow does not tell the force yet (session 20: a tile at F_B / w 0.4-0.8, v_B 0.23-0.3 fit the bow 10 %
+# of a fast bow does not tell the force yet (a tile at F_B / w 0.4-0.8, v_B 0.23-0.3 fit the bow 10 %
 # weaker as well as its claim over 16 quarter windows, and its claim 7x better than every neighbour over 16 periods).
 # Over the long span the limit cycle is judged, not the onset (physics_error's cycle: _cycle_error).
 LONG_CHECK_PERIODS = 16
@@ -145,7 +145,7 @@ def claim_fits_best(model: OperatorModel, err: float) -> tuple[bool, float, floa
 
 
 # The verdicts are kept on disk by the file's digest (sha256 over its metadata and weights, verified when it is read):
-# a process that plays a quarter-window tile paid 0.13 s for its neighbours' 16 periods on every run (session 20: a
+# a process that plays a quarter-window tile paid 0.13 s for its neighbours' 16 periods on every run (a
 # fast-bow note's whole process 0.737 s against a soft note's 0.615). An edited file has another digest (or fails to
 # load), so it is checked afresh; a file without a digest (format 1) is checked in every process.
 _verdicts = None

@@ -158,7 +158,7 @@ def _bow_exit(model: OperatorModel, scene: Scene, spw: float, bows: np.ndarray) 
 
 # A range model is weakest at the edges of its box (fewer trained bows beyond them): where a scene's bows lie within
 # this share of a box's span from its edge and another covering model has them deeper, that one plays. Measured
-# (session 14): the 103 Hz held bow F_B / w 0.0389, v_B 0.239 lies 1 % inside velocity-soft's box (1.7 dB, 0.45 cents
+# there: the 103 Hz held bow F_B / w 0.0389, v_B 0.239 lies 1 % inside velocity-soft's box (1.7 dB, 0.45 cents
 # from the truth) and 24 % inside soft-corner's (0.02 dB, 0.04 cents).
 EDGE = 0.1
 
@@ -200,9 +200,9 @@ def covering_model(scene: Scene, models: list[OperatorModel] | None = None) -> O
 def rests_throughout(m: OperatorModel) -> bool:
     """Whether a model was validated to rest at every grid bow of its box (training.selection.validate_range: the bow
     damps the mass at each, and it rests there). Where a scene's bows all damp the mass, such a model plays before
-    any other that covers them, however deep: session 34 found stick-halt playing held heavy bows just below vb_stop
+    any other that covers them, however deep: a tile trained for bow stops plays held heavy bows just below vb_stop
     as notes (p RMS 0.22 at F_B / w 1.3-1.65, v_B 0.068-0.07) where the truth rests, bows that lie at the top edge of
-    halt-floor's box and deep in stick-halt's."""
+    a resting tile's box and deep in its own."""
     return grid_rests(m.meta.validation or {})
 
 
@@ -210,7 +210,7 @@ def preference(m: OperatorModel, depth: float) -> tuple:
     """The order in which models that cover a bow are picked (lowest first), given how deep the bow lies in each one's
     box (Domain.edge_depth): those that have it away from their edges (EDGE) first, then the most specialised (a
     point model, then the smallest box), then the best validation. Among models that all have the bow near
-    their edges, the deepest first: there the edge, not the box's size, sets the error (session 20: F_B / w 0.431, v_B
+    their edges, the deepest first: there the edge, not the box's size, sets the error (F_B / w 0.431, v_B
     0.08 lies 5.7 % deep in loud-stops, the smaller box, which played it 9.2 dB and 28 cents off, and 8.1 % deep in
     slow-bow, which plays it 0.035 dB and 3.9 cents off). min() over it keeps the first of equals (./models before
     the shipped)."""

@@ -63,7 +63,7 @@ class Domain:
     # exactly the free rotation. Set from the network's settings (OperatorModel), not stored in files; only for a box
     # whose bottom is soft (PLAYS_BELOW_STIFFNESS). A box that starts at the stick-slip boundary learned other states
     # and another shape of friction: from rest at F_B / w 0.02-0.26, v_B 0.24 velocity-loud (bottom 0.42) left its
-    # trained states within 0.06-0.42 s (`bench map`, session 11), where soft-range plays those bows.
+    # trained states within 0.06-0.42 s (`bench map`), where soft-range plays those bows.
     plays_below: bool = field(default=False, repr=False, compare=False)
 
     @property

@@ -72,7 +72,7 @@ def _finish(scene: Scene, q, p, fail, fallback: str, voice: str = "") -> list[st
 
 
 # A voice whose samples leave the box of the model's trained states by more than this share of its span has left what
-# the model knows, even where each window's start stays inside (the loops check starts only). Measured (session 7, 2 s
+# the model knows, even where each window's start stays inside (the loops check starts only). Measured (2 s
 # notes from rest at 65-880 Hz): every render that sounds right stays inside the box (by 2-39 % of the span); the
 # stick-slip point models at 440/880 Hz, whose rollouts break out of the stick-slip cycle while their window starts
 # stay in the domain, go 31-61 % of the span beyond it (p peaks at 1.6 against the truth's 0.26): a loud wrong note.

@@ -87,9 +87,9 @@ def rest_onset(sc: Scene, m, spw: float):
     return h, oq[:h], op[:h], q, p
 
 
-# A note must speak where the physics says it does. Session 19's `stick-high` played F_B / w 2, v_B 0.28 (the playing
-# space's corner) from rest as a note that never spoke: p spanned 0.02 where the truth's spans 2.46, inside the
-# trained states, so nothing stopped it. About the rest point a held bow above vb_stop grows any motion at
+# A note must speak where the physics says it does. A stick-slip tile can play F_B / w 2, v_B 0.28 (the playing
+# space's corner) from rest as a note that never speaks: p spanned 0.02 where the truth's spans 2.46, inside the
+# trained states, so nothing else stops it. About the rest point a held bow above vb_stop grows any motion at
 # physics.onset_rate; from the note's initial offset it reaches the scale v_B - vb_stop by t_speak. Measured (session
 # 20, benchmarks/mute_check.py: bench map's 160 bows at 110 and 440 Hz, 2 s from rest, the x8 FDM): the truth's p spans
 # a quarter of that scale before t_speak at every bow, and wherever 1.5 t_speak falls inside the note its last four
@@ -146,7 +146,7 @@ def mute_from(sc: Scene, p) -> int | None:
 DAMP_SHARE = 0.5
 # Just below vb_stop that width vanishes (1e-4 at v_B 0.0706), yet the truth comes to rest from much further: from
 # states vb_stop / 2 and vb_stop off its rest point, 8 phases each, at every one of 36 bows (F_B / w 0.05-2 x v_B
-# 0-0.0707, x20 FDM, session 35). There heavy bows' models crept to rest and on past it into a full note (p RMS
+# 0-0.0707, x20 FDM). There heavy bows' models crept to rest and on past it into a full note (p RMS
 # 0.11-0.27 where the truth rests), never entering the exact radius on the way. So a held bow's note whose state
 # passes within BASIN_SHARE vb_stop of its rest point, and leaves again before it enters the exact radius (or never
 # enters it), rings down from its closest approach on that pass, if the swing there is within BASIN_SWING vb_stop

@@ -44,7 +44,7 @@ class Lock(float):
     Why more: a lock is measured (music.model_ratio.lock_ratio), and the fewest windows do not always hold it.
     stick-stops at F_B / w 0.719, v_B 0.08 fills the physics' period with 16.9 trained windows; 17 windows, each
     0.994 T, leave its pitch where its own period is (+5.3 / +5.8 cents at 110 / 440 Hz, harmonics 0.49 dB worst),
-    18 hold it (+0.012 / -0.002 cents, 0.048 dB: benchmarks/map_cell.py, session 23). Arithmetic on a Lock gives a
+    18 hold it (+0.012 / -0.002 cents, 0.048 dB: benchmarks/map_cell.py). Arithmetic on a Lock gives a
     plain float, so a lock is made anew where it is scaled (engine_tuning.operator_sounding)."""
 
     more: int
