@@ -108,9 +108,8 @@ def test_a_table_keeps_its_newest_entries_and_versions(tmp_path, monkeypatch):
 
 
 def test_cached_arrays_keep_the_most_recently_used_within_their_bound(tmp_path, monkeypatch):
-    """A retrained or replaced model left its 8 MB trunk grid behind for good (sessions 1-42): now the arrays are
-    bounded, the least recently used (read or written) removed first; links and a killed writer's fresh temporary
-    file stay, an old one goes."""
+    """The trunk arrays (8 MB a model) are bounded, the least recently used (read or written) removed first; links and
+    a killed writer's fresh temporary file stay, an old one goes."""
     import numpy as np
 
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
@@ -119,18 +118,18 @@ def test_cached_arrays_keep_the_most_recently_used_within_their_bound(tmp_path, 
     outside = tmp_path.parent / "elsewhere.npy"
     np.save(outside, a)
     (tmp_path / "link.npy").symlink_to(outside)
-    for i, name in enumerate(("old", "used", "mid")):
+    for i, name in enumerate(("trunk-old", "trunk-used", "trunk-mid")):
         cache.write_array(name, a + i)
         os.utime(tmp_path / f"{name}.npy", ns=(i * 10**9, i * 10**9))
-    for name, age in ((".x.npy.0001.tmp", 7200), (".y.npy.0002.tmp", 10)):
+    for name, age in ((".x.npy.0001abcd.tmp", 7200), (".y.npy.0002abcd.tmp", 10)):
         (tmp_path / name).write_bytes(b"half")
         t = os.stat(tmp_path / name).st_mtime - age
         os.utime(tmp_path / name, (t, t))
-    assert cache.read_array("used", a.shape)[1] == 2.0  # reading it marks it used: now the newest of the three
-    cache.write_array("new", a + 3)
+    assert cache.read_array("trunk-used", a.shape)[1] == 2.0  # reading it marks it used: now the newest of the three
+    cache.write_array("trunk-new", a + 3)
     left = sorted(p.name for p in tmp_path.iterdir())
-    assert left == [".y.npy.0002.tmp", "link.npy", "mid.npy", "new.npy", "used.npy"]
-    assert outside.exists() and cache.read_array("new", a.shape)[0] == 3.0
+    assert left == [".y.npy.0002abcd.tmp", "link.npy", "trunk-mid.npy", "trunk-new.npy", "trunk-used.npy"]
+    assert outside.exists() and cache.read_array("trunk-new", a.shape)[0] == 3.0
 
 
 @pytest.mark.parametrize("user", [None, "2"])
@@ -157,3 +156,36 @@ def test_numpy_blas_runs_on_one_thread_unless_the_user_says_otherwise(user):
     if int(threads) < 0:
         pytest.skip("numpy's BLAS says nothing of its threads (not OpenBLAS)")
     assert int(threads) == min(int(user or 1), os.cpu_count()), out  # OpenBLAS takes at most the cores
+
+
+def test_the_cache_follows_no_link_and_removes_only_what_it_wrote(tmp_path, monkeypatch):
+    """A cache table whose directory is a symlink to a user's directory: a render neither writes into it nor prunes
+    through it, and the user's files, named or not like the cache's, stay. Foreign files in the cache's own
+    directories (a user's .npy, a .tmp, a .json of another name) stay through pruning too."""
+    import numpy as np
+
+    from bowsynth.io import cache
+
+    root = tmp_path / "cache"
+    user = tmp_path / "user"
+    (user / "photos").mkdir(parents=True)
+    (user / "photos" / "a.jpg").write_bytes(b"x")
+    (user / "0123456789abcdef01234567").mkdir()  # named like a version directory
+    (user / "notes.json").write_text("{}")
+    root.mkdir()
+    (root / "sounding-ratio").symlink_to(user, target_is_directory=True)
+    (root / "mine.npy").write_bytes(b"not ours")
+    (root / ".x.tmp").write_bytes(b"not ours")
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(root))
+    t = cache.DiskTable("sounding-ratio", "v1")
+    t.put("k", {"r": 0.5})
+    assert cache.DiskTable("sounding-ratio", "v1").get("k") is None  # never written through the link
+    before = sorted(p.relative_to(user) for p in user.rglob("*"))
+    for v in ("v2", "v3", "v4"):
+        cache.DiskTable("sounding-ratio", v).put("k", 1.0)
+    assert sorted(p.relative_to(user) for p in user.rglob("*")) == before
+    cache.write_array("trunk-test", np.zeros(3))
+    cache._prune_arrays(root, "none")  # every array over no budget: only the cache's own go
+    monkeypatch.setattr(cache, "MAX_ARRAYS_TOTAL", 0)
+    cache._prune_arrays(root, "none")
+    assert (root / "mine.npy").exists() and (root / ".x.tmp").exists() and not (root / "trunk-test.npy").exists()

@@ -97,22 +97,29 @@ def test_render_imports_neither_torch_nor_scipy(tmp_path):
     assert f"({FB100})" in r.stdout and "fb100_f0100_vb0.2_a100@" in r.stdout
 
 
-def test_a_files_digest_is_hashed_once_and_an_edit_in_place_is_hashed_afresh(tmp_path, monkeypatch):
-    """The digest is checked once per file (its identity kept on disk); the same file loads again without hashing.
-    One weight changed in place, its modification time set back, size unchanged: refused, as a new file would be; so
-    is a file whose digest was taken out."""
+@pytest.fixture
+def listed_dir(tmp_path, monkeypatch):
+    """A directory standing for the shipped one, its manifest beside its files (written by the test)."""
+    from bowsynth.engines.operator import manifest
+
+    d = tmp_path / "shipped"
+    d.mkdir()
+    monkeypatch.setattr(manifest, "MANIFEST", d / "MANIFEST.json")
+    manifest._listed.cache_clear()
+    yield d
+    manifest._listed.cache_clear()
+
+
+def test_a_files_digest_is_checked_at_every_read_and_never_taken_from_the_cache(tmp_path, monkeypatch):
+    """A file of ./models is hashed whole each time it is read: one weight changed in place after a clean read (its
+    modification time set back, its size the same) is refused, whatever the cache holds; so is a file whose digest
+    was taken out."""
     import shutil
 
-    from bowsynth.engines.operator import modelfile
-
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path / "cache"))
     path = tmp_path / "m.safetensors"
     shutil.copyfile(FB100, path)
-    calls = []
-    real = modelfile.digest
-    monkeypatch.setattr(modelfile, "digest", lambda *a: calls.append(1) or real(*a))
     load_model(path)
-    load_model(path)
-    assert len(calls) == 1
     st = path.stat()
     with open(path, "r+b") as fh:
         fh.seek(-100, os.SEEK_END)
@@ -123,21 +130,23 @@ def test_a_files_digest_is_hashed_once_and_an_edit_in_place_is_hashed_afresh(tmp
     assert path.stat().st_size == st.st_size and path.stat().st_mtime_ns == st.st_mtime_ns
     with pytest.raises(ModelFileError, match="metadata does not match the weights"):
         load_model(path)
-    assert len(calls) == 2
     with pytest.raises(ModelFileError, match="metadata does not match the weights"):
         load_model(rewrite(FB100, tmp_path / "d.safetensors", lambda m: m.pop("digest"), fix_digest=False))
 
 
-def test_a_checked_file_is_read_by_its_header_and_its_weights_only_when_a_render_needs_them(tmp_path):
-    """A process looks up a model among every file's header; a file checked whole before (same identity) gives its
-    weights on first use, the same arrays an eager read gives, and the same render."""
+def test_a_listed_file_is_read_by_its_header_and_its_weights_only_when_a_render_needs_them(listed_dir):
+    """A process looks up a model among every file's header; a file the manifest lists gives its weights on first use
+    (hashed against its digest then), the same arrays an eager read gives, and the same render."""
     import shutil
 
     from safetensors.numpy import load_file
 
-    path = tmp_path / "m.safetensors"
+    from bowsynth.training.manifest import write_manifest
+
+    path = listed_dir / "m.safetensors"
     shutil.copyfile(FB100, path)
-    eager = load_model(path)  # the first read checks it whole
+    eager = load_model(path)  # not listed yet: checked whole
+    write_manifest(listed_dir)
     lazy = load_model(path)
     assert eager._weights is not None and lazy._weights is None
     want = {k: v for k, v in load_file(str(path)).items() if k != "domain.mask"}
@@ -147,16 +156,18 @@ def test_a_checked_file_is_read_by_its_header_and_its_weights_only_when_a_render
     assert np.array_equal(render_operator(scene, model=load_model(path)).p, render_operator(scene, model=eager).p)
 
 
-def test_a_file_replaced_after_its_header_was_read_is_refused_not_played(tmp_path, capsys, monkeypatch):
+def test_a_file_replaced_after_its_header_was_read_is_refused_not_played(listed_dir, capsys, monkeypatch):
     """The weights are read from the file whose header was checked or not at all: a file put in its place (a rename
     over it, as a training's --force does) between the lookup and the render is refused in one line."""
     import shutil
 
-    path = tmp_path / "m.safetensors"
+    from bowsynth.training.manifest import write_manifest
+
+    path = listed_dir / "m.safetensors"
     shutil.copyfile(FB100, path)
-    load_model(path)
+    write_manifest(listed_dir)
     model = load_model(path)
-    other = tmp_path / "other.safetensors"
+    other = listed_dir.parent / "other.safetensors"
     shutil.copyfile(SHIPPED_DIR / "paper-fb1000.safetensors", other)
     os.replace(other, path)
     with pytest.raises(ModelFileError, match="changed since bowsynth read it"):

@@ -344,3 +344,40 @@ def test_a_bow_the_audio_rate_fdm_never_settles_on_still_renders(tmp_path, capsy
     code, out, err = run_main(["render", "--pitch", "A5", "--fb", "1000", "--vb", "0.15", "--method", "fdm", "-d",
                                "0.3", str(tmp_path / "a5.wav")], capsys, monkeypatch)
     assert code == 0 and "A5" in out and (tmp_path / "a5.wav").exists(), out + err
+
+
+@pytest.mark.parametrize("bad", ["0.9", None, float("inf"), 1e308, 0.9 * 1.06, -0.9, {"r": 0.9}, "missing"])
+def test_a_poisoned_engine_ratio_entry_is_measured_again_never_trusted(bad, tmp_path, monkeypatch):
+    """An engine's cached sounding ratio is data from outside: of the wrong type, not finite, out of range or edited
+    by 6 % (101 cents from the physics' ratio), it is measured again, and the measurement replaces it; a plausible
+    entry is read as it is."""
+    import json
+
+    from bowsynth.music import tuning
+    from bowsynth.music.ratio_map import physics_ratio
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    monkeypatch.setattr(tuning, "_ENGINE_RATIOS", {})
+    beta, vb = 0.159, 0.2
+    good = physics_ratio(beta, vb).r * 2 ** (0.3 / 1200)
+    calls = []
+
+    def measure():
+        calls.append(1)
+        return good
+
+    def poisoned(value):
+        table = tuning.DiskTable("sounding-ratio", "poison")
+        key = f"operator test {beta!r} {vb!r} {100.0!r}"
+        path = table.entry_path(key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        doc = {"version": "poison", "key": key}
+        if value != "missing":
+            doc["value"] = {"r": value}
+        path.write_text(json.dumps(doc))
+        monkeypatch.setattr(tuning, "_ratios", tuning.DiskTable("sounding-ratio", "poison"))
+        tuning._ENGINE_RATIOS.clear()
+        return tuning.engine_ratio("operator test", beta, vb, 100.0, measure, physics_ratio)
+
+    assert poisoned(bad) == good and calls == [1]
+    assert poisoned(good) == good and calls == [1]  # a plausible entry: read, not measured

@@ -158,3 +158,4 @@ def test_a_bow_stop_no_model_covers_is_refused_unless_the_fdm_is_asked_for(monke
     assert r.info.release == "fdm"
     (r,) = render_notes([note], model=point, fallback="fdm")
     assert r.info.release == "fdm"
+

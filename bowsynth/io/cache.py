@@ -11,6 +11,9 @@ kept, one small JSON file an entry (DiskTable), under
 A cache is never a reason to fail: a file that cannot be read, parsed or written, or that was written by another
 version of the measurement, is ignored (and replaced when it can be). Writes go to a temporary file in the same
 directory, then replace the old one: nothing is torn, and two processes writing at once both keep what they wrote.
+The cache is data from outside: its readers check every value's type and range before use, it follows no symlink
+below its own directory (a table whose directory is a link is no table), and it removes only files named as it names
+them (a table's entries, its version directories, the trunk arrays): whatever a user put there stays.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import secrets
 import shutil
 import stat
@@ -70,14 +74,39 @@ def _digest(text: str) -> str:
     return hashlib.blake2b(text.encode(), digest_size=12).hexdigest()
 
 
+def _ours(name: str, suffix: str = "") -> bool:
+    """Whether a file or directory name is one the cache writes: a 24-hex-digit digest (with `suffix`)."""
+    stem = name[:-len(suffix)] if suffix and name.endswith(suffix) else (name if not suffix else "")
+    return len(stem) == 24 and all(c in "0123456789abcdef" for c in stem)
+
+
+def _real_dirs(root: str, path: str) -> bool:
+    """Whether every component of `path` below `root` (the cache's own directory, which may itself be a link the user
+    chose) is a directory and not a symbolic link, or does not exist yet."""
+    rel = os.path.relpath(path, root)
+    if rel.startswith(os.pardir):
+        return False
+    cur = root
+    for part in [] if rel == os.curdir else rel.split(os.sep):
+        cur = os.path.join(cur, part)
+        try:
+            st = os.lstat(cur)
+        except FileNotFoundError:
+            return True
+        except OSError:
+            return False
+        if not stat.S_ISDIR(st.st_mode):
+            return False
+    return True
+
+
 class DiskTable:
     """Key -> value (both JSON-able), valid for one `version` of whatever computed the values: one small file an
     entry, <cache>/<name>/<version's digest>/<key's digest>.json, holding the version and the key beside the value.
 
-    Why a file an entry and not one file a table (sessions 1-41): a process read and parsed the whole table to find
-    one entry (the auto windows' table reached 2.4 MB: ~50 ms of every render's process, idle), rewrote all of it for
-    each entry it added, and two processes at work at once each wrote back the table they had read, so one lost the
-    other's new entries and a later process measured them again (seconds each). A file an entry costs one small read
+    Why a file an entry and not one file a table: with one file a process reads and parses the whole table to find
+    one entry (a table of 2.4 MB cost ~50 ms of every render's process), rewrites all of it for each entry it adds,
+    and two processes at work at once each write back the table they read, so one loses the other's new entries. A file an entry costs one small read
     however many entries there are, and is written alone, atomically: nothing another process wrote is lost."""
 
     def __init__(self, name: str, version: str):
@@ -107,7 +136,7 @@ class DiskTable:
         if key in self._seen:
             return self._seen[key]
         path = self._file(key)
-        if path is None:
+        if path is None or not _real_dirs(str(cache_dir()), os.path.dirname(path)):
             return None
         try:
             with _regular(path, MAX_ENTRY_BYTES) as fh:
@@ -126,6 +155,8 @@ class DiskTable:
         if path is None:
             return
         text = json.dumps({"version": self.version, "key": key, "value": value}, separators=(",", ":"))
+        if not _real_dirs(str(cache_dir()), str(path.parent)):  # a link in the table's place: not the cache's
+            return
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
         except OSError:  # a file where the directory would be, or no right to write: no cache, never an error
@@ -137,6 +168,7 @@ class DiskTable:
             self._tidied = str(path.parent)
 
 
+_TMP = re.compile(r"\..+\.[0-9a-f]{8}\.tmp")
 STALE_TMP_SECONDS = 3600  # a temporary file this old was left by a process killed while it wrote (an array: 8 MB)
 
 
@@ -150,7 +182,7 @@ def _scan(d, suffix: str) -> list:
                 continue
             if e.name.endswith(suffix):
                 found.append(e)
-            elif e.name.startswith(".") and e.name.endswith(".tmp"):
+            elif _TMP.fullmatch(e.name):  # _replace's temporary name
                 with contextlib.suppress(OSError):
                     if e.stat(follow_symlinks=False).st_mtime < stale:
                         os.unlink(e.path)
@@ -161,6 +193,7 @@ def _prune_entries(d: Path) -> None:
     """Keep a table's newest MAX_ENTRIES entries. Whatever cannot be listed or removed stays."""
     with contextlib.suppress(OSError):
         entries = _scan(d, ".json")
+        entries = [e for e in entries if _ours(e.name, ".json")]
         if len(entries) > MAX_ENTRIES:
             entries.sort(key=lambda e: e.stat(follow_symlinks=False).st_mtime_ns)
             for e in entries[:len(entries) - MAX_ENTRIES * 9 // 10]:
@@ -173,7 +206,7 @@ def _prune_versions(d: Path) -> None:
     (<name>.json). Whatever cannot be listed or removed stays."""
     with contextlib.suppress(OSError):
         with os.scandir(d.parent) as it:
-            versions = [e for e in it if e.is_dir(follow_symlinks=False) and e.name != d.name]
+            versions = [e for e in it if e.is_dir(follow_symlinks=False) and e.name != d.name and _ours(e.name)]
         versions.sort(key=lambda e: e.stat(follow_symlinks=False).st_mtime_ns, reverse=True)
         for e in versions[KEEP_VERSIONS - 1:]:
             shutil.rmtree(e.path, ignore_errors=True)
@@ -241,7 +274,7 @@ def _prune_arrays(d: Path, keep: str) -> None:
     """Keep the most recently used arrays within MAX_ARRAYS_TOTAL bytes, and always `keep` (the one just written).
     Only regular *.npy files are counted or removed: a link or anything else a user put there stays."""
     with contextlib.suppress(OSError):
-        files = [(e.stat(follow_symlinks=False), e) for e in _scan(d, ".npy")]
+        files = [(e.stat(follow_symlinks=False), e) for e in _scan(d, ".npy") if e.name.startswith("trunk-")]
         files.sort(key=lambda f: f[0].st_mtime_ns, reverse=True)
         total = 0
         for st, e in files:

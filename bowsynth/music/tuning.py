@@ -137,10 +137,13 @@ def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
         if isinstance(hit.get("silent"), str):
             raise SilentNoteError(hit["silent"])
         try:
-            return Ratio(r=float(hit["r"]), settle_periods=float(hit["settle_periods"]),
-                         amplitude=float(hit["amplitude"]), beta=beta, vb=vb, a=a)
-        except (KeyError, TypeError, ValueError):
-            pass  # an entry edited by hand: measure again
+            got = Ratio(r=float(hit["r"]), settle_periods=float(hit["settle_periods"]),
+                        amplitude=float(hit["amplitude"]), beta=beta, vb=vb, a=a)
+            if 0 < got.r <= 1 and math.isfinite(got.settle_periods) and 0 <= got.settle_periods <= MAX_PERIODS \
+                    and math.isfinite(got.amplitude) and got.amplitude >= 0:
+                return got
+        except (KeyError, TypeError, ValueError, OverflowError):
+            pass  # an entry edited by hand, or of the wrong type or range: measure again
     try:
         ratio = _measure_ratio(beta, vb, a)
     except SilentNoteError as e:
@@ -198,6 +201,10 @@ def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> 
 # of stick-halt at the band's floor, 1.1 s of a 1.7 s warm render).
 _FAILS = {"DomainError": DomainError, "SilentNoteError": SilentNoteError}
 _ENGINE_RATIOS: dict[str, float] = {}  # this process's answers, ahead of the disk
+# An engine's own ratio sits within cents of the physics' (the audio-rate FDM's dispersion ~2 cents at A5; an
+# operator's own cycle up to tens of cents where it knows the bow least): a cached one further off than a quarter tone
+# is not a measurement (a 6 % edit is 101 cents), and is measured again.
+PLAUSIBLE_CENTS = 50.0
 
 
 def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics_ratio=None) -> float:
@@ -205,12 +212,14 @@ def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics
     does: `physics_ratio`, the source of the physics' Ratio, is asked first: sounding_ratio, the reference, by default; the
     operator's path passes the shipped map, ratio_map.physics_ratio); a measurement that raised DomainError or
     SilentNoteError raises it again."""
-    (physics_ratio or sounding_ratio)(beta, vb, a)
+    phys = (physics_ratio or sounding_ratio)(beta, vb, a).r
     key = f"{engine} {beta!r} {vb!r} {a!r}"
     if key in _ENGINE_RATIOS:  # asked again in this process (the live engine's tables ask each bow ~100 times)
         return _ENGINE_RATIOS[key]
     hit = _ratios.get(key)
-    if isinstance(hit, dict) and isinstance(hit.get("r"), float) and math.isfinite(hit["r"]) and hit["r"] > 0:
+    # an entry is data from outside: a number, finite, within PLAUSIBLE_CENTS of the physics' ratio, else measured again
+    if (isinstance(hit, dict) and isinstance(hit.get("r"), float) and math.isfinite(hit["r"]) and hit["r"] > 0
+            and abs(metrics.cents(hit["r"], phys)) <= PLAUSIBLE_CENTS):
         _ENGINE_RATIOS[key] = hit["r"]
         return hit["r"]
     if isinstance(hit, dict) and hit.get("fails") in _FAILS:

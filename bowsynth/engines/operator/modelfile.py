@@ -241,18 +241,9 @@ class OperatorModel:
         return path
 
 
-# A file's digest is hashed once per file, not once per process: its identity (device, inode, size, and modification
-# and change times in ns, taken before it is read) is kept on disk with the digest its weights matched. Any write to
-# the file moves its change time, which no user can set back, so an edited or replaced file is hashed afresh. (The
-# digest guards against edits and damage, not a forger, who can recompute it: the physics check is for that.) The
-# 21 shipped files' digests took 11 ms of every process that looks up a model (`--help` 0.13 s, a 1 s note 0.21 s).
-@functools.cache
-def _hashed_files():
-    from ...io.cache import DiskTable
-
-    return DiskTable("model-digests", "1")
-
-
+# What decides whether a file's weights are its metadata's is never taken from the cache: a file of ./models is hashed
+# whole when it is read; a shipped file the build listed in the manifest (its name, size and digest) is read by its
+# header, and its weights are hashed against the digest when a render first reads them (_read_weights).
 def _identity(st: os.stat_result) -> str:
     return f"{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}:{st.st_ctime_ns}"
 
@@ -270,17 +261,15 @@ def load_model(path) -> OperatorModel:
     # a regular file or one line saying what it is: a FIFO (which blocks) or a device (/dev/zero never ends) is never
     # opened
     st = regular_file(path, "model file", "a model file", ModelFileError)
-    ident, hashed, listed = _identity(st), None, False
+    ident = _identity(st)
     try:
         with safe_open(str(path), framework="numpy") as f:
             raw = (f.metadata() or {}).get(META_KEY)
             d = _json_object(raw)  # None where missing or not a JSON object: refused below, with the reason
-            known = d is not None and _checked_before(d, ident)
-            if d is not None and not known:  # a shipped file the build listed: hashed when its weights are read
-                known = listed = in_manifest(path, st.st_size, d.get("digest"))
-            # a file checked whole before and unchanged since: its header and the tensors the checks below read
-            # now, the weights when a render first needs them (_read_weights)
-            tensors = {k: f.get_tensor(k) for k in f.keys() if not known or k in HEADER_TENSORS}
+            # a shipped file the build listed: its header and the tensors the checks below read now, the weights
+            # (hashed against the digest) when a render first needs them (_read_weights)
+            listed = d is not None and in_manifest(path, st.st_size, d.get("digest"))
+            tensors = {k: f.get_tensor(k) for k in f.keys() if not listed or k in HEADER_TENSORS}
             shapes = {k: (tuple(sl.get_shape()), sl.get_dtype()) for k in f.keys() for sl in [f.get_slice(k)]}
     except Exception as e:  # safetensors raises several types for bad headers and truncation
         raise ModelFileError(f"{path} is not a readable model file ({type(e).__name__}: {e})") from None
@@ -298,11 +287,9 @@ def load_model(path) -> OperatorModel:
         # version 1 files carry no digest: the physics check at render time (operator.check) still catches
         # metadata that lies about the weights
         claimed = d.get("digest")
-        if d["format_version"] >= 2 and not known:
-            if claimed != digest(d, tensors):
-                raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited (digest "
-                                     "mismatch)")
-            hashed = claimed  # kept once the whole file has been checked (below)
+        if d["format_version"] >= 2 and not listed and claimed != digest(d, tensors):
+            raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited (digest "
+                                 "mismatch)")
         mask = tensors.pop("domain.mask").astype(bool)
         dom = Domain(**d["domain"], mask=mask)
         dom.check()
@@ -328,16 +315,13 @@ def load_model(path) -> OperatorModel:
     for k, v in tensors.items():
         if not np.all(np.isfinite(v)):
             raise ModelFileError(f"{path} holds non-finite weights ({k})")
-    if hashed:
-        _hashed_files().put(ident, hashed)
-    if known:
-        return OperatorModel(None, meta, path, identity=ident, unhashed=d if listed else None)
+    if listed:
+        return OperatorModel(None, meta, path, identity=ident, unhashed=d)
     return OperatorModel(None, meta, path, weights=tensors)
 
 
-# What load_model reads of a file it checked whole before: the domain's mask and the tensors its checks read. The rest
-# (the networks' weights) waits for a render: a process that looks up a model reads every model file's header, and
-# reading all 23 shipped files' weights took ~10 ms of it, their finiteness checks ~3 ms.
+# What load_model reads of a listed shipped file: the domain's mask and the tensors its checks read. The rest (the
+# networks' weights) waits for a render: a process that looks up a model reads every model file's header.
 HEADER_TENSORS = frozenset({"domain.mask", "window", "halfrange", "corr_scale"})
 
 
@@ -348,14 +332,6 @@ def _json_object(raw) -> dict | None:
     except (TypeError, ValueError, RecursionError):
         return None
     return d if isinstance(d, dict) else None
-
-
-def _checked_before(d: dict, ident: str) -> bool:
-    """Whether this exact file (identity: see _identity) passed every check of load_model before: its digest, as
-    recorded then, is the one its metadata d claims."""
-    claimed = d.get("digest")
-    return (isinstance(claimed, str) and isinstance(d.get("format_version"), int) and d["format_version"] >= 2
-            and _hashed_files().get(ident) == claimed)
 
 
 def _read_weights(path: Path, identity: str, unhashed: dict | None = None) -> dict:
@@ -381,8 +357,6 @@ def _read_weights(path: Path, identity: str, unhashed: dict | None = None) -> di
     if unhashed is not None and digest(unhashed, tensors) != unhashed.get("digest"):
         raise ModelFileError(f"{path}: metadata does not match the weights: the file was edited after the build "
                              f"listed it (digest mismatch); `make models` rebuilds it")
-    if unhashed is not None:
-        _hashed_files().put(identity, unhashed["digest"])
     tensors.pop("domain.mask", None)
     for k, v in tensors.items():
         if not np.all(np.isfinite(v)):
