@@ -197,13 +197,11 @@ def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> 
 
 
 # A measurement that fails is kept too, and raised again from the table: a model that cannot hold a bow from rest
-# fails the same way every time, and a render there measured it afresh in every process (the four locks
-# of stick-halt at the band's floor, 1.1 s of a 1.7 s warm render).
+# fails the same way every time (measured afresh, four locks cost 1.1 s of a 1.7 s warm render).
 _FAILS = {"DomainError": DomainError, "SilentNoteError": SilentNoteError}
 _ENGINE_RATIOS: dict[str, float] = {}  # this process's answers, ahead of the disk
-# An engine's own ratio sits within cents of the physics' (the audio-rate FDM's dispersion ~2 cents at A5; an
-# operator's own cycle up to tens of cents where it knows the bow least): a cached one further off than a quarter tone
-# is not a measurement (a 6 % edit is 101 cents), and is measured again.
+# An engine's own ratio sits within cents of the physics' (the FDM's dispersion ~2 cents at A5, an operator's own cycle
+# up to tens): a cached one further off than a quarter tone (a 6 % edit is 101 cents) is measured again.
 PLAUSIBLE_CENTS = 50.0
 
 
@@ -217,7 +215,6 @@ def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics
     if key in _ENGINE_RATIOS:  # asked again in this process (the live engine's tables ask each bow ~100 times)
         return _ENGINE_RATIOS[key]
     hit = _ratios.get(key)
-    # an entry is data from outside: a number, finite, within PLAUSIBLE_CENTS of the physics' ratio, else measured again
     if (isinstance(hit, dict) and isinstance(hit.get("r"), float) and math.isfinite(hit["r"]) and hit["r"] > 0
             and abs(metrics.cents(hit["r"], phys)) <= PLAUSIBLE_CENTS):
         _ENGINE_RATIOS[key] = hit["r"]
