@@ -12,8 +12,9 @@ def is_missing(v) -> bool:
 
 
 def num(v, fmt: str = ".2e") -> str:
-    """v in format `fmt` ('.3g', or a str.format pattern '{:.3g}'), or 'n/a' for a missing or non-finite value."""
-    if is_missing(v):
+    """v in format `fmt` ('.3g', or a str.format pattern '{:.3g}'), or 'n/a' for a missing or non-finite value, or
+    for anything that is not a number (a model file's record is data from outside: a string there is not shown)."""
+    if is_missing(v) or isinstance(v, bool) or not isinstance(v, (int, float)):
         return MISSING
     return fmt.format(v) if "{" in fmt else format(v, fmt)
 

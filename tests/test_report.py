@@ -1,4 +1,4 @@
-"""Listening reports (issue 25): pages made from short real renders, opened in headless Debian chromium with the
+"""Listening reports: pages made from short real renders, opened in headless Debian chromium with the
 network blocked: every player loads with the render's duration, the plots are drawn, no console error, and the
 metrics table holds the numbers `compare` prints. Plus the listener measures on signals of known content, and the
 report path's output rules.
@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import run_main
+
+import bowsynth
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"
@@ -350,3 +352,41 @@ def test_makefile_installs_the_browser():
     mk = (ROOT / "Makefile").read_text()
     assert "command -v chromium" in mk and "apt-get install -y chromium" in mk
     assert "playwright" in (ROOT / "pyproject.toml").read_text()
+
+
+HOSTILE = '<script>window.pwned = 1</script>[bold red]x[/]'
+
+
+def test_hostile_metadata_in_every_field_is_shown_as_text_never_run(tmp_path, capsys, monkeypatch):
+    """A model file's record is data from outside (its digest recomputed, as a forger would): strings in every field
+    of its validation, training and selection records reach the models page escaped (no tag of theirs) and the
+    render's note as numbers or 'n/a' (no markup), never an internal error."""
+    import json
+
+    from safetensors import safe_open
+    from safetensors.numpy import save_file
+
+    from bowsynth.engines.operator.modelfile import digest, load_model
+    from bowsynth.report.models_page import _meta_card, _validation_table
+
+    src = Path(bowsynth.__file__).parent / "models" / "soft-range.safetensors"
+    with safe_open(str(src), framework="numpy") as f:
+        meta = json.loads(f.metadata()["bowsynth"])
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    for k in ("seconds", "ref_oversample", "grid", "nmse", "nmse_max", "harm_db_median", "cents_abs_max"):
+        meta["validation"][k] = HOSTILE
+    meta["validation"]["points"] = [{k: HOSTILE for k in ("beta", "vb", "nmse", "cents", "lsd_db")}]
+    meta["training"].update({k: HOSTILE for k in ("seconds", "steps_done", "optimizer", "final_loss")})
+    meta["digest"] = digest(meta, tensors)
+    path = tmp_path / "models" / "hostile.safetensors"
+    path.parent.mkdir()
+    save_file(tensors, str(path), metadata={"bowsynth": json.dumps(meta)})
+    m = load_model(path)
+    html = _validation_table(m.meta.validation) + _meta_card(path, m)
+    assert "<script" not in html and "&lt;script&gt;" in html
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_main(["render", "--model", str(path), "--fb", "30", "--vb", "0.2", "-d", "0.2",
+                               str(tmp_path / "h.wav")], capsys, monkeypatch)
+    assert code == 0, err
+    note = [ln for ln in out.splitlines() if "its validation" in ln]
+    assert note and "<script" not in note[0] and "[bold" not in note[0] and "n/a" in note[0], out

@@ -119,19 +119,22 @@ def resting_grid_text(v: dict) -> str | None:
     """What a validation record whose grid bows all damp the mass says (a model of the heavy bows' stops, halt-edge),
     or None for any other: it has no pitch or NMSE, only whether the model rests where the truth does."""
     if v.get("speaking") == 0 and v.get("resting") is not None and v.get("silent_sounding") is not None:
-        return (f"the bow damps the mass at every grid bow, where the truth rests; the model rests at "
-                f"{v['resting'] - v['silent_sounding']} of {v['resting']}")
+        try:
+            return (f"the bow damps the mass at every grid bow, where the truth rests; the model rests at "
+                    f"{fmt_num(v['resting'] - v['silent_sounding'], 'g')} of {fmt_num(v['resting'], 'g')}")
+        except TypeError:  # not numbers: a record edited by hand
+            return None
     return None
 
 
 def range_validation_text(v: dict, whose: str = "the") -> str:
     """A range model's validation record (training.validate_range) as train and render state it."""
-    g = v.get("grid")
+    # numbers only: the record comes from a file, and its text would reach the terminal (and rich's markup)
+    g, secs, ref = fmt_num(v.get("grid"), "g"), fmt_num(v.get("seconds"), "g"), fmt_num(v.get("ref_oversample"), "g")
     rests = resting_grid_text(v)
     if rests:
-        return (f"validation ({v.get('seconds') or 1:g} s from rest on a {g} x {g} grid of {whose} box vs FDM "
-                f"x{v.get('ref_oversample') or 100}): {rests}")
-    return (f"validation ({v.get('seconds') or 1:g} s from rest on a {g} x {g} grid of {whose} box vs FDM "
-            f"x{v.get('ref_oversample') or 100}, where the note speaks): harmonics "
+        return f"validation ({secs} s from rest on a {g} x {g} grid of {whose} box vs FDM x{ref}): {rests}"
+    return (f"validation ({secs} s from rest on a {g} x {g} grid of {whose} box vs FDM "
+            f"x{ref}, where the note speaks): harmonics "
             f"{fmt_num(v.get('harm_db_median'), '.2g')} dB median, pitch {fmt_num(v.get('cents_abs_max'), '.2g')} cents "
             f"worst; median NMSE(p) {fmt_num(v.get('nmse'), '.3g')}, worst {fmt_num(v.get('nmse_max'), '.3g')}")

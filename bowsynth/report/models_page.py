@@ -121,15 +121,17 @@ def _validation_table(v: dict) -> str:
             if p.get("speaks") or p.get("truth_sounds") is not False or "op_sounds" not in p:
                 return "yes" if p.get("speaks") else "no"
             return "no; the model " + ("sounds" if p["op_sounds"] else "rests")
-        rows = [[f"{p.get('beta', float('nan')):.4g}", f"{p.get('vb', float('nan')):.4g}", speaks(p),
+        rows = [[H.num(p.get('beta'), '.4g'), H.num(p.get('vb'), '.4g'), speaks(p),
                  *[H.num(p.get(k), f) for k, _, f in cols]] for p in v["points"]]
         t = H.table(["F_B / w", "v_B", "speaks", *[c for _, c, _ in cols]], rows, set(range(3, 8)))
-        return (f'<p class="why">{v.get("grid")} x {v.get("grid")} grid of the box (cell centres), '
-                f'{v.get("seconds")} s from rest at the model\'s f0 vs FDM x{v.get("ref_oversample")}: median NMSE(p) '
+        return (f'<p class="why">{H.esc(v.get("grid"))} x {H.esc(v.get("grid"))} grid of the box (cell centres), '
+                f'{H.esc(v.get("seconds"))} s from rest at the model\'s f0 vs FDM x{H.esc(v.get("ref_oversample"))}: '
+                f'median NMSE(p) '
                 f'{H.num(v.get("nmse"), ".3g")} where the note speaks, worst {H.num(v.get("nmse_max"), ".3g")}. The '
                 f'harmonic error here is compare\'s (peaks at the reference\'s pitch).</p>' + t)
     row = [H.num(v.get(k), f) for k, _, f in cols]
-    return (f'<p class="why">{v.get("seconds")} s from the scene\'s initial state vs FDM x{v.get("ref_oversample")}: in '
+    return (f'<p class="why">{H.esc(v.get("seconds"))} s from the scene\'s initial state vs FDM '
+            f'x{H.esc(v.get("ref_oversample"))}: in '
             f'sample (training took its window starts from this trajectory).</p>'
             + H.table([c for _, c, _ in cols], [row], set(range(5))))
 
