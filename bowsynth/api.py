@@ -153,6 +153,10 @@ def train(scene: Scene, config=None, out=None, force=False, resume=False, progre
     if out.exists() and not force:
         raise UsageError(f"{out} exists; pass --force to overwrite it, or --out to choose another file")
     ckpt = checkpoint_path(out)
+    for p in (out, ckpt):  # a FIFO would block the read (or be replaced by the write), a device never ends
+        if (p.exists() or p.is_symlink()) and not p.is_file():
+            raise UsageError(f"{p} is not a regular file (a FIFO, a device, a directory or a broken link): remove it "
+                             f"or pick another --out")
     if resume and not ckpt.exists():
         raise UsageError(f"no checkpoint to resume at {ckpt}")
     if ckpt.exists() and not (resume or force):  # the same command run again must not throw an interrupted run away

@@ -1,6 +1,7 @@
 """Hostile but realistic input, round 3 (issue 26): one line, the right exit code, nothing written."""
 
 import os
+import stat
 import subprocess
 import sys
 
@@ -233,3 +234,75 @@ def test_no_usable_temp_dir_for_a_fifo_is_said_before_any_work(tmp_path, capsys,
     code, out, err = run_main(["render", "--method", "fdm", "--fb", "100", "-d", "0.1", str(fifo)], capsys,
                               monkeypatch)
     assert code == 1 and "TMPDIR" in err and _one_line(err) and "wrote" not in out, err
+
+
+def _forged(src, dst, edit_meta=None, edit_tensors=None):
+    import json
+
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    with safe_open(str(src), framework="pt") as f:
+        meta = json.loads(f.metadata()["bowsynth_checkpoint"])
+        tensors = {k: f.get_tensor(k) for k in f.keys()}
+    if edit_meta:
+        edit_meta(meta)
+    if edit_tensors:
+        edit_tensors(tensors)
+    save_file(tensors, str(dst), metadata={"bowsynth_checkpoint": json.dumps(meta)})
+    return dst
+
+
+@pytest.mark.parametrize("what", ["step -5", "step 1e18", "step text", "elapsed nan", "rng text", "tensor missing",
+                                  "wrong shape", "nan weights", "rng state missing", "not a record"])
+def test_a_forged_checkpoint_is_refused_in_one_line_never_an_internal_error(what, tmp_path):
+    """A checkpoint is data from outside: wrong types, implausible steps or times, a missing or misshapen tensor,
+    weights that are not finite: each a UsageError naming the file, before any of it is used."""
+    import torch
+
+    from bowsynth import Scene
+    from bowsynth.api import make_train_config
+    from bowsynth.errors import UsageError
+    from bowsynth.training import Trainer
+
+    sc = Scene(fb=100.0)
+    cfg = make_train_config(sc, steps=3, width=8, depth=1, n_data=32)
+    tr = Trainer(sc, cfg, "forged")
+    good = tmp_path / "good.ckpt.safetensors"
+    tr.save_checkpoint(good)
+    Trainer(sc, cfg, "forged").load_checkpoint(good)  # the real one loads
+    first = next(k for k in tr.net.state_dict() if k.endswith("weight"))
+    edits = {
+        "step -5": (lambda m: m.update(step=-5), None), "step 1e18": (lambda m: m.update(step=10**18), None),
+        "step text": (lambda m: m.update(step="5"), None), "elapsed nan": (lambda m: m.update(elapsed=float("nan")), None),
+        "rng text": (lambda m: m.update(rng="seed"), None),
+        "tensor missing": (None, lambda t: t.pop(f"net.{first}")),
+        "wrong shape": (None, lambda t: t.update({f"net.{first}": torch.zeros(3, 3)})),
+        "nan weights": (None, lambda t: t[f"net.{first}"].fill_(float("nan"))),
+        "rng state missing": (None, lambda t: t.pop("torch_rng")),
+        "not a record": (lambda m: m.clear(), None),
+    }
+    bad = _forged(good, tmp_path / "bad.ckpt.safetensors", *edits[what])
+    with pytest.raises(UsageError, match="bad.ckpt.safetensors"):
+        Trainer(sc, cfg, "forged").load_checkpoint(bad)
+
+
+def test_a_recipe_cycle_is_one_line_from_the_command_make_models_runs(tmp_path):
+    (tmp_path / "a.toml").write_text('from = "b"\nfb = 100\n')
+    (tmp_path / "b.toml").write_text('from = "a.safetensors"\nfb = 100\n')
+    p = subprocess.run([sys.executable, "-m", "bowsynth.training.recipe", str(tmp_path / "a.toml"),
+                        str(tmp_path / "b.toml")], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 1 and p.stderr.strip().startswith("error: recipes refine each other in a cycle")
+    assert len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr
+
+
+def test_a_fifo_in_a_training_files_place_is_refused_before_anything_opens_it(tmp_path):
+    models = tmp_path / "models"
+    models.mkdir()
+    os.mkfifo(models / "x.ckpt.safetensors")
+    for flag in ("--resume", "--force"):
+        p = subprocess.run([sys.executable, "-m", "bowsynth", "train", "--fb", "100", "--steps", "3", "--width", "8",
+                            "--depth", "1", "--n-data", "32", "--out", str(models / "x.safetensors"), flag],
+                           capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        assert p.returncode == 2 and "not a regular file" in p.stderr, p.stderr
+    assert stat.S_ISFIFO(os.stat(models / "x.ckpt.safetensors").st_mode) and not (models / "x.safetensors").exists()

@@ -50,14 +50,31 @@ def save(path: Path, state: dict) -> None:
 
 
 def load(path: Path) -> tuple[dict, dict, dict]:
-    """(tensors, optimizer state, meta) of a checkpoint; restores torch's RNG. A bad file is a UsageError."""
+    """(tensors, optimizer state, meta) of a checkpoint; restores torch's RNG. A bad file (not a regular file: a FIFO
+    would block the read; unreadable; a record of the wrong types; a tensor missing or not finite) is a UsageError."""
     from safetensors import safe_open
 
+    from ..io.infile import regular_file
+
+    regular_file(path, "checkpoint", "a checkpoint file")
+    bad = f"checkpoint {path} is damaged or forged ({{}}); delete it to start afresh"
     try:
         with safe_open(str(path), framework="pt") as f:
             meta = json.loads(f.metadata()[META_KEY])
             tensors = {k: f.get_tensor(k) for k in f.keys()}
     except Exception as e:
         raise UsageError(f"checkpoint {path} is unreadable ({type(e).__name__}); delete it to start afresh") from None
-    torch.set_rng_state(tensors.pop("torch_rng"))
-    return tensors, _unflatten(meta.pop("opt"), tensors), meta
+    if not isinstance(meta, dict) or not isinstance(meta.get("opt"), dict):
+        raise UsageError(bad.format("its record is not a checkpoint's"))
+    rng = tensors.pop("torch_rng", None)
+    if rng is None or rng.dtype != torch.uint8 or rng.dim() != 1:
+        raise UsageError(bad.format("torch's random state is missing or of the wrong type"))
+    for k, t in tensors.items():
+        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            raise UsageError(bad.format(f"{k} is not finite"))
+    try:
+        opt = _unflatten(meta.pop("opt"), tensors)
+        torch.set_rng_state(rng)
+    except (KeyError, TypeError, ValueError, RuntimeError) as e:
+        raise UsageError(bad.format(f"{type(e).__name__}: {str(e)[:80]}")) from None
+    return tensors, opt, meta

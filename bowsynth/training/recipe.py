@@ -68,7 +68,11 @@ def build_order(paths) -> list[Path]:
         r = load_recipe(a)
         by_out[Path(r.get("out", a.with_suffix(".safetensors"))).resolve()] = p
         # the parent's file need not exist yet (a fresh build): its path as the recipe names it, from its folder
-        parent[p] = (a.parent / r["from"]).resolve() if "from" in r else None
+        # (a name, as `train --from` takes it, is the model file of that name beside the recipe)
+        src = Path(r["from"]) if "from" in r else None
+        if src is not None and not src.suffix:
+            src = src.with_suffix(".safetensors")
+        parent[p] = (a.parent / src).resolve() if src is not None else None
     order: list[Path] = []
     state: dict[Path, int] = {}  # 1: being placed, 2: placed
 
@@ -91,4 +95,9 @@ def build_order(paths) -> list[Path]:
 if __name__ == "__main__":
     import sys
 
-    print("\n".join(str(p) for p in build_order(sys.argv[1:])))
+    from ..errors import BowsynthError
+
+    try:
+        print("\n".join(str(p) for p in build_order(sys.argv[1:])))
+    except BowsynthError as e:  # `make models` runs this: one line, not a traceback
+        sys.exit(f"error: {e}")

@@ -22,6 +22,8 @@ from .data import add_chains, build, build_range
 from .losses import default_weights, loss_terms, weighted
 from .selection import RangeSelector, Selector, selection_scene
 
+MAX_STEPS = 10**9  # a checkpoint further on than this is not a run's
+
 
 @dataclass
 class TrainResult:
@@ -197,6 +199,18 @@ class Trainer:
 
     def load_checkpoint(self, path: Path):
         tensors, opt_state, meta = checkpoint.load(path)
+        try:
+            self._restore(path, tensors, opt_state, meta)
+        except (KeyError, TypeError, ValueError, RuntimeError, IndexError) as e:
+            raise UsageError(f"checkpoint {path} is damaged or forged ({type(e).__name__}: {str(e)[:100]}); delete it "
+                             f"to start afresh") from None
+
+    def _restore(self, path: Path, tensors: dict, opt_state, meta: dict):
+        step, elapsed = meta.get("step"), meta.get("elapsed")
+        if (not isinstance(step, int) or isinstance(step, bool) or not 0 <= step <= MAX_STEPS
+                or not isinstance(elapsed, (int, float)) or not math.isfinite(elapsed) or not 0 <= elapsed <= 1e7
+                or not isinstance(meta.get("history"), list) or not isinstance(meta.get("rng"), dict)):
+            raise ValueError(f"step {step!r}, elapsed {elapsed!r}: not a run's")
         if meta["scene"] != self.scene.to_dict() or meta.get("box") != self._box_json():
             raise UsageError(f"checkpoint {path} is for another scene; delete it or pick another --out")
         if meta.get("init") != self._init_id():
