@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bad_inputs.py > docs/bad_inputs.md
 
-Round 2 adds special output paths, truncated and edited files, extreme numbers, and signals sent to real processes
+It covers special output paths, truncated and edited files, extreme numbers, and signals sent to real processes
 in several phases (the exit time after the signal is measured on a shared 2-core machine).
 """
 
