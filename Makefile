@@ -74,12 +74,15 @@ models: $(STAMP)
 	order=$$($(PY) -m bowsynth.training.recipe $(RECIPES)) || exit 1; \
 	for r in $$order; do $(BOW) train --config $$r --update || exit 1; done
 	$(PY) -m bowsynth.training.manifest
+	$(PY) -m bowsynth.music.model_ratio
 
 # The tables a render reads instead of running the reference: the physics' sounding ratio over the bow plane, solved
-# on a grid (bowsynth/models/tables/physics-ratio.npz; ~2 min on two cores). `check` measures it off its grid.
+# on a grid (bowsynth/models/tables/physics-ratio.npz; ~2 min on two cores; `check` measures it off its grid), and
+# the shipped models' own ratios at every MIDI velocity's bow (own-ratios.json, ~2 s: `play` starts without them).
 tables: $(STAMP)
 	$(PY) -m bowsynth.music.ratio_map build
 	$(PY) -m bowsynth.music.ratio_map check --n 80
+	$(PY) -m bowsynth.music.model_ratio
 
 # docs/models.md and docs/atlas.png: the shipped catalogue as `bowsynth models` lists it, and its tiling
 docs-models: $(STAMP)

@@ -197,9 +197,9 @@ def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
 
 def test_an_engines_failed_measurement_is_remembered_on_disk(fresh_cache, monkeypatch):
     """A model that cannot hold a bow from rest fails the same way every time: the failure is kept and raised again
-    from the table, its kind and its words, without measuring (session 50: 1.1 s of a warm render)."""
+    from the table, its kind and its words, without measuring (measured afresh it cost 1.1 s of a warm render)."""
     from bowsynth.errors import DomainError
-    from bowsynth.music import tuning as pitch
+    from bowsynth.music import engine_ratio as pitch
 
     calls = []
 
@@ -353,7 +353,7 @@ def test_a_poisoned_engine_ratio_entry_is_measured_again_never_trusted(bad, tmp_
     entry is read as it is."""
     import json
 
-    from bowsynth.music import tuning
+    from bowsynth.music import engine_ratio as tuning
     from bowsynth.music.ratio_map import physics_ratio
 
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
@@ -368,7 +368,7 @@ def test_a_poisoned_engine_ratio_entry_is_measured_again_never_trusted(bad, tmp_
 
     def poisoned(value):
         table = tuning.DiskTable("sounding-ratio", "poison")
-        key = f"operator test {beta!r} {vb!r} {100.0!r}"
+        key = tuning.ratio_key("operator test", beta, vb, 100.0)
         path = table.entry_path(key)
         path.parent.mkdir(parents=True, exist_ok=True)
         doc = {"version": "poison", "key": key}

@@ -159,3 +159,23 @@ def test_a_bow_stop_no_model_covers_is_refused_unless_the_fdm_is_asked_for(monke
     (r,) = render_notes([note], model=point, fallback="fdm")
     assert r.info.release == "fdm"
 
+
+
+def test_the_shipped_own_ratios_are_the_operators_measurements_of_the_shipped_models(tmp_path, monkeypatch):
+    """own-ratios.json holds the shipped models' own sounding ratios at MIDI velocities' bows, keyed by model id (a
+    retrained model matches none): every key names a shipped model, and a few entries measured afresh agree."""
+    import json
+
+    from bowsynth.engines.operator.choose import available_models
+    from bowsynth.music import model_ratio
+
+    monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
+    ratios = json.loads(model_ratio.SHIPPED_RATIOS.read_text())["ratios"]
+    models = {m.key: m for m in available_models()}
+    keys = list(ratios)
+    assert len(keys) > 100 and all(k.split()[1] in models for k in keys)
+    for k in keys[:: len(keys) // 4][:4]:
+        engine, key, beta, vb, a = k.split()
+        monkeypatch.setattr(model_ratio, "_shipped", lambda: {})
+        fresh = model_ratio.own_ratio(models[key], float(beta), float(vb), float(a))
+        assert abs(1200 * math.log2(fresh / ratios[k])) < 1e-6, k

@@ -15,7 +15,8 @@ from ..io.cache import DiskTable
 from ..scene import Scene
 from .model_ratio import lock_ratio, operator_ratio, own_ratio
 from .ratio_map import physics_or_solve, physics_ratio
-from .tuning import SilentNoteError, _measure_ratio, engine_ratio, sounding_ratio
+from .engine_ratio import engine_ratio
+from .tuning import SilentNoteError, _measure_ratio, sounding_ratio
 
 
 def fdm_measured_ratio(beta: float, vb: float, a: float, f0: float, rate: float) -> float:

@@ -196,43 +196,6 @@ def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> 
     return Ratio(r=float(r), settle_periods=float(settled), amplitude=float(amps[-1]), beta=beta, vb=vb, a=a)
 
 
-# A measurement that fails is kept too, and raised again from the table: a model that cannot hold a bow from rest
-# fails the same way every time (measured afresh, four locks cost 1.1 s of a 1.7 s warm render).
-_FAILS = {"DomainError": DomainError, "SilentNoteError": SilentNoteError}
-_ENGINE_RATIOS: dict[str, float] = {}  # this process's answers, ahead of the disk
-# An engine's own ratio sits within cents of the physics' (the FDM's dispersion ~2 cents at A5, an operator's own cycle
-# up to tens): a cached one further off than a quarter tone (a 6 % edit is 101 cents) is measured again.
-PLAUSIBLE_CENTS = 50.0
-
-
-def engine_ratio(engine: str, beta: float, vb: float, a: float, measure, physics_ratio=None) -> float:
-    """An engine's sounding ratio at a bow, from the on-disk table or measured (a silent note raises, as the physics'
-    does: `physics_ratio`, the source of the physics' Ratio, is asked first: sounding_ratio, the reference, by default; the
-    operator's path passes the shipped map, ratio_map.physics_ratio); a measurement that raised DomainError or
-    SilentNoteError raises it again."""
-    phys = (physics_ratio or sounding_ratio)(beta, vb, a).r
-    key = f"{engine} {beta!r} {vb!r} {a!r}"
-    if key in _ENGINE_RATIOS:  # asked again in this process (the live engine's tables ask each bow ~100 times)
-        return _ENGINE_RATIOS[key]
-    hit = _ratios.get(key)
-    if (isinstance(hit, dict) and isinstance(hit.get("r"), float) and math.isfinite(hit["r"]) and hit["r"] > 0
-            and abs(metrics.cents(hit["r"], phys)) <= PLAUSIBLE_CENTS):
-        _ENGINE_RATIOS[key] = hit["r"]
-        return hit["r"]
-    if isinstance(hit, dict) and hit.get("fails") in _FAILS:
-        raise _FAILS[hit["fails"]](str(hit.get("why", "")))
-    try:
-        r = float(measure())
-        if not (math.isfinite(r) and r > 0):
-            raise SilentNoteError(f"the note does not speak with this engine at F_B / w = {beta:.4g}, v_B = {vb:g}")
-    except (DomainError, SilentNoteError) as e:
-        _ratios.put(key, {"fails": "DomainError" if isinstance(e, DomainError) else "SilentNoteError", "why": str(e)})
-        raise
-    _ratios.put(key, {"r": r})
-    _ENGINE_RATIOS[key] = r
-    return r
-
-
 # --- solving for f0 ----------------------------------------------------------------------------------------------
 
 PITCH_TOL_CENTS = 1e-3
