@@ -437,9 +437,9 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
 @pytest.mark.parametrize("args", [["render", "--pitch", "A4", "--fb", "276", "-d", "0.2", "x.wav"],
                                   ["score", "--score", "s.toml", "--mix", "m.wav"]], ids=["render-pitch", "score"])
 def test_a_repeated_pitch_and_an_operator_score_load_no_torch(tmp_path, args):
-    """The first `--pitch` measures the sounding pitch with the compiled FDM; the same note again reads the on-disk
-    table (bowsynth.io.cache). An operator score (its releases in the compiled FDM) loads no torch and no numba
-    (retired: the compiled core replaced it) from the first run on."""
+    """The first `--pitch` measures the playing model's own sounding pitch (the operator, no reference); the same note
+    again reads the on-disk table (bowsynth.io.cache). An operator score loads no torch and no numba from the first
+    run on."""
     (tmp_path / "s.toml").write_text('[[voice]]\nname = "v"\nf0 = 120.0\nbeta = 0.159155\nduration = 0.2\n'
                                      '[[voice]]\nname = "w"\nf0 = 150.0\nbeta = 0.159155\nduration = 0.3\n')
     env = {**os.environ, "PYTHONPATH": str(ROOT), "BOWSYNTH_CACHE": str(tmp_path / "cache")}
@@ -455,7 +455,8 @@ def test_a_repeated_pitch_and_an_operator_score_load_no_torch(tmp_path, args):
     again = modules()
     assert "numpy" in again and "numba" not in again and "torch" not in again
     if args[0] == "render":
-        assert list((tmp_path / "cache" / "sounding-ratio").rglob("*.json"))
+        assert list((tmp_path / "cache" / "engine-ratio").rglob("*.json"))
+        assert not (tmp_path / "cache" / "sounding-ratio").exists()  # the reference's solve never ran
 
 
 def test_help_loads_no_numpy(tmp_path):
