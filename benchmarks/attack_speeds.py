@@ -1,4 +1,4 @@
-"""An attack from F_B = 0 at fast bows (issue 21): F_B / w 0 -> 0.2 over 50 ms at f0 100, v_B 0.23 / 0.25 / 0.28,
+"""An attack from F_B = 0 at fast bows: F_B / w 0 -> 0.2 over 50 ms at f0 100, v_B 0.23 / 0.25 / 0.28,
 1.5 s, scored per 100 ms frame against a x100 FDM driven by the same curve (metrics.frame_errors), played by the
 renderer's pick and by each named model, in auto windows.
 

@@ -58,7 +58,7 @@ def main() -> None:
         ops = [k for k in procs if k not in ("help", "fdm")]
         for i in range(a.runs + 1):  # the first round warms the caches and is not counted
             # the operator processes take turns in each slot: the one right after another operator process ran
-            # 0.08-0.1 s slower whichever tree it was (session 27)
+            # 0.08-0.1 s slower whichever tree it was
             order = ["help", *ops[i % len(ops):], *ops[:i % len(ops)], "fdm"]
             for k in order:
                 tree, args = procs[k]

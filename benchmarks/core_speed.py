@@ -1,4 +1,4 @@
-"""The compiled core's speed (issue 23): whole processes alternated with `bowsynth --help`, and the rollout in
+"""The compiled core's speed: whole processes alternated with `bowsynth --help`, and the rollout in
 multiples of real time, beside this machine's float32 matrix-product speed measured in the same run (the CPU is shared:
 the ratio to it says what the loops reach of what the machine gave at that moment).
 

@@ -1,4 +1,4 @@
-"""What a listener hears, out of sample, over the playing space (issue 21): timbre, pitch and onset first, NMSE beside.
+"""What a listener hears, out of sample, over the playing space: timbre, pitch and onset first, NMSE beside.
 
     PYTHONPATH=. .venv/bin/python benchmarks/listener.py [--model PATH] [--region soft|stick|all] [--n N] [--seed S]
                                                           [--seconds 2] [--json out.json] [--box B0:B1,V0:V1]

@@ -1,4 +1,4 @@
-"""Benchmarks of the live instrument (issue 24; results in docs/BENCHMARKS.md, "Playing live").
+"""Benchmarks of the live instrument (results in docs/BENCHMARKS.md, "Playing live").
 
     python benchmarks/live.py callback [--seconds 5] [--windows free|locked]   # Stream.process times at 1/16/64/256
                                                                               # voices, both engines

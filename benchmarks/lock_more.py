@@ -1,6 +1,6 @@
 """A held note locked to the physics' period in the fewest windows that fill it and in 1..3 more a period: its
 pitch and harmonics against the x100 FDM (2 s from rest, scored over the last second, as benchmarks/listener.py), and
-in free windows. Where a lock's windows end in the cycle sets its harmonics (session 29).
+in free windows. Where a lock's windows end in the cycle sets its harmonics.
 
     PYTHONPATH=. .venv/bin/python benchmarks/lock_more.py F0 BETA VB MODEL
 """

@@ -1,4 +1,4 @@
-"""A long piece as a user renders it (issue 11): 8 voices of 60 s each, one held note per voice at 8 pitches of a
+"""A long piece as a user renders it: 8 voices of 60 s each, one held note per voice at 8 pitches of a
 chord, F_B / w of the shipped paper-fb100 model, `bowsynth score --mix`, operator against `--method fdm`, whole
 process, alternated.
 

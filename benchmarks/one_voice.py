@@ -1,4 +1,4 @@
-"""One voice's rollout in multiples of real time (issue 23: >= 1000x at f0 <= 150 Hz, >= 300x at 880 Hz), for the
+"""One voice's rollout in multiples of real time (>= 1000x at f0 <= 150 Hz, >= 300x at 880 Hz), for the
 soft range models (width 128) and `paper-fb100` (width 64), with the branch's weights in panels and strided
 (BOWSYNTH_NO_PANELS=1: the same samples), alternated in fresh processes round by round.
 

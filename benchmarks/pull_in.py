@@ -1,4 +1,4 @@
-"""A held note's pitch over its periods from rest, per model and windows: how a lock pulls the note in (session 29).
+"""A held note's pitch over its periods from rest, per model and windows: how a lock pulls the note in.
 Each column is the pitch over that many of the physics' periods (interpolated zero crossings of q), in cents re the
 physics' sounding ratio, against an FDM at x10 in the first row.
 

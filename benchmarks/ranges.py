@@ -1,4 +1,4 @@
-"""Range models against the truth (issue 10): held-out bows, gestures, the stick-capture shape, speed.
+"""Range models against the truth: held-out bows, gestures, the stick-capture shape, speed.
 
     PYTHONPATH=. .venv/bin/python benchmarks/ranges.py [MODEL.safetensors ...] [--quick] [--json out.json]
 

@@ -78,9 +78,9 @@ def main() -> None:
         long = cwd / "long.toml"
         long.write_text(score_text(secs))
         pieces = [(f"{n} voices x 1 s at {n} pitches, a WAV each", ["score", "--score", str(many), "v", "--force",
-                                                                     "-q"], "5x (issue 12)"),
+                                                                     "-q"], "5x"),
                   (f"8 voices x {secs:g} s, --mix", ["score", "--score", str(long), "--mix", "m.wav", "--force",
-                                                     "-q"], "10x (issue 11)")]
+                                                     "-q"], "10x")]
         for label, cmd, target in pieces:
             variants = {"op": [PY, "-m", "bowsynth", *cmd], "stub": [PY, "-c", STUB, *cmd],
                         "fdm": [PY, "-m", "bowsynth", *cmd, "--method", "fdm"]}

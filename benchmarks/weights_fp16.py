@@ -1,4 +1,4 @@
-"""Would float16 weights sound the same? (issue 23: a lead for the one-voice loop at width 128, which streams its
+"""Would float16 weights sound the same? (a lead for the one-voice loop at width 128, which streams its
 weights from the L2 cache.) Held soft bows rendered 2 s from rest with the shipped `soft-range` as trained (float32)
 and with every weight matrix rounded to float16 and back, both against a x100 FDM: harmonics (worst, dB), pitch
 (cents) and onset (ms), and how far apart the two waveforms are.

@@ -134,7 +134,7 @@ def test_slow_onset_model_from_rest(case):
 # bow (GUIDE section 9), so the held bows are pinned by what a listener hears too (RANGE_HEARD: the worst of harmonics
 # 1-10 in dB and the pitch in cents, over the last 0.5 s). The round-2 model scored NMSE 1e-4 to 6e-3 here but its
 # harmonics were up to 30 dB off (27.7 and 30 dB at F_B / w 0.117); session 6's (the smaller box) was within 4.3 dB;
-# session 10's within 1.1 dB, at NMSE 2e-4 to 3e-2; this one (session 13, width 128) within 0.34 dB and 0.3 cents,
+# session 10's within 1.1 dB, at NMSE 2e-4 to 3e-2; this one (width 128) within 0.34 dB and 0.3 cents,
 # at NMSE 1e-4 to 1e-2 (python tests/test_accuracy.py prints both).
 RANGE_MEASURED = {(0.0226, 0.1437): 1.23e-4, (0.0514, 0.1437): 1.10e-3, (0.1168, 0.1437): 1.95e-3,
                   (0.1168, 0.2062): 7.66e-3, "crescendo 0.05 -> 0.35": 9.56e-3}

@@ -132,7 +132,7 @@ def test_a_score_note_that_crosses_boxes_is_played_not_refused(tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert "played by" in p.stdout and "-> stick-mid" in p.stdout and out.stat().st_size > 0
-    # its bow stop at F_B / w 1.5: stick-halt's (session 28; before it no model covered it and the FDM played it)
+    # its bow stop at F_B / w 1.5: stick-halt's (before it no model covered it and the FDM played it)
     assert "bow stops: 1 by the operator, 0 by the FDM" in p.stdout and "stick-halt" in p.stdout, p.stdout
 
 
@@ -166,7 +166,7 @@ def test_any_moving_bow_gets_a_plan_whose_stretches_its_models_play_or_none(poin
 
 def test_the_papers_stick_slip_note_stops_on_the_operator():
     """The paper's stick-slip scene (F_B 1000 at f0 100, F_B / w 1.59) with its bow stopped: refused before stick-halt
-    (session 28: no model reached v_B below 0.075 at these forces). Now one model plays it whole, as the truth: the
+    (no model reached v_B below 0.075 at these forces). Now one model plays it whole, as the truth: the
     held part's timbre and pitch, the stop's envelope, and the mass at rest at the end."""
     sc = Scene(f0=100.0, fb=1000.0, vb=[[0.0, 0.2], [0.6, 0.2], [0.8, 0.0]], duration=1.2)
     from bowsynth.api import render

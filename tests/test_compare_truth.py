@@ -14,7 +14,7 @@ def test_default_reference_is_the_high_rate_fdm_with_the_audio_rate_beside(tmp_p
     m = json.loads(so)["metrics"]
     labels = list(m)
     assert labels[0] == "file vs FDM x100 (truth)" and labels[1] == "file vs FDM"
-    # at A4 the operator is closer to the truth than the audio-rate FDM is (issue 11: NCC 89 % against the latter)
+    # at A4 the operator is closer to the truth than the audio-rate FDM is (NCC 89 % against the latter)
     assert m[labels[0]]["nmse"] < m["FDM vs FDM x100"]["nmse"]
     code, so, err = run_main(["compare", str(out), "--json", "--reference", "audio"], capsys, monkeypatch)
     assert list(json.loads(so)["metrics"]) == ["file vs FDM"]

@@ -1,4 +1,4 @@
-"""Odd environments (issue 26): a cache entry that is a FIFO or damaged, two processes at once, a user with no home
+"""Odd environments: a cache entry that is a FIFO or damaged, two processes at once, a user with no home
 directory."""
 
 import json

@@ -75,7 +75,7 @@ def test_bench_map_writes_the_grid_the_plot_and_json(tmp_path):
     assert len(cells) == 4 and res["f0"] == [100.0]
     assert res["windows"] == "auto"  # no --windows: what a render plays
     assert cells[(0.02, 0.0)]["status"] == "silent"
-    # the heaviest bow stopped: halt-edge plays it (session 34; refused before) and rests, as the truth does
+    # the heaviest bow stopped: halt-edge plays it (refused before) and rests, as the truth does
     edge = cells[(2.0, 0.0)]
     assert edge["status"] == "silent" and edge["op_silent"] and edge["model_name"] == "halt-edge", edge
     assert prefix.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,4 +1,4 @@
-"""Hostile but realistic input, round 3 (issue 26): one line, the right exit code, nothing written."""
+"""Hostile but realistic input, round 3: one line, the right exit code, nothing written."""
 
 import os
 import stat

@@ -389,7 +389,7 @@ def test_loud_notes_past_the_stick_slip_boundary_play_with_the_operator_in_tune(
     # velocity 110-127 bows at F_B / w 0.44-0.64 (music.midi.bow_beta), just into stick-slip: the shipped
     # velocity-loud plays them (before session 11 no model did and `score` refused the piece); measured 0.02-0.16
     # cents from equal temperament, tuned with the model's own sounding ratio. Their bow stops (v_B -> 0 at that
-    # force) leave its box: loud-stops (session 12) plays those, so no FDM is in the piece's path.
+    # force) leave its box: loud-stops plays those, so no FDM is in the piece's path.
     mid = mido.MidiFile(type=1, ticks_per_beat=TPB)
     tr = mido.MidiTrack()
     for note, vel in ((48, 112), (60, 120), (67, 127)):

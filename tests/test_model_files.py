@@ -573,7 +573,7 @@ def test_forged_domain_fields_load_cleanly_or_are_refused(tmp_path, field, value
 
 def test_range_models_are_judged_by_what_a_listener_hears():
     """A range model's verdict (picked by default or not) reads its validation grid's harmonic and pitch errors, not
-    NMSE from rest (issue 21); a point model is still judged by NMSE, and a failed grid point fails either."""
+    NMSE from rest; a point model is still judged by NMSE, and a failed grid point fails either."""
     from dataclasses import replace
 
     from bowsynth.engines.operator.modelfile import (MAX_VALIDATION_CENTS, MAX_VALIDATION_HARM_DB,

@@ -1,4 +1,4 @@
-"""Range models (issue 10): a tiny one trained in seconds, its file, its three evaluations (torch, numpy, compiled)
+"""Range models: a tiny one trained in seconds, its file, its three evaluations (torch, numpy, compiled)
 agreeing with per-window bows, gestures followed and reported, the box checked per window, the CLI's ranges."""
 
 import copy
@@ -465,9 +465,9 @@ def test_a_held_bow_that_damps_the_mass_is_played_by_a_model_validated_to_rest(m
 
 def test_a_slow_heavy_bow_between_the_creep_tiles_plays_its_note_not_another():
     """F_B / w 1.524, v_B 0.0789 at 133 Hz: a slow heavy bow (sounding ~3 octaves below f0) between stick-creep's forces
-    and floor-long's, which only stick-halt covered until creep-mid (session 36). stick-halt plays its own cycle 12
+    and floor-long's, which only stick-halt covered until creep-mid. stick-halt plays its own cycle 12
     cents flat in free windows; locked to the physics' period it plays the note (session 36 read 1250 cents there: the
-    pitch estimator's, session 37); creep-mid, picked first, plays it within a tenth of a cent."""
+    pitch estimator's); creep-mid, picked first, plays it within a tenth of a cent."""
     from bowsynth.analysis.metrics import listener_errors
     from bowsynth.api import render
     from bowsynth.engines.operator.choose import covering_model

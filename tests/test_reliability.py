@@ -180,7 +180,7 @@ def test_kill_training_then_resume(tmp_path):
 
 
 def test_a_validation_that_fails_keeps_the_trained_network_for_resume(tmp_path, monkeypatch, capsys):
-    """An error after the budget is spent (session 42: a validation that crashed after 40 minutes of training) keeps
+    """An error after the budget is spent (a validation that crashed after 40 minutes of training) keeps
     the trained network in the checkpoint and says so in its one line; --resume then validates without training."""
     import bowsynth.training
     from conftest import run_main

@@ -168,7 +168,7 @@ def test_a_held_bow_that_damps_the_mass_comes_to_rest_as_the_truth(beta, vb):
     alone settled on a faint hum there (p RMS 1e-4 to 5.6e-3, bench map); the flow at rest now plays from where the
     state comes within its radius (from the start at v_B 0, where the rest point is the start), so the note's last
     half is silence and it rests where the truth does. stick-halt at (1.7, 0.04) and (1.3, 0.06) settled 0.015 and
-    0.003 off its rest point, outside the linearised radius, humming at p RMS 6.0e-4 and 3.3e-4 (session 33): a bow
+    0.003 off its rest point, outside the linearised radius, humming at p RMS 6.0e-4 and 3.3e-4: a bow
     held from the start rings down from where the swing keeps within the friction's rising slope (onset.DAMP_SHARE)."""
     sc = Scene(f0=110.0, fb=beta * 2 * math.pi * 110.0, vb=vb, duration=1.0)
     r = render(sc, engine="operator")
@@ -188,7 +188,7 @@ def test_a_held_bow_that_damps_the_mass_comes_to_rest_as_the_truth(beta, vb):
 def test_a_held_bow_just_below_vb_stop_rests_as_the_truth(beta, vb):
     """Within 0.2 % below vb_stop (0.07071) the width where the friction's slope stays positive is 1e-4 to 2e-4, and
     the models that cover these bows crept to the rest point and on into a full note: p RMS 0.11-0.26 over the last
-    half (stick-halt, halt-edge, loud-stops; session 34) where the truth rests (1e-13). The truth comes to rest from
+    half (stick-halt, halt-edge, loud-stops) where the truth rests (1e-13). The truth comes to rest from
     states as far as vb_stop off its rest point, so the note rings down from its closest approach on the first pass
     within onset.BASIN_SHARE vb_stop, and is silent where the truth is."""
     sc = Scene(f0=110.0, fb=beta * 2 * math.pi * 110.0, vb=vb, duration=1.0)

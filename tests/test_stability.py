@@ -17,31 +17,31 @@ from bowsynth.engines.operator.rollout import rollout_states
 SHIPPED = sorted(p for p in SHIPPED_DIR.glob("*.safetensors") if not p.name.endswith(".ckpt.safetensors"))
 
 
-# Within 1 cent after 30 s, but loud-stops (session 12), measured -1.03 cents at its centre bow (F_B / w 0.527, v_B
+# Within 1 cent after 30 s, but loud-stops, measured -1.03 cents at its centre bow (F_B / w 0.527, v_B
 # 0.129: a slow loud bow; it is shipped for the bow stops of loud notes, which last 50 ms), and stick-stops (session
 # 19), measured +2.0 cents at its centre bow (F_B / w 0.898, v_B 0.125), sharp there at every pitch
 # (tests/test_grid.py); held bows there are stick-low's, it plays the bow stops and the slowest bows
-# floor-long (session 27), -5.42 cents at its centre bow (F_B / w 1.880, v_B 0.088) in free windows: its own period
+# floor-long, -5.42 cents at its centre bow (F_B / w 1.880, v_B 0.088) in free windows: its own period
 # there, where v_B 0.1 % off moves the truth 2.7 cents; auto windows lock it to the physics' (BENCHMARKS.md)
-# stick-halt (session 28), -5.02 cents at its centre bow (F_B / w 1.497, v_B 0.125) in free windows (-4.85 in its
+# stick-halt, -5.02 cents at its centre bow (F_B / w 1.497, v_B 0.125) in free windows (-4.85 in its
 # validation): it plays the heavy bow stops; a held bow there is stick-slow's, deeper in a smaller box
-# stick-halt-high (session 33), -1.72 cents at its centre bow (F_B / w 1.845, v_B 0.125) in free windows: a held bow
+# stick-halt-high, -1.72 cents at its centre bow (F_B / w 1.845, v_B 0.125) in free windows: a held bow
 # there is stick-heavy's (a smaller box); auto windows lock it where it plays one
-# creep-mid (session 36), -1.16 cents at its centre bow (F_B / w 1.497, v_B 0.088) in free windows: its own period
+# creep-mid, -1.16 cents at its centre bow (F_B / w 1.497, v_B 0.088) in free windows: its own period
 # there (benchmarks/stability.py); auto windows lock it to the physics'
-# halt-band (session 38), -3.70 cents at its centre bow (F_B / w 1.497, v_B 0.074) in free windows, where the truth's
+# halt-band, -3.70 cents at its centre bow (F_B / w 1.497, v_B 0.074) in free windows, where the truth's
 # pitch moves 0.4-0.8 cents per 1e-4 of v_B; its validation, in the windows a render plays, 0.0014 cents
-# high-band (session 38), -6.23 cents at its centre bow (F_B / w 1.845, v_B 0.074) in free windows; its validation
-# 0.0016 cents; edge-band (session 38), +4.96 cents at its centre bow (F_B / w 1.959, v_B 0.074) in free windows, its
-# validation 0.52 cents; bottom-band (session 39), +1.64 cents at its centre bow (F_B / w 1.020, v_B 0.072), where
-# 0.1 % of v_B moves the truth 4.9 cents; halt-bottom (session 39, failed its validation by ear), +5.73 cents at its
-# centre bow (F_B / w 1.508, v_B 0.072) in free windows; upper-band (session 40), -0.86 cents at its centre bow
+# high-band, -6.23 cents at its centre bow (F_B / w 1.845, v_B 0.074) in free windows; its validation
+# 0.0016 cents; edge-band, +4.96 cents at its centre bow (F_B / w 1.959, v_B 0.074) in free windows, its
+# validation 0.52 cents; bottom-band, +1.64 cents at its centre bow (F_B / w 1.020, v_B 0.072), where
+# 0.1 % of v_B moves the truth 4.9 cents; halt-bottom (failed its validation by ear), +5.73 cents at its
+# centre bow (F_B / w 1.508, v_B 0.072) in free windows; upper-band, -0.86 cents at its centre bow
 # (F_B / w 1.082, v_B 0.075), where 0.1 % of v_B moves the truth 3-4 cents
-# stripe-edge (session 52), -3.55 cents at its centre bow (F_B / w 1.707, v_B 0.0728): a held bow there is
+# stripe-edge, -3.55 cents at its centre bow (F_B / w 1.707, v_B 0.0728): a held bow there is
 # seam-stripe's, deeper in a smaller box (-0.666); stripe-edge plays the sliver F_B / w 1.715-1.72 above it
-# high-sill (session 53), -1.52 cents at its centre bow (F_B / w 1.849, v_B 0.07095) in free windows; in the render's
+# high-sill, -1.52 cents at its centre bow (F_B / w 1.849, v_B 0.07095) in free windows; in the render's
 # (auto) windows -0.000 (scratch/s53/long_at.py)
-# band-stripe (session 54), +1.15 cents at its centre bow (F_B / w 1.742, v_B 0.0755) in free windows
+# band-stripe, +1.15 cents at its centre bow (F_B / w 1.742, v_B 0.0755) in free windows
 LONG_CENTS = {"loud-stops": 1.2, "stick-stops": 2.3, "slow-bow": 1.3, "floor-long": 6.0, "stick-halt": 5.5,
               "stick-halt-high": 2.5, "creep-mid": 1.5, "halt-band": 4.5, "high-band": 7.5,
               "edge-band": 6.0, "bottom-band": 2.5, "halt-bottom": 6.5, "upper-band": 1.3,
@@ -73,63 +73,63 @@ def test_shipped_model_30s_finite_in_domain_on_pitch(path):
 # left the domain (all after their first window) 0 / 1 / 3; the others' largest relative amplitude deviation from the
 # FDM's limit cycle over the last 0.5 s 7.1e-5 / 3.9e-4 / 6.8e-3, largest pitch error 0.0025 / 0.0099 / 0.20 cents.
 # Limits: 4x (at least 2 voices for the count).
-# soft-range (session 10: its centre bow, F_B / w 0.067, v_B 0.15; states drawn over the union of its box's bands,
+# soft-range (its centre bow, F_B / w 0.067, v_B 0.15; states drawn over the union of its box's bands,
 # `benchmarks/stability.py`, seeds 1-3): 8 / 3 / 3 left, 7.8e-3, 0.108 cents (seed 0 of its recipe: one voice on a
 # limit cycle 3.1x the FDM's, not shipped). Session 13, width 128 (shipped): 9 / 8 / 9 left, 3.45e-3, 0.112 cents;
 # 30 s at its centre bow +0.084 cents.
 # scratch-g2 (rest-linearised flow): 3 left, 2.9e-3, 0.146 cents.
-# velocity-loud (session 11, a stick-slip tile: its centre bow F_B / w 0.527, v_B 0.242; seeds 1-3): 6 / 10 / 11 left,
+# velocity-loud (a stick-slip tile: its centre bow F_B / w 0.527, v_B 0.242; seeds 1-3): 6 / 10 / 11 left,
 # 1.62e-2 (every voice a little above the FDM's amplitude: 50-55 of 64 over 1 %), 0.87 cents.
-# loud-stops (session 12, velocity-loud's forces down to v_B 0: its centre bow F_B / w 0.527, v_B 0.129; seeds 1-3):
+# loud-stops (velocity-loud's forces down to v_B 0: its centre bow F_B / w 0.527, v_B 0.129; seeds 1-3):
 # 12 / 13 / 11 left, 1.18e-2 (51-53 of 64 over 1 %), 1.87 cents.
-# soft-corner (session 13, a tile of soft-range's slow corner: its centre bow F_B / w 0.035, v_B 0.235; seeds 1-3):
+# soft-corner (a tile of soft-range's slow corner: its centre bow F_B / w 0.035, v_B 0.235; seeds 1-3):
 # 0 left, 1.35e-3, 0.112 cents.
-# velocity-soft (session 14, the MIDI velocity box at width 128: its centre bow F_B / w 0.128, v_B 0.198; seeds 1-3):
+# velocity-soft (the MIDI velocity box at width 128: its centre bow F_B / w 0.128, v_B 0.198; seeds 1-3):
 # 4 / 6 / 7 left, 4.43e-3, 0.157 cents; 30 s +0.093 cents.
-# slow-soft (session 17, velocity-soft's forces at v_B 0.09-0.165: its centre bow F_B / w 0.128, v_B 0.128; seeds
+# slow-soft (velocity-soft's forces at v_B 0.09-0.165: its centre bow F_B / w 0.128, v_B 0.128; seeds
 # 1-3): 7 / 7 / 5 left, 4.33e-3, 0.236 cents; 30 s -0.121 cents.
-# soft-top (session 17, F_B / w 0.25-0.43 x v_B 0.09-0.165: its centre bow F_B / w 0.328, v_B 0.128; seeds 1-3):
+# soft-top (F_B / w 0.25-0.43 x v_B 0.09-0.165: its centre bow F_B / w 0.328, v_B 0.128; seeds 1-3):
 # 4 / 4 / 1 left, 5.11e-3, 0.325 cents; 30 s -0.090 cents.
-# stick-mid (session 18, a stick-slip tile on quarter-period windows, F_B / w 1.0-1.6 x v_B 0.15-0.25: its centre bow
+# stick-mid (a stick-slip tile on quarter-period windows, F_B / w 1.0-1.6 x v_B 0.15-0.25: its centre bow
 # F_B / w 1.265, v_B 0.200; seeds 1-3): 29 / 34 / 29 left, 2.18e-3, 0.80 cents; 30 s +0.51 cents.
-# stick-low (session 18, the same on F_B / w 0.62-1.05 x v_B 0.09-0.26: its centre bow F_B / w 0.807, v_B 0.175; seeds
+# stick-low (the same on F_B / w 0.62-1.05 x v_B 0.09-0.26: its centre bow F_B / w 0.807, v_B 0.175; seeds
 # 1-3): 27 / 28 / 28 left, 2.62e-3, 0.84 cents; 30 s -0.42 cents.
-# stick-slow (session 19, the same on F_B / w 1.0-1.65 x v_B 0.085-0.16: its centre bow F_B / w 1.284, v_B 0.122;
-# seeds 1-3): 34 / 36 / 33 left, 4.77e-3, 1.66 / 4.50 / 4.20 cents; 30 s +0.15 cents. Refined on a GPU (session 35):
+# stick-slow (the same on F_B / w 1.0-1.65 x v_B 0.085-0.16: its centre bow F_B / w 1.284, v_B 0.122;
+# seeds 1-3): 34 / 36 / 33 left, 4.77e-3, 1.66 / 4.50 / 4.20 cents; 30 s +0.15 cents. Refined on a GPU:
 # 31 / 35 / 32 left, 2.63e-3, 0.18 / 0.33 / 2.14 cents; 30 s +0.15 cents.
-# stick-high (session 19, the same on F_B / w 1.55-2.02 x v_B 0.075-0.285: its centre bow F_B / w 1.769, v_B 0.180;
+# stick-high (the same on F_B / w 1.55-2.02 x v_B 0.075-0.285: its centre bow F_B / w 1.769, v_B 0.180;
 # seeds 1-3): 25 / 28 / 28 left, 5.35e-3, 1.47 cents; 30 s +0.10 cents.
-# stick-stops (session 19, the same on F_B / w 0.62-1.3 x v_B 0-0.25 with bow stops: its centre bow F_B / w 0.898, v_B
+# stick-stops (the same on F_B / w 0.62-1.3 x v_B 0-0.25 with bow stops: its centre bow F_B / w 0.898, v_B
 # 0.125; seeds 1-3): 36 / 37 / 34 left, 3.75e-3, 2.2 cents (it is +2.0 cents sharp there); 30 s +2.0 cents.
-# slow-bow (session 20, trained on a GPU, quarter-period windows, F_B / w 0.08-0.5 x v_B 0.04-0.11: its centre bow
+# slow-bow (trained on a GPU, quarter-period windows, F_B / w 0.08-0.5 x v_B 0.04-0.11: its centre bow
 # F_B / w 0.2, v_B 0.075; seeds 1-3): 35 / 34 / 35 left, 4.08e-3, 1.17 cents; 30 s -1.02 cents.
-# fast-bow (session 20, the same, F_B / w 0.4-0.8 x v_B 0.23-0.3: its centre bow F_B / w 0.566, v_B 0.265; seeds 1-3):
+# fast-bow (the same, F_B / w 0.4-0.8 x v_B 0.23-0.3: its centre bow F_B / w 0.566, v_B 0.265; seeds 1-3):
 # 27 / 28 / 24 left, 4.50e-3, 1.05 cents; 30 s +0.86 cents.
-# stick-fast (session 20, a CPU tile on quarter windows, F_B / w 0.75-1.3 x v_B 0.23-0.3: its centre bow F_B / w 0.987,
+# stick-fast (a CPU tile on quarter windows, F_B / w 0.75-1.3 x v_B 0.23-0.3: its centre bow F_B / w 0.987,
 # v_B 0.265; seeds 1-3): 29 / 30 / 29 left, 1.50e-3, 0.29 cents; 30 s +0.036 cents.
-# stick-heavy (session 21, refined from stick-high on F_B / w 1.7-2.02 x v_B 0.09-0.2: its centre bow F_B / w 1.853,
+# stick-heavy (refined from stick-high on F_B / w 1.7-2.02 x v_B 0.09-0.2: its centre bow F_B / w 1.853,
 # v_B 0.145; seeds 1-3): 25 / 27 / 26 left, 2.10e-3, 0.74 cents; 30 s -0.21 cents.
-# soft-high (session 23, F_B / w 0.2-0.43 x v_B 0.16-0.245: its centre bow F_B / w 0.293, v_B 0.203; seeds 1-3):
+# soft-high (F_B / w 0.2-0.43 x v_B 0.16-0.245: its centre bow F_B / w 0.293, v_B 0.203; seeds 1-3):
 # 1 / 1 / 2 left, 6.94e-3 (none over 1 %), 0.362 cents; 30 s -0.096 cents.
-# soft-fast (session 25, soft-range refined on F_B / w 0.04-0.45 x v_B 0.22-0.3: its centre bow F_B / w 0.134, v_B
+# soft-fast (soft-range refined on F_B / w 0.04-0.45 x v_B 0.22-0.3: its centre bow F_B / w 0.134, v_B
 # 0.260; seeds 1-3): 0 / 0 / 0 left, 1.75e-3, 0.091 cents; 30 s +0.038 cents.
-# stick-creep (session 25, stick-stops refined on F_B / w 1.0-1.3 x v_B 0.076-0.1: its centre bow F_B / w 1.140, v_B
+# stick-creep (stick-stops refined on F_B / w 1.0-1.3 x v_B 0.076-0.1: its centre bow F_B / w 1.140, v_B
 # 0.088; seeds 1-3): 18 / 25 / 24 left, 2.53e-3, 1.16 cents; 30 s -0.56 cents.
-# stick-top (session 26, stick-high refined on F_B / w 1.8-2.02 x v_B 0.245-0.285: its centre bow F_B / w 1.907, v_B
+# stick-top (stick-high refined on F_B / w 1.8-2.02 x v_B 0.245-0.285: its centre bow F_B / w 1.907, v_B
 # 0.265, sounding at a third of f0; seeds 1-3): 25 / 23 / 21 left, 1.28e-3, 0.26 cents; 30 s -0.17 cents.
-# loud-mid (session 27, loud-stops refined on F_B / w 0.42-0.6 x v_B 0.1-0.225: its centre bow F_B / w 0.502, v_B
+# loud-mid (loud-stops refined on F_B / w 0.42-0.6 x v_B 0.1-0.225: its centre bow F_B / w 0.502, v_B
 # 0.163; seeds 1-3): 4 / 3 / 6 left, 9.11e-3, 1.34 cents; 30 s +0.25 cents.
-# corner-long (session 27, soft-corner refined on F_B / w 0.01-0.06 x v_B 0.22-0.3 with 16 s renders: its centre bow
+# corner-long (soft-corner refined on F_B / w 0.01-0.06 x v_B 0.22-0.3 with 16 s renders: its centre bow
 # F_B / w 0.024, v_B 0.260, whose note from rest speaks after ~5 s: the reference is the FDM once it has; seeds 1-3):
 # 0 left, 6.19e-4, 0.031 cents; 30 s -0.002 cents.
-# floor-long (session 27, stick-high refined on F_B / w 1.75-2.02 x v_B 0.076-0.1 with 6 s renders: its centre bow
+# floor-long (stick-high refined on F_B / w 1.75-2.02 x v_B 0.076-0.1 with 6 s renders: its centre bow
 # F_B / w 1.880, v_B 0.088, sounding ~3 octaves below f0; seeds 1-3): 24 / 20 / 24 left, 2.97e-3, 5.93 cents (its own
 # period in free windows, 5.4 cents flat); 30 s -5.42 cents.
-# fast-long (session 27, soft-fast refined on F_B / w 0.06-0.45 x v_B 0.25-0.3 with 6 s renders: its centre bow F_B / w
+# fast-long (soft-fast refined on F_B / w 0.06-0.45 x v_B 0.25-0.3 with 6 s renders: its centre bow F_B / w
 # 0.164, v_B 0.275; seeds 1-3): 0 left, 1.65e-3, 0.022 cents; 30 s +0.002 cents.
-# loud-seam (session 57, loud-stops refined on F_B / w 0.44-0.64 x v_B 0.222-0.232: its centre bow F_B / w 0.531, v_B
+# loud-seam (loud-stops refined on F_B / w 0.44-0.64 x v_B 0.222-0.232: its centre bow F_B / w 0.531, v_B
 # 0.227; seeds 1-3): 7 / 10 / 4 left, 2.85e-3, 0.634 cents; 30 s +0.537 cents.
-# fast-onset (session 58, stick-fast refined on F_B / w 1.0-1.3 x v_B 0.25-0.28: its centre bow F_B / w 1.140, v_B
+# fast-onset (stick-fast refined on F_B / w 1.0-1.3 x v_B 0.25-0.28: its centre bow F_B / w 1.140, v_B
 # 0.265; seeds 1-3): 21 / 23 / 23 left, 1.41e-3, 0.255 cents; 30 s +0.223 cents.
 CONVERGENCE = {"paper-fb10": (2, 3e-4, 0.01), "paper-fb100": (4, 1.6e-3, 0.04), "paper-fb1000": (12, 2.7e-2, 0.8),
                "soft-range": (36, 1.4e-2, 0.45), "scratch-g2": (12, 1.2e-2, 0.6),
