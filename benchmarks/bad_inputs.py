@@ -30,7 +30,7 @@ CASES = [
     ("unknown option", "render --bogus 1 x.wav"),
     ("output directory missing", "render --method fdm nodir/x.wav"),
     ("scene no model covers", "render --fb 123 --vb 0.4 x.wav"),
-    # round 2: ranges and gestures
+    # ranges and gestures
     ("a bow range written high:low", "train --fb 200:50 --steps 1 --out r.safetensors"),
     ("a range with three parts", "train --fb 50:100:200 --steps 1 --out r.safetensors"),
     ("a curve given to train", "train --fb 50@0,100@1 --steps 1 --out r.safetensors"),
@@ -121,7 +121,7 @@ CASES = [
     ("note start < 0", "score --score negstart.toml --method fdm --mix m.wav"),
     ("pitch name H4 (German B)", "render --method fdm --pitch H4 x.wav"),
     ("pitch name A10 (above B8)", "render --method fdm --pitch A10 x.wav"),
-    # round 3: model files that lie or break
+    # model files that lie or break
     ("model file whose window tensor was scaled 1e6 (digest recomputed)", "render --fb 100 --model window.safetensors x.wav"),
     ("model file with a 0 x 0 domain mask (digest recomputed)", "render --fb 100 --model mask0.safetensors x.wav"),
     # run in its own directory: a damaged model in the table's ./models would be skipped (and named) in every row

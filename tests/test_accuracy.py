@@ -132,10 +132,9 @@ def test_slow_onset_model_from_rest(case):
 # one) and a crescendo through the box, 1 s from rest at f0 100 against FDM x100 (the crescendo's reference follows
 # the curve per step; the operator holds each window's bow at its middle). NMSE from rest is ill-conditioned in the
 # bow (GUIDE section 9), so the held bows are pinned by what a listener hears too (RANGE_HEARD: the worst of harmonics
-# 1-10 in dB and the pitch in cents, over the last 0.5 s). The round-2 model scored NMSE 1e-4 to 6e-3 here but its
-# harmonics were up to 30 dB off (27.7 and 30 dB at F_B / w 0.117); session 6's (the smaller box) was within 4.3 dB;
-# session 10's within 1.1 dB, at NMSE 2e-4 to 3e-2; this one (width 128) within 0.34 dB and 0.3 cents,
-# at NMSE 1e-4 to 1e-2 (python tests/test_accuracy.py prints both).
+# 1-10 in dB and the pitch in cents, over the last 0.5 s): an NMSE of 1e-4 to 6e-3 here can hide harmonics 30 dB off.
+# This model (width 128) is within 0.34 dB and 0.3 cents, at NMSE 1e-4 to 1e-2 (python tests/test_accuracy.py prints
+# both).
 RANGE_MEASURED = {(0.0226, 0.1437): 1.23e-4, (0.0514, 0.1437): 1.10e-3, (0.1168, 0.1437): 1.95e-3,
                   (0.1168, 0.2062): 7.66e-3, "crescendo 0.05 -> 0.35": 9.56e-3}
 RANGE_HEARD = {(0.0226, 0.1437): (0.026, 0.017), (0.0514, 0.1437): (0.148, 0.127), (0.1168, 0.1437): (0.334, 0.297),

@@ -1,4 +1,4 @@
-"""Hostile but realistic input, round 3: one line, the right exit code, nothing written."""
+"""Hostile but realistic input: one line, the right exit code, nothing written."""
 
 import os
 import stat
