@@ -167,15 +167,30 @@ def test_the_shipped_own_ratios_are_the_operators_measurements_of_the_shipped_mo
     import json
 
     from bowsynth.engines.operator.choose import available_models
-    from bowsynth.music import model_ratio
+    from bowsynth.music import engine_ratio, model_ratio
 
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
-    ratios = json.loads(model_ratio.SHIPPED_RATIOS.read_text())["ratios"]
+    ratios = json.loads(engine_ratio.SHIPPED_RATIOS.read_text())["ratios"]
     models = {m.key: m for m in available_models()}
     keys = list(ratios)
     assert len(keys) > 100 and all(k.split()[1] in models for k in keys)
     for k in keys[:: len(keys) // 4][:4]:
         engine, key, beta, vb, a = k.split()
-        monkeypatch.setattr(model_ratio, "_shipped", lambda: {})
+        monkeypatch.setattr(engine_ratio, "shipped_ratios", lambda: {})
+        monkeypatch.setattr(engine_ratio, "_ENGINE_RATIOS", {})
         fresh = model_ratio.own_ratio(models[key], float(beta), float(vb), float(a))
         assert abs(1200 * math.log2(fresh / ratios[k])) < 1e-6, k
+
+
+def test_a_note_asked_at_a_pitch_off_the_map_is_tuned_by_the_reference_for_the_fdm_to_play(tmp_path):
+    """Another friction shape (a = 50) lies off the shipped map and no operator model plays it: a note asked at a
+    pitch there is tuned with the reference's solve, and the FDM renders it."""
+    from bowsynth.music.request import make_scene
+    from bowsynth.music.tuning import sounding_pitch
+
+    sc = make_scene(pitch="A4", fb=100.0, a=50.0)
+    assert abs(1200 * math.log2(sounding_pitch(sc.f0, sc.fb, sc.vb, sc.a) / 440.0)) < 0.01
+    p = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--method", "fdm", "--a", "50", "--pitch", "A4",
+                        "-d", "0.2", "-q", str(tmp_path / "a50.wav")], capture_output=True, text=True, timeout=120,
+                       env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "BOWSYNTH_CACHE": str(tmp_path / "c")})
+    assert p.returncode == 0 and (tmp_path / "a50.wav").exists(), p.stderr

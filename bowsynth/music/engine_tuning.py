@@ -14,8 +14,8 @@ from ..errors import DomainError, UsageError
 from ..io.cache import DiskTable
 from ..scene import Scene
 from .model_ratio import lock_ratio, operator_ratio, own_ratio
-from .ratio_map import physics_or_solve, physics_ratio
-from .engine_ratio import engine_ratio
+from .engine_ratio import engine_ratio, ratio_key
+from .ratio_map import map_ratio, physics_ratio
 from .tuning import SilentNoteError, _measure_ratio, sounding_ratio
 
 
@@ -43,9 +43,8 @@ def fdm_ratio(sample_rate: float, oversample: int = 1):
 def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float | None = None) -> float | None:
     """The sounding ratio a held note's windows lock to in these windows: 'locked' the model's own (own_ratio; a
     clock at the physics' period would pull the note there: see lock_ratio), 'physics' lock_ratio's (the physics'
-    period where the model holds it, else its own), 'auto' the physics' period where the model holds it, else free
-    (auto_lock); None where they lock to nothing (free windows, or no period known). f0 is not used: a model's window
-    chain does not depend on it."""
+    period where the model holds it, else its own), 'auto' auto_lock's for a note at f0 (None: for every pitch); None
+    where they lock to nothing (free windows, or no period known)."""
     if windows == "auto":
         return auto_lock(model, beta, vb, a, f0)
     how = {"locked": own_ratio, "physics": lock_ratio}.get(windows)
@@ -63,7 +62,8 @@ FREE_CENTS = 0.2
 TARGET_CENTS, TARGET_DB = 1.0, 1.0
 NOTE_SECONDS = 2.0  # the held note each measures: from rest until the map's settling time and this much more
 FRAME_F0 = 150.0  # the pitch whose frames a choice for every pitch is made by (the live engine's)
-_choices = DiskTable("auto-windows", f"truth-free-3/{FRAME_F0!r}/{FREE_CENTS!r}/{TARGET_CENTS!r}/{TARGET_DB!r}/{NOTE_SECONDS!r}")
+_choices = DiskTable("auto-windows", f"truth-free-4/{FRAME_F0!r}/{FREE_CENTS!r}/{TARGET_CENTS!r}/{TARGET_DB!r}/"
+                                     f"{NOTE_SECONDS!r}")
 
 
 def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None):
@@ -86,7 +86,7 @@ def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None):
     if not isinstance(lock, Lock):
         return None
     frame = round(0.1 * (FRAME_F0 if f0 is None else f0) / 100.0, 3)  # at f0 100: a 100 ms frame at the note's f0
-    key = f"{m.key} {beta!r} {vb!r} {a!r} {frame!r}"
+    key = f"{ratio_key(m.key, beta, vb, a)} {frame!r}"
     hit = _choices.get(key)
     if isinstance(hit, dict) and isinstance(hit.get("lock"), bool):
         return lock if hit["lock"] else None
@@ -96,7 +96,7 @@ def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None):
     if free is not None:
         free_score = max(free_score, frame_wander(free.q, sc.sample_rate, sc.f0 * float(lock), frame) / TARGET_CENTS)
     use = False
-    if free is None or free_score > FREE_CENTS / TARGET_CENTS:
+    if free_score > FREE_CENTS / TARGET_CENTS:
         use = lock_harmonic_shift(m, beta, vb, a, lock, free) / TARGET_DB < free_score
     _choices.put(key, {"lock": bool(use)})
     return lock if use else None
@@ -132,16 +132,16 @@ def frame_wander(x, sample_rate: float, hz: float, frame: float, seconds: float 
     return float(sorted(off)[len(off) // 2]) if off else math.inf
 
 
-def lock_harmonic_shift(model, beta: float, vb: float, a: float, lock, free=None) -> float:
-    """The most a lock moves a held note's harmonics 1-10 (dB) from the same note in free windows (`free`, else
-    rendered): both notes from _held_note, each fitted at its own pitch over its last second. inf where either note
-    fails to play."""
+def lock_harmonic_shift(model, beta: float, vb: float, a: float, lock, free) -> float:
+    """The most a lock moves a held note's harmonics 1-10 (dB) from the same note in free windows (`free`, its render
+    by _held_note; None where it failed to play), each fitted at its own pitch over its last second. inf where either
+    note fails to play."""
     from ..analysis.metrics import listener_errors
 
-    sc, locked = _held_note(model, beta, vb, a, lock)
     if free is None:
-        free = _held_note(model, beta, vb, a, None)[1]
-    if free is None or locked is None:
+        return math.inf
+    sc, locked = _held_note(model, beta, vb, a, lock)
+    if locked is None:
         return math.inf
     e = listener_errors(locked.p, free.p, sc.sample_rate)
     return float(e["harm_db_max"]) if math.isfinite(e["harm_db_max"]) else math.inf
@@ -165,7 +165,7 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
     windows = check_windows(windows)
     m, why = _playing_model(scene, model, models, heard)
     if m is None:
-        return _physics_only, f"the physics' pitch map ({why})"
+        return map_ratio, f"the physics' pitch map ({why})"  # refused, or played by the FDM (--fallback fdm)
     held = windows in ("physics", "auto") and scene.held_bow() is not None  # else free
 
     def ratio(beta, vb, a, f0):
@@ -178,15 +178,6 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
         return physics_ratio(beta, vb, a).r if r is None else r
     ratio.physics = physics_ratio
     return ratio, f"model {m.id}" + (f" in {windows} windows" if held else "")
-
-
-def _physics_only(beta: float, vb: float, a: float, f0: float) -> float:
-    """The physics' sounding ratio from the shipped map, off it the reference's solve: a note no model covers, which
-    is refused, or which the FDM plays (--fallback fdm)."""
-    return physics_or_solve(beta, vb, a).r
-
-
-_physics_only.physics = physics_or_solve
 
 
 def _playing_model(scene: Scene, model=None, models=None, heard: bool = False):

@@ -5,17 +5,15 @@ from the reference. engine_tuning tunes notes and locks windows with them."""
 
 from __future__ import annotations
 
-import functools
 import json
-import math
 from pathlib import Path
 
 from .. import physics
 from ..engines.operator.windows import Lock
 from ..errors import DomainError
 from ..scene import Scene
+from .engine_ratio import SHIPPED_RATIOS, engine_ratio, ratio_key, shipped_ratios
 from .ratio_map import physics_ratio
-from .engine_ratio import engine_ratio, ratio_key
 from .tuning import SilentNoteError
 
 RATIO_F0 = 100.0  # the rate a model's ratio is measured at: its window chain does not depend on f0, only the samples
@@ -46,11 +44,7 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
             tail = r.q[-int(RATIO_PERIODS / (truth.r * RATIO_F0) * sc.sample_rate):]
             return f0_estimate(tail, sc.sample_rate, tail=1.0) / RATIO_F0
         how = f"-locked2x{f'+{more}' if more else ''}" if locked else ""
-        engine = f"operator{how}{RATIO_PERIODS} {m.key}"
-        hit = _shipped().get(ratio_key(engine, beta, vb, a))
-        if isinstance(hit, float) and 0 < hit <= 1 and abs(1200 * math.log2(hit / physics_ratio(beta, vb, a).r)) < 50:
-            return hit
-        return engine_ratio(engine, beta, vb, a, measure, physics_ratio)
+        return engine_ratio(f"operator{how}{RATIO_PERIODS} {m.key}", beta, vb, a, measure, physics_ratio)
     ratio.physics = physics_ratio
     return ratio
 
@@ -59,7 +53,8 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
 
 
 # Windows locked to the physics (--windows physics) divide the period of the physics' limit cycle at the held bow (the
-# shipped map of the reference's sounding ratio, ratio_map.physics_ratio), where the model holds that period. Such a clock pulls the
+# shipped map of the reference's sounding ratio, ratio_map.physics_ratio), where the model holds that period. Such a
+# clock pulls the
 # operator's cycle onto it, as an oscillator is pulled within its locking range, and the network plays the wave within
 # each period. Measured (`benchmarks/listener.py --windows physics`, the 12 held-out stick-slip bows):
 # 0.0005 / 0.006 cents (median / worst) against 1.33 / 4.32 with windows locked to each model's own period, harmonics
@@ -108,23 +103,9 @@ def own_ratio(model, beta: float, vb: float, a: float, f0: float = RATIO_F0) -> 
         return None
 
 
-# The operator's own ratios measured at build time at the bows the live engine plays (every MIDI velocity at neutral
-# controllers), for every shipped model that covers them: `play` starts without measuring them (a first start measured
-# ~130 notes, ~1.5 s). Keyed as the cache is (a retrained model has another id, so none of its entries match).
-SHIPPED_RATIOS = Path(__file__).resolve().parents[1] / "models" / "tables" / "own-ratios.json"
-
-
-@functools.cache
-def _shipped() -> dict:
-    try:
-        d = json.loads(SHIPPED_RATIOS.read_text())
-    except (OSError, ValueError, RecursionError):
-        return {}
-    return d.get("ratios", {}) if isinstance(d, dict) and isinstance(d.get("ratios"), dict) else {}
-
-
 def build_shipped(path: Path = SHIPPED_RATIOS) -> Path:
-    """Measure every shipped validated model's own ratio at each MIDI velocity's bow it covers, and write the table."""
+    """Measure every shipped validated model's own ratio at each MIDI velocity's bow it covers, and write the table
+    engine_ratio reads before measuring (SHIPPED_RATIOS): `play` starts without measuring them."""
     from ..engines.operator.choose import SHIPPED_DIR, available_models
     from ..io.outfile import atomic_write
     from . import midi as M
@@ -143,7 +124,7 @@ def build_shipped(path: Path = SHIPPED_RATIOS) -> Path:
                 ratios[ratio_key(f"operator{RATIO_PERIODS} {m.key}", beta, vb, sc.a)] = r
     text = json.dumps({"format": "bowsynth-own-ratios", "ratios": ratios}, indent=0, sort_keys=True) + "\n"
     atomic_write(path, lambda tmp: Path(tmp).write_text(text))
-    _shipped.cache_clear()
+    shipped_ratios.cache_clear()
     return path
 
 

@@ -191,7 +191,8 @@ def _cubic(v: np.ndarray, fx: float, fy: float) -> float:
 def _bilinear(v: np.ndarray, fx: float, fy: float) -> float:
     i, j = min(max(int(fx), 0), v.shape[0] - 2), min(max(int(fy), 0), v.shape[1] - 2)
     tx, ty = min(max(fx - i, 0.0), 1.0), min(max(fy - j, 0.0), 1.0)
-    return float((1 - tx) * ((1 - ty) * v[i, j] + ty * v[i, j + 1]) + tx * ((1 - ty) * v[i + 1, j] + ty * v[i + 1, j + 1]))
+    return float((1 - tx) * ((1 - ty) * v[i, j] + ty * v[i, j + 1])
+                 + tx * ((1 - ty) * v[i + 1, j] + ty * v[i + 1, j + 1]))
 
 
 @functools.lru_cache(maxsize=2)
@@ -202,14 +203,17 @@ def shipped(path: str = str(MAP_PATH)) -> RatioMap:
 @functools.lru_cache(maxsize=8192)
 def physics_ratio(beta: float, vb: float, a: float = MAP_A) -> Ratio:
     """The physics' sounding ratio at a bow from the shipped map (no reference run): what the render path asks
-    where `tuning.sounding_ratio` would solve. SilentNoteError where the note does not speak, OffMapError off the map."""
+    where `tuning.sounding_ratio` would solve. SilentNoteError where the note does not speak, OffMapError off the
+    map."""
     return shipped().ratio(beta, vb, a)
 
 
 def map_ratio(beta: float, vb: float, a: float, f0: float) -> float:
     """The physics' sounding ratio from the shipped map, as `tuning.tune(ratio=...)` takes it (f0 unused): what a note
-    asked at a pitch is tuned with before the engine that plays it is known (`request.make_scene`)."""
-    return physics_ratio(beta, vb, a).r
+    asked at a pitch is tuned with before the engine that plays it is known (`request.make_scene`), or where no
+    operator model covers it. Off the map (another friction shape a) the reference's solve (physics_or_solve): no
+    operator model plays there, only the FDM."""
+    return physics_or_solve(beta, vb, a).r
 
 
 def physics_or_solve(beta: float, vb: float, a: float = MAP_A) -> Ratio:

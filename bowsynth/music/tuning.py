@@ -243,8 +243,8 @@ def tune(pitch, fb: float | None = 100.0, vb: float = 0.2, a: float = 100.0, *, 
     fixed) or, with `beta` given instead, with the force that keeps F_B / w = beta (fb = beta 2 pi f0).
 
     ratio: the engine that will play the note, as a function (beta, v_B, a, f0) -> sounding ratio (`fdm_ratio`,
-    `operator_ratio` below); None: the physics' own. physics_ratio: where the physics' ratio comes from, a function (beta,
-    v_B, a) -> Ratio: None for the ratio's own `physics` attribute if it has one (an operator's ratio carries the
+    `operator_ratio` below); None: the physics' own. physics_ratio: where the physics' ratio comes from, a function
+    (beta, v_B, a) -> Ratio: None for the ratio's own `physics` attribute if it has one (an operator's ratio carries the
     shipped map, `ratio_map.physics_ratio`: no reference at render time), else sounding_ratio (the reference, which
     `compare` scores against)."""
     p = parse_pitch(pitch, a4)
