@@ -103,6 +103,20 @@ def render_operator(scene, model=None, fallback: str = "none"):
     return render(scene, engine="operator", model=model, fallback=fallback)
 
 
+def fit(target, models=None, starts=None, progress=None, check: bool = True):
+    """The held bow (F_B / w, v_B) and f0 that make the operator sound like `target` (a mono recording's path):
+    a `bowsynth.fit.held.Fit` (best, the spread the sound leaves open, bows that sound alike, and with `check` the
+    fitted note as `render` plays it against the target). See `bowsynth fit` and docs/fit.md."""
+    from .fit import held
+    from .fit.target import read_target
+
+    t = read_target(target)
+    f = held.fit_held(t, models=models, starts=starts or held.STARTS, progress=progress)
+    if check:
+        f.checked = held.check(f, t, render)
+    return f
+
+
 def load_model(path):
     """Load an operator model file (safetensors + JSON metadata, no pickle)."""
     from .engines.operator.modelfile import load_model as _l

@@ -20,7 +20,7 @@ STAGES = [
               "bowsynth.render", "bowsynth.compiled"}),
     ("io", {"bowsynth.io"}),
     ("engines", {"bowsynth.engines"}),
-    ("uses", {"bowsynth.music", "bowsynth.live", "bowsynth.analysis", "bowsynth.training"}),
+    ("uses", {"bowsynth.music", "bowsynth.live", "bowsynth.analysis", "bowsynth.training", "bowsynth.fit"}),
     ("report", {"bowsynth.report"}),
     ("api", {"bowsynth.api"}),
     ("cli", {"bowsynth.cli", "bowsynth.__main__"}),
