@@ -103,10 +103,11 @@ def render_operator(scene, model=None, fallback: str = "none"):
     return render(scene, engine="operator", model=model, fallback=fallback)
 
 
-def fit(target, models=None, starts=None, progress=None, check: bool = True):
+def fit(target, models=None, starts=None, progress=None, check: bool = True, curves: bool = False):
     """The held bow (F_B / w, v_B) and f0 that make the operator sound like `target` (a mono recording's path):
     a `bowsynth.fit.held.Fit` (best, the spread the sound leaves open, bows that sound alike, and with `check` the
-    fitted note as `render` plays it against the target). See `bowsynth fit` and docs/fit.md."""
+    fitted note as `render` plays it against the target). curves: also the bow as breakpoint curves from it
+    (`bowsynth.fit.curves.CurveFit`), returned as (fit, curves). See `bowsynth fit` and docs/fit.md."""
     from .fit import held
     from .fit.target import read_target
 
@@ -114,7 +115,14 @@ def fit(target, models=None, starts=None, progress=None, check: bool = True):
     f = held.fit_held(t, models=models, starts=starts or held.STARTS, progress=progress)
     if check:
         f.checked = held.check(f, t, render)
-    return f
+    if not curves:
+        return f
+    from .fit import curves as fc
+
+    c = fc.fit_curves(t, f, models=models, progress=progress)
+    if check:
+        c.checked = fc.check(c, t, render)
+    return f, c
 
 
 def load_model(path):

@@ -115,12 +115,12 @@ def test_surrogate_is_the_compiled_note_and_has_a_gradient():
 
     from bowsynth.engines.operator.choose import covering_model
     from bowsynth.fit.search import playable
-    from bowsynth.fit.surrogate import HeldNote
+    from bowsynth.fit.surrogate import Note
 
     for f0, beta, vb, sounding in ((220.0, 0.4, 0.15, None), (150.0, 1.3, 0.2, 60.0)):
         m = covering_model(note_scene(f0, beta, vb, 0.5, 44100), playable())
-        note = HeldNote(m, f0, 44100, 22050, sounding=sounding)
-        q = note.play(beta, vb)
+        note = Note(m, f0, 44100, 22050, sounding=sounding)
+        q = note.play((beta, vb))
         b = torch.tensor([beta, vb], dtype=torch.float64, requires_grad=True)
         qt = note(b)
         assert qt.shape == (22050,)
@@ -146,3 +146,50 @@ def test_loss_hears_levels_and_dc_as_nothing():
     parts = loss.parts(torch.as_tensor(y, dtype=torch.float32))
     assert set(parts) == {"spectral", "onset"}
     assert math.isfinite(float(parts["spectral"]))
+
+
+def test_curves_follow_a_crescendo_and_play(tmp_path):
+    """From a flat start at the crescendo's middle bow, the fitted F_B / w rises as the target's does, the curves
+    sound nearer the target than the flat start, and the score they are written as plays."""
+    from bowsynth import api
+    from bowsynth.fit import curves
+    from bowsynth.fit.held import Fit
+    from bowsynth.fit.search import Candidate, Scorer, f0_for
+    from bowsynth.fit.target import read_target
+    from bowsynth.fit.write import write_score
+    from bowsynth.io.audio import write_wav
+    from bowsynth.scene import Scene
+
+    f0 = 150.0
+    w = physics.omega(f0)
+    sc = Scene(f0=f0, fb=[(0, 0.1 * w), (1.2, 0.3 * w)], vb=0.2, duration=1.2)
+    write_wav(tmp_path / "cresc.wav", api.render(sc))
+    t = read_target(tmp_path / "cresc.wav")
+    scorer = Scorer(t)
+    flat = scorer.score(0.2, 0.2, f0_for(scorer.pitch, 0.2, 0.2))
+    start = Fit(Candidate(0.2, 0.2, flat.f0, flat.loss, flat.model), {"beta": (0.2, 0.2), "vb": (0.2, 0.2)}, [], 0, 0.0)
+    c = curves.fit_curves(t, start, steps=12)
+    assert c.loss < flat.loss
+    assert c.beta[-1] > 1.3 * c.beta[1]  # the force rises through the note
+    assert c.spread.shape == (len(c.times), 2)
+    c.checked = curves.check(c, t, api.render)
+    write_score(start, tmp_path / "c.toml", "cresc.wav", t.seconds, curves=c)
+    voice = tomllib.loads((tmp_path / "c.toml").read_text())["voice"][0]
+    assert len(voice["fb"]) == len(c.times) and voice["fb"][-1][1] > voice["fb"][1][1]
+    p = bow("score", "--score", "c.toml", "--mix", "c.wav", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+
+
+def test_an_interrupted_fit_keeps_its_best(held_target):
+    """Ctrl-C once the search has a best bow: the fit returns it, marked interrupted, instead of losing it."""
+    from bowsynth.fit.held import fit_held
+    from bowsynth.fit.target import read_target
+
+    d, _ = held_target
+
+    def progress(stage, done, total):
+        if stage == "descent":
+            raise KeyboardInterrupt
+
+    f = fit_held(read_target(d / "t.wav"), starts=1, progress=progress)
+    assert f.interrupted and f.best is not None and math.isfinite(f.best.loss)

@@ -1,5 +1,5 @@
 """The bow that made a held note: a coarse search over the playing space with the compiled operator, then gradient
-descent through the operator's rollout (surrogate.HeldNote) from the best few starts.
+descent through the operator's rollout (surrogate.Note) from the best few starts.
 
 Every candidate bow (F_B / w, v_B) is played at f0 = pitch / r(bow), r the physics' sounding ratio from the shipped
 map (music/ratio_map.py), so that it sounds at the target's pitch; during the descent f0 follows the candidate's own
@@ -20,7 +20,7 @@ from ..errors import BowsynthError, DomainError, SceneError
 from ..music.ratio_map import physics_ratio, vb_stop
 from ..music.tuning import SilentNoteError
 from .loss import SoundLoss
-from .surrogate import HeldNote, NoteFailed, note_scene
+from .surrogate import Note, NoteFailed, note_scene
 from .target import Target
 
 BETA_RANGE = (0.01, 2.02)  # the playing space (F_B / w)
@@ -86,12 +86,12 @@ class Scorer:
             return None
         return covering_model(sc, self.models)
 
-    def note(self, model, f0: float, locked: bool) -> HeldNote:
+    def note(self, model, f0: float, locked: bool) -> Note:
         key = (model.key, round(f0, 9), locked)
         if key not in self._notes:
             if len(self._notes) > 64:
                 self._notes.clear()
-            self._notes[key] = HeldNote(model, f0, self.target.sample_rate, self.n,
+            self._notes[key] = Note(model, f0, self.target.sample_rate, self.n,
                                         sounding=self.pitch if locked else None)
         return self._notes[key]
 
@@ -108,7 +108,7 @@ class Scorer:
         for lk in ((False, True) if locked is None else (locked,)):
             self.evaluations += 1
             try:
-                q = self.note(m, f0, lk).play(beta, vb)
+                q = self.note(m, f0, lk).play((beta, vb))
             except (NoteFailed, BowsynthError, ValueError):  # a note the model cannot play at this f0 and rate
                 continue
             if not np.all(np.isfinite(q)) or np.ptp(q) == 0:

@@ -35,16 +35,44 @@ def score_text(fit: Fit, target_name: str, seconds: float) -> str:
     return "\n".join(lines)
 
 
+def curves_text(fit, curves, target_name: str, seconds: float) -> str:
+    """The score of fitted curves: fb and vb as [[t, value], ...] (F_B in m/s^2 at the curves' f0)."""
+    from .. import physics
+
+    w = physics.omega(curves.f0)
+    ident = curves.identifiable()
+    lines = [f"# bowsynth fit --curves {target_name}: f0 {curves.f0:.6g} Hz, the bow as curves through "
+             f"{len(curves.times)} breakpoints (from the held fit's F_B / w {fit.best.beta:.4g}, v_B {fit.best.vb:.4g})",
+             f"# breakpoints the sound determines: F_B / w {int(ident[:, 0].sum())} of {len(ident)} (within 2 %), v_B "
+             f"{int(ident[:, 1].sum())} of {len(ident)} (within 1 %)"]
+    if curves.at_edge:
+        lines.append(f"# the curves reach the edge of {curves.model}'s box, the one model the fit rolls: the sound "
+                     f"asks for bows past it")
+    ch = curves.checked
+    if ch:
+        lines.append(f"# the fitted curves against the target per 100 ms frame: harmonics {ch['harmonics_db']:.2f} dB "
+                     f"(median; worst frame {ch['harmonics_db_worst']:.2f}), pitch {ch['pitch_cents']:.2f} cents")
+    if curves.interrupted:
+        lines.append("# the fit was interrupted: the best curves found until then")
+    pts = lambda v, scale=1.0: "[" + ", ".join(f"[{t:.6g}, {x * scale:.9g}]" for t, x in zip(curves.times, v)) + "]"  # noqa: E731
+    lines += ["# play it: bowsynth score --score THIS.toml --mix fitted.wav", "",
+              f"title = {_quote('fitted to ' + target_name)}", "", "[[voice]]", 'name = "fit"',
+              f"f0 = {curves.f0:.9g}", f"fb = {pts(curves.beta, w)}", f"vb = {pts(curves.vb)}",
+              f"duration = {max(seconds, float(curves.times[-1])):.9g}", ""]
+    return "\n".join(lines)
+
+
 def _quote(s: str) -> str:
     import json
 
     return json.dumps(s)  # a TOML basic string is a JSON string for the characters a file name holds
 
 
-def write_score(fit: Fit, path, target_name: str, seconds: float, force: bool = False) -> Path:
+def write_score(fit: Fit, path, target_name: str, seconds: float, force: bool = False, curves=None) -> Path:
     from ..io.outfile import atomic_write
 
-    text = score_text(fit, target_name, seconds).replace("THIS.toml", Path(str(path)).name)
+    text = score_text(fit, target_name, seconds) if curves is None else curves_text(fit, curves, target_name, seconds)
+    text = text.replace("THIS.toml", Path(str(path)).name)
 
     def write(tmp):
         Path(tmp).write_text(text, encoding="utf-8")
