@@ -118,8 +118,9 @@ def fit(target, models=None, starts=None, progress=None, check: bool = True, cur
     if not curves:
         return f
     from .fit import curves as fc
+    from .fit.frames import frame_bows
 
-    c = fc.fit_curves(t, f, models=models, progress=progress)
+    c = fc.fit_curves(t, f, models=models, progress=progress, frames=frame_bows(t))
     if check:
         c.checked = fc.check(c, t, render)
     return f, c

@@ -178,6 +178,12 @@ def test_curves_follow_a_crescendo_and_play(tmp_path):
     assert len(voice["fb"]) == len(c.times) and voice["fb"][-1][1] > voice["fb"][1][1]
     p = bow("score", "--score", "c.toml", "--mix", "c.wav", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
+    # frame by frame, timbre and pitch give f0 (which the held start lacks) and the force's rise
+    from bowsynth.fit.frames import frame_bows
+
+    times, beta, vb, f0_frames = frame_bows(t)
+    assert abs(f0_frames / f0 - 1) < 0.01
+    assert np.median(beta[-3:]) > 1.5 * np.median(beta[:3])
 
 
 def test_an_interrupted_fit_keeps_its_best(held_target):

@@ -1,9 +1,10 @@
-"""Fit a gesture: the bow as breakpoint curves (F_B / w and v_B every STEP s), from the held fit, by gradient descent
-through the operator, smooth unless the sound says otherwise; how well the sound determines each breakpoint.
+"""Fit a gesture: the bow as breakpoint curves (F_B / w and v_B every STEP s), from the frame-by-frame start
+(frames.py) or the held fit, by gradient descent through the operator, smooth unless the sound says otherwise; how
+well the sound determines each breakpoint.
 
-f0 starts at the held fit's and follows the note's pitch track to the target's (the median of their 100 ms frames'
+f0 starts at the start's and follows the note's pitch track to the target's (the median of their 100 ms frames'
 difference; a string's tuning does not move with the bow, the pitch moves with r(bow(t)) as in the physics). The
-curves play in free windows with the model that covers the held fit's bow, inside its box: the surrogate rolls one
+curves play in free windows with the model whose box holds most of the start's breakpoints, inside that box: the surrogate rolls one
 model, so a gesture that crosses from one model's box into another's (a render chains the two) is fitted up to the
 box's edge, and the fit says so (CurveFit.at_edge). Smoothness: SMOOTH times the curves' squared second differences in u (ln F_B / w, v_B / VB_UNIT) joins the
 loss, so a breakpoint moves away from its neighbours only where the sound pays for it.
@@ -88,9 +89,20 @@ def _roughness(u):
     return d2.square().sum()
 
 
+def _model_for(scorer: Scorer, f0: float, times, beta, vb, n: int, rate: int):
+    """The model whose box holds most of the curve's breakpoints (the smaller box of two that hold as many; a box
+    that holds them all is one that covers the whole curve)."""
+    held = [m for m in scorer.models if m.domain.is_range]
+    if not held:
+        return None
+    count = lambda m: int(np.sum(m.domain.box_contains(np.asarray(beta), np.asarray(vb))))  # noqa: E731
+    return max(held, key=lambda m: (count(m), -m.domain.bow_extent))
+
+
 def fit_curves(target: Target, held: Fit, models=None, step: float = STEP, steps: int = STEPS, progress=None,
-               budget: float = math.inf) -> CurveFit:
-    """Curves from the held fit's bow, by Adam through the operator; Ctrl-C stops with the best curves so far."""
+               budget: float = math.inf, frames=None) -> CurveFit:
+    """Curves by Adam through the operator from the held fit's bow, or from `frames` (frames.frame_bows: times,
+    F_B / w, v_B and f0 frame by frame); Ctrl-C stops with the best curves so far."""
     import torch
 
     t0 = time.monotonic()
@@ -99,13 +111,20 @@ def fit_curves(target: Target, held: Fit, models=None, step: float = STEP, steps
     times = breakpoint_times(n / rate, step)
     K = len(times)
     b = held.best
-    f0 = b.f0
-    u = torch.tensor(np.tile(b.u, (K, 1)), dtype=torch.float64, requires_grad=True)
+    if frames is None:
+        f0, init = b.f0, np.tile(b.u, (K, 1))
+    else:
+        ft, fbeta, fvb, f0 = frames
+        init = np.stack([np.interp(times, ft, np.log(fbeta)), np.interp(times, ft, fvb) / VB_UNIT], axis=1)
+    model = _model_for(scorer, f0, times, np.exp(init[:, 0]), init[:, 1] * VB_UNIT, n, rate)
+    if model is None:
+        raise BowsynthError("no model plays the fit's start as curves at this pitch")
+    bl, bh, vl, vh = model.domain.box
+    lo = torch.tensor([math.log(max(bl, BETA_RANGE[0])), vl / VB_UNIT], dtype=torch.float64)
+    hi = torch.tensor([math.log(min(bh, BETA_RANGE[1])), min(vh, VB_RANGE[1]) / VB_UNIT], dtype=torch.float64)
+    u = torch.maximum(torch.minimum(torch.tensor(init, dtype=torch.float64), hi), lo).requires_grad_(True)
     opt = torch.optim.Adam([u], lr=LR[0])
     best = None
-    model = covering_model(note_scene(f0, b.beta, b.vb, n / rate, rate), scorer.models)
-    if model is None:
-        raise BowsynthError("no model plays the held fit's bow as curves at this pitch")
     interrupted = False
     say = progress or (lambda *a: None)
     bl, bh, vl, vh = model.domain.box

@@ -42,7 +42,7 @@ def curves_text(fit, curves, target_name: str, seconds: float) -> str:
     w = physics.omega(curves.f0)
     ident = curves.identifiable()
     lines = [f"# bowsynth fit --curves {target_name}: f0 {curves.f0:.6g} Hz, the bow as curves through "
-             f"{len(curves.times)} breakpoints (from the held fit's F_B / w {fit.best.beta:.4g}, v_B {fit.best.vb:.4g})",
+             f"{len(curves.times)} breakpoints",
              f"# breakpoints the sound determines: F_B / w {int(ident[:, 0].sum())} of {len(ident)} (within 2 %), v_B "
              f"{int(ident[:, 1].sum())} of {len(ident)} (within 1 %)"]
     if curves.at_edge:
