@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	# with the same tools into the same build directory and recompiles nothing (in an isolated env, another nanobind
 	# and CMake: the core compiled again, 60 s of the suite)
 	$(PY) -m pip install -q 'scikit-build-core>=0.10' 'nanobind>=2.0' cmake ninja
-	$(PY) -m pip install -q --no-build-isolation -e '.[test]'
+	$(PY) -m pip install -q --no-build-isolation -e '.[test,cluster]'
 	touch $(STAMP)
 
 setup: $(STAMP) chromium jackd

@@ -22,7 +22,7 @@ STAGES = [
     ("engines", {"bowsynth.engines"}),
     ("uses", {"bowsynth.music", "bowsynth.live", "bowsynth.analysis", "bowsynth.training", "bowsynth.fit"}),
     ("report", {"bowsynth.report"}),
-    ("api", {"bowsynth.api"}),
+    ("api", {"bowsynth.api", "bowsynth.corpus"}),
     ("cli", {"bowsynth.cli", "bowsynth.__main__"}),
 ]
 MAX_LINES = 400

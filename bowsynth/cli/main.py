@@ -13,7 +13,7 @@ from ..errors import BowsynthError, Terminated, UsageError, interrupt_exit_code
 from .app import app, err, run_state
 
 # each module registers its command on `app` when imported; the order here is the order of `--help`
-from . import listing, render, train, compare, bench, score, play, fit  # noqa: E402,F401  isort: skip
+from . import listing, render, train, compare, bench, score, play, fit, dataset  # noqa: E402,F401  isort: skip
 
 
 def _raise_on_signal(signum, frame):

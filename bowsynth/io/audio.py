@@ -196,9 +196,9 @@ def check_meta_fits(meta: dict, path) -> None:
                          f"(at most {META_LIMIT[fmt]}); write .flac or .ogg instead")
 
 
-def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_db: float | None = None,
-              force: bool = True) -> dict:
-    """Write the render's `signal` ('u' or 'p') to `path` (format by extension); returns the metadata written."""
+def wav_payload(render: Render, signal: str = "u", dc: str = "remove", gain_db: float | None = None):
+    """(samples scaled for the file, metadata): what write_wav writes, for a writer elsewhere (a corpus's driver
+    writes what its workers rendered)."""
     check_dc(dc)
     x = render.signal(signal)
     if not np.all(np.isfinite(x)):
@@ -207,7 +207,14 @@ def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_
         x = remove_dc(x, render.scene.sample_rate)
     gain = gain_for(x, gain_db)
     meta = render_meta(render.scene, render.method, signal, gain, render.seconds, render.info.model_id, dc)
-    write_float_wav(path, x * gain, render.scene.sample_rate, meta, force=force)
+    return (x * gain).astype(np.float32), meta
+
+
+def write_wav(path, render: Render, signal: str = "u", dc: str = "remove", gain_db: float | None = None,
+              force: bool = True) -> dict:
+    """Write the render's `signal` ('u' or 'p') to `path` (format by extension); returns the metadata written."""
+    x, meta = wav_payload(render, signal, dc, gain_db)
+    write_float_wav(path, x, render.scene.sample_rate, meta, force=force)
     return meta
 
 
