@@ -12,7 +12,7 @@ from .app import app, err, out
 
 @app.command()
 def dataset(
-    spec: Path = typer.Argument(..., help="The corpus's spec (TOML: count, seed, duration, sample_rate, f0, beta, vb, gestures; docs/dataset.md)."),
+    spec: Path = typer.Argument(..., help="The corpus's spec (TOML: count, seed, duration, sample_rate, f0, beta, vb, gestures; docs/cluster.md)."),
     out_dir: Path = typer.Option(..., "--out", "-o", help="The corpus's directory (created; a rerun finishes what is missing)."),
     workers: int = typer.Option(1, "--workers", "-j", min=1, max=1024, help="Ray workers on this machine (1: this process)."),
     address: Optional[str] = typer.Option(None, "--address", help="A Ray cluster's address (host:port; default RAY_ADDRESS): its workers render."),

@@ -44,6 +44,9 @@ def train(
     a4: Optional[float] = typer.Option(None, "--a4", help="With --score: the pitch of A4 in Hz (default 440)."),
     config: Optional[Path] = typer.Option(None, "--config", help="A training recipe (TOML: these flags' names as keys, "
                                           "e.g. the shipped models' bowsynth/models/*.toml); flags given override it."),
+    atlas: Optional[list[Path]] = typer.Option(None, "--atlas", help="Train an atlas's units: a directory of recipes (and its stages/) or recipe files, each as --config R --update, each after the unit it refines."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, max=1024, help="With --atlas: Ray workers on this machine (1: one unit after another here)."),
+    address: Optional[str] = typer.Option(None, "--address", help="With --atlas: a Ray cluster's address (default RAY_ADDRESS)."),
 ):
     """Train a PI-DeepONet for a scene (its F_B / w, v_B, a and the states a render from its initial state visits),
     or for a playing range: --fb LO:HI and/or --vb LO:HI (at --f0), or --score FILE (the bows a score or MIDI file
@@ -52,6 +55,8 @@ def train(
     from ..engines.operator.modelfile import unpicked_text
     from ..training.recipe import load_recipe
 
+    if atlas:
+        return _atlas(atlas, workers, address)
     if config is not None:
         given = dict(preset=preset, f0=f0, fb=fb, vb=vb, a=a, minutes=minutes, steps=steps, seed=seed,
                      rest_linear=rest_linear or None, out=out_path,
@@ -179,3 +184,25 @@ def _score_box(path, a4):
                  f"covers one a: split the score")
     box = ParamBox(b["beta"][0], b["beta"][1], b["vb"][0], b["vb"][1], b["a"][0])
     return api.range_scene(box, b["f0"][0]), box
+
+
+def _atlas(spec, workers: int, address) -> int:
+    """`train --atlas`: the units as tasks, one progress line, a summary; exit 1 where a unit failed."""
+    from ..training.atlas import atlas_recipes, run_atlas
+
+    units = atlas_recipes(spec)
+    with err.status(f"atlas: 0/{len(units)} units") as status:
+        def progress(done, total, running):
+            status.update(f"atlas: {done}/{total} units done, {running} running")
+        results = run_atlas(units, workers=workers, address=address, progress=progress)
+    failed = 0
+    for r in results:
+        if "note" in r:
+            err.print(f"note: {r['note']}", soft_wrap=True)
+            continue
+        state = "ok" if r["rc"] == 0 else ("skipped" if r["rc"] is None else "FAILED")
+        failed += state != "ok"
+        tell(False, f"{state:7} {r['recipe']} ({r['seconds']:.0f} s): {r['said']}")
+    tell(False, f"atlas: {sum(1 for r in results if r.get('rc') == 0)} of {len(units)} units trained or up to date"
+         + (f", {failed} failed or skipped" if failed else ""))
+    return 1 if failed else 0

@@ -1,8 +1,9 @@
 """Fit a held note: the search (coarse grid, zoom, gradient descent from the best starts), how well the sound
 determines each part of the bow, and the fitted note rendered as `render` plays it, measured against the target.
 
-How well the sound determines the bow: a bow whose loss lies within SLACK of the best sounds, to this loss, as near
-the target as the best does (the operator's own error against the physics sets that floor). Around the best, the bow
+How well the sound determines the bow: a bow whose loss lies within twice the best's (plus NOISE) may be the one that
+made the sound. The operator's own error at the true bow is at least the best loss (the truth's bow, played by the
+operator, is one of the bows the best beat), so a bow that far from the target is as near as the truth's could be. Around the best, the bow
 is moved along F_B / w, v_B and both diagonals by 1-32 % (PROBES); the farthest move in each part that stays within
 SLACK, and every bow the search played within it, give the spread the sound leaves open. A part is identifiable
 where that spread is within its tolerance (2 % of F_B / w, 1 % of v_B). Bows within SLACK but far from the best are
@@ -22,7 +23,7 @@ from ..errors import Terminated
 from .search import COARSE_SECONDS, STARTS, Candidate, Scorer, coarse, descend, distinct_starts, zoom
 from .target import Target
 
-SLACK = 0.15  # a bow within 15 % of the best loss, plus NOISE, sounds as near the target as the best
+SLACK = 1.0  # a bow within (1 + SLACK) x the best loss, plus NOISE, may be the one that made the sound
 # how much the loss moves between bows 1 % apart where the sound does not change (measured around held notes at 220
 # and 440 Hz: 0.001-0.02, from the window geometry and the onset's sample grid moving with f0): a best that lies
 # this far under its neighbours is luck, not a better bow

@@ -1,5 +1,6 @@
 """Independent work on Ray (the `cluster` extra): a local cluster of N workers or one at an address, tasks retried
-where a worker dies, results as they finish; without Ray, or with one worker, the same work in this process.
+where a worker dies, results as they finish; with one worker the same work in this process, and without Ray N
+worker processes of this machine (concurrent.futures).
 
 Why Ray: a corpus of notes, a table of measured bows and an atlas's units are thousands of independent jobs, and Ray
 runs them over the cores of one machine or many with the same code, retrying the tasks of a worker that dies.
@@ -43,8 +44,9 @@ class Pool:
     """Where tasks run: `map(fn, items)` yields (item index, result) as each finishes.
 
     workers 1 and no address: this process, in order. Else Ray: a local cluster of `workers` CPUs, or the cluster at
-    `address` (or RAY_ADDRESS). A task raising an exception stops the run with it; a task whose worker process dies
-    is retried RETRIES times."""
+    `address` (or RAY_ADDRESS); without Ray installed, `workers` processes here. A task raising an exception stops
+    the run with it; on Ray a task whose worker process dies is retried RETRIES times. `fn` must be a module-level
+    function (it is pickled to the workers)."""
 
     def __init__(self, workers: int = 1, address: str | None = None):
         if workers < 1:
@@ -52,13 +54,14 @@ class Pool:
         address = address or os.environ.get("RAY_ADDRESS") or None
         self.workers, self.address = workers, address
         self.local = workers == 1 and address is None
+        self.processes = False
         self.note = ""
         if not self.local and not has_ray():
             if address is not None:
                 raise UsageError("--address needs Ray: pip install 'bowsynth[cluster]'")
-            self.local = True
-            self.note = f"Ray is not installed ('bowsynth[cluster]'): {workers} workers' tasks run in this process"
-        if not self.local:
+            self.processes = True
+            self.note = f"Ray is not installed ('bowsynth[cluster]'): {workers} processes of this machine"
+        if not self.local and not self.processes:
             self._start()
 
     def _start(self) -> None:
@@ -80,6 +83,18 @@ class Pool:
             for i, item in enumerate(items):
                 yield i, fn(item)
             return
+        if self.processes:
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            with ProcessPoolExecutor(self.workers) as ex:
+                futures = {ex.submit(fn, item): i for i, item in enumerate(items)}
+                try:
+                    for f in as_completed(futures):
+                        yield futures[f], f.result()
+                finally:
+                    for f in futures:
+                        f.cancel()
+            return
         import ray
 
         task = ray.remote(max_retries=RETRIES, num_cpus=1)(fn)
@@ -94,7 +109,7 @@ class Pool:
                 ray.cancel(ref, force=True)
 
     def close(self) -> None:
-        if not self.local:
+        if not self.local and not self.processes:
             import ray
 
             if ray.is_initialized():

@@ -67,15 +67,27 @@ def _solve(point):
         return math.nan, math.nan, math.nan
 
 
-def build(path: Path = MAP_PATH, n=GRID, workers: int = 2) -> Path:
-    """Solve the ratio at every grid point (the reference, at build time only) and write the table."""
-    from concurrent.futures import ProcessPoolExecutor
+def _solve_all(points):
+    return [_solve(p) for p in points]
+
+
+CHUNK = 32  # grid points per task
+
+
+def build(path: Path = MAP_PATH, n=GRID, workers: int = 2, address: str | None = None) -> Path:
+    """Solve the ratio at every grid point (the reference, at build time only) and write the table; the points in
+    tasks of CHUNK on Ray (io.cluster.Pool: `workers` here, or the cluster at `address`)."""
+    from ..io.cluster import Pool
 
     x, y = grid_axes(MAP_A, n)
     vbs = vb_of(y)
     points = [(float(math.exp(xi)), float(v)) for xi in x for v in vbs]
-    with ProcessPoolExecutor(workers) as pool:
-        got = np.array(list(pool.map(_solve, points, chunksize=16)), dtype=float).reshape(n[0], n[1], 3)
+    chunks = [points[a:a + CHUNK] for a in range(0, len(points), CHUNK)]
+    got = [None] * len(chunks)
+    with Pool(workers, address) as pool:
+        for i, res in pool.map(_solve_all, chunks):
+            got[i] = res
+    got = np.array([r for chunk in got for r in chunk], dtype=float).reshape(n[0], n[1], 3)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(tmp, x=x, y=y, r=got[..., 0], settle=got[..., 1], amplitude=got[..., 2], a=np.array(MAP_A),
@@ -260,9 +272,10 @@ def check(n: int = 80, seed: int = 0) -> dict:
 
 if __name__ == "__main__":
     if sys.argv[1:2] == ["build"]:
-        print(build())
+        opt = lambda flag, default: sys.argv[sys.argv.index(flag) + 1] if flag in sys.argv else default  # noqa: E731
+        print(build(workers=int(opt("--workers", 2)), address=opt("--address", None)))
     elif sys.argv[1:2] == ["check"]:
         k = sys.argv.index("--n") + 1 if "--n" in sys.argv else None
         print(check(int(sys.argv[k]) if k else 80))
     else:
-        sys.exit("usage: python -m bowsynth.music.ratio_map build | check [--n N]")
+        sys.exit("usage: python -m bowsynth.music.ratio_map build [--workers N] [--address HOST:PORT] | check [--n N]")

@@ -53,6 +53,22 @@ def load_recipe(path) -> dict:
     return out
 
 
+def parents(paths) -> dict[Path, Path | None]:
+    """Each recipe's parent among `paths` (the recipe whose `out` it refines), or None."""
+    paths = [Path(p) for p in paths]
+    by_out: dict[Path, Path] = {}
+    src_of: dict[Path, Path | None] = {}
+    for p in paths:
+        a = p.resolve()
+        r = load_recipe(a)
+        by_out[Path(r.get("out", a.with_suffix(".safetensors"))).resolve()] = p
+        src = Path(r["from"]) if "from" in r else None
+        if src is not None and not src.suffix:
+            src = src.with_suffix(".safetensors")
+        src_of[p] = (a.parent / src).resolve() if src is not None else None
+    return {p: by_out.get(src_of[p]) if src_of[p] is not None else None for p in paths}
+
+
 def build_order(paths) -> list[Path]:
     """The recipes in an order that builds each after the recipe whose `out` it refines (`from`), the rest as given.
     Why: a refinement of a refinement (fast-long from soft-fast from soft-range; creep-mid from stick-halt from a

@@ -1,6 +1,7 @@
-"""bowsynth dataset: a corpus drawn from a spec, loaded back by Hugging Face datasets with no code of ours, resumed
-after deletions and an interrupt, rendered the same on a real two-node Ray cluster with a worker killed mid-task,
-and every bad spec or address refused in one line."""
+"""The independent work, in one process and on a real two-node Ray cluster: bowsynth dataset (a corpus drawn from a
+spec, loaded back by Hugging Face datasets with no code of ours, resumed after deletions and an interrupt, rendered
+the same on the cluster with a worker killed mid-task, every bad spec or address refused in one line), the pitch
+map's build as tasks, and train --atlas (two tiny units on the cluster, one worker killed mid-unit)."""
 
 from __future__ import annotations
 
@@ -118,30 +119,76 @@ def test_an_interrupted_corpus_lists_only_whole_files_and_finishes(tmp_path):
     assert len((c / "metadata.jsonl").read_text().splitlines()) == 600
 
 
-def test_a_ray_cluster_renders_the_same_corpus_with_a_worker_killed(corpus, tmp_path):
+@pytest.fixture(scope="module")
+def cluster():
+    """A real Ray cluster of two nodes on this machine (a head and a worker node, one CPU each)."""
     pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
 
+    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    c.add_node(num_cpus=1)
+    c.wait_for_nodes()
+    yield c
+    c.shutdown()
+
+
+def test_a_table_builds_the_same_on_the_cluster(cluster, tmp_path):
+    """The pitch map's build (ratio solves, the reference at build time) as Ray tasks equals the one process's."""
+    from bowsynth.music import ratio_map
+
+    on = ratio_map.build(tmp_path / "ray.npz", n=(3, 4), address=cluster.address)
+    here = ratio_map.build(tmp_path / "one.npz", n=(3, 4), workers=1)
+    with np.load(on) as a, np.load(here) as b:
+        assert set(a.files) == set(b.files)
+        for k in a.files:
+            assert np.array_equal(a[k], b[k], equal_nan=True), k
+        assert np.isfinite(a["r"]).sum() >= 4
+
+
+def test_a_ray_cluster_renders_the_same_corpus_with_a_worker_killed(corpus, cluster, tmp_path):
     d, c = corpus
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    cluster.add_node(num_cpus=1)
-    cluster.wait_for_nodes()
-    try:
-        env = dict(os.environ, RAY_ADDRESS=cluster.address)
-        s = spec(tmp_path, count=50, seed=4, duration=0.4, gestures=0.3)
-        killer = subprocess.Popen([sys.executable, "-c", KILL_ONE], stdout=subprocess.PIPE, text=True)
-        p = bow("dataset", s, "--out", tmp_path / "r", cwd=tmp_path, env=env)
-        killed = killer.communicate(timeout=60)[0].strip()
-        assert p.returncode == 0, p.stderr
-        assert "50 of 50 notes" in p.stdout
-        for f in (c / "data").glob("*.wav"):
-            assert np.array_equal(samples(f), samples(tmp_path / "r" / "data" / f.name)), f.name
-        mine = [json.loads(x) for x in (c / "metadata.jsonl").read_text().splitlines()]
-        theirs = [json.loads(x) for x in (tmp_path / "r" / "metadata.jsonl").read_text().splitlines()]
-        assert mine == theirs
-        assert killed.startswith("killed"), killed  # a worker died mid-task and its task ran again
-    finally:
-        cluster.shutdown()
+    env = dict(os.environ, RAY_ADDRESS=cluster.address)
+    s = spec(tmp_path, count=50, seed=4, duration=0.4, gestures=0.3)
+    killer = subprocess.Popen([sys.executable, "-c", KILL_ONE], stdout=subprocess.PIPE, text=True)
+    p = bow("dataset", s, "--out", tmp_path / "r", cwd=tmp_path, env=env)
+    killed = killer.communicate(timeout=60)[0].strip()
+    assert p.returncode == 0, p.stderr
+    assert "50 of 50 notes" in p.stdout
+    for f in (c / "data").glob("*.wav"):
+        assert np.array_equal(samples(f), samples(tmp_path / "r" / "data" / f.name)), f.name
+    mine = [json.loads(x) for x in (c / "metadata.jsonl").read_text().splitlines()]
+    theirs = [json.loads(x) for x in (tmp_path / "r" / "metadata.jsonl").read_text().splitlines()]
+    assert mine == theirs
+    assert killed.startswith("killed"), killed  # a worker died mid-task and its task ran again
+
+
+def test_an_atlas_trains_on_the_cluster_with_a_worker_killed(cluster, tmp_path):
+    """Two independent tiny units as Ray tasks, a worker killed mid-unit: both train (the killed one again, from its
+    checkpoint or its start), the one of seed 1 has the weights one process gives it, and a second run finds both up
+    to date."""
+    from safetensors.numpy import load_file
+
+    for name, seed, fb in (("a", 1, "80:120"), ("b", 2, "90:110")):
+        (tmp_path / f"{name}.toml").write_text(
+            f'f0 = 100\nfb = "{fb}"\nvb = "0.18:0.22"\nsteps = 30\nwidth = 16\nbatch = 64\nband_seconds = 0.3\n'
+            f'seed = {seed}\nout = "{name}.safetensors"\n')
+    env = dict(os.environ, RAY_ADDRESS=cluster.address)
+    killer = subprocess.Popen([sys.executable, "-c", KILL_ONE.replace("_render_batch", "_unit")],
+                              stdout=subprocess.PIPE, text=True)
+    p = bow("train", "--atlas", tmp_path, cwd=tmp_path, env=env)
+    killed = killer.communicate(timeout=60)[0].strip()
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "2 of 2 units trained or up to date" in p.stdout
+    assert killed.startswith("killed"), killed
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    (alone / "a.toml").write_text((tmp_path / "a.toml").read_text())
+    q = bow("train", "--config", alone / "a.toml", "--quiet", cwd=alone)
+    assert q.returncode == 0, q.stderr
+    mine, theirs = load_file(str(tmp_path / "a.safetensors")), load_file(str(alone / "a.safetensors"))
+    assert mine.keys() == theirs.keys() and all(np.array_equal(mine[k], theirs[k]) for k in mine)
+    again = bow("train", "--atlas", tmp_path, cwd=tmp_path, env=env)
+    assert again.returncode == 0 and again.stdout.count("up to date") >= 2, again.stdout
 
 
 # kills the first Ray worker seen running a corpus task (its process title names the task)
