@@ -24,14 +24,23 @@ def score_text(fit: Fit, target_name: str, seconds: float) -> str:
     for c in fit.alike:
         lines.append(f"# sounds alike: F_B / w {c.beta:.4g}, v_B {c.vb:.4g} (loss {c.loss:.4f}, best {b.loss:.4f})")
     ch = fit.checked
-    if ch:
-        lines.append(f"# the fitted note against the target: harmonics {ch['harmonics_db']:.2f} dB (median), pitch "
-                     f"{ch['pitch_cents']:+.2f} cents, onset {ch['onset_ms']:+.1f} ms")
-    if fit.interrupted:
-        lines.append("# the fit was interrupted: the best bow found until then")
-    lines += [f"# play it: bowsynth score --score THIS.toml --mix fitted.wav", "",
-              f"title = {_quote('fitted to ' + target_name)}", "", "[[voice]]", 'name = "fit"',
-              f"f0 = {b.f0:.9g}", f"fb = {fit.fb:.9g}", f"vb = {b.vb:.9g}", f"duration = {seconds:.9g}", ""]
+    checked = ch and (f"# the fitted note against the target: harmonics {ch['harmonics_db']:.2f} dB (median), pitch "
+                      f"{ch['pitch_cents']:+.2f} cents, onset {ch['onset_ms']:+.1f} ms")
+    lines += _closing(checked, fit.interrupted, "bow")
+    return _voice(lines, target_name, b.f0, f"{fit.fb:.9g}", f"{b.vb:.9g}", seconds)
+
+
+def _closing(checked: str | None, interrupted: bool, what: str) -> list[str]:
+    """The comment lines on how the fit sounds against the target, and whether it was interrupted."""
+    return ([checked] if checked else []) + (
+        [f"# the fit was interrupted: the best {what} found until then"] if interrupted else [])
+
+
+def _voice(lines: list, target_name: str, f0: float, fb: str, vb: str, seconds: float) -> str:
+    """The comment lines, then the score's one voice."""
+    lines = lines + ["# play it: bowsynth score --score THIS.toml --mix fitted.wav", "",
+                     f"title = {_quote('fitted to ' + target_name)}", "", "[[voice]]", 'name = "fit"',
+                     f"f0 = {f0:.9g}", f"fb = {fb}", f"vb = {vb}", f"duration = {seconds:.9g}", ""]
     return "\n".join(lines)
 
 
@@ -49,17 +58,12 @@ def curves_text(fit, curves, target_name: str, seconds: float) -> str:
         lines.append(f"# the curves reach the edge of {curves.model}'s box, the one model the fit rolls: the sound "
                      f"asks for bows past it")
     ch = curves.checked
-    if ch:
-        lines.append(f"# the fitted curves against the target per 100 ms frame: harmonics {ch['harmonics_db']:.2f} dB "
-                     f"(median; worst frame {ch['harmonics_db_worst']:.2f}), pitch {ch['pitch_cents']:.2f} cents")
-    if curves.interrupted:
-        lines.append("# the fit was interrupted: the best curves found until then")
+    checked = ch and (f"# the fitted curves against the target per 100 ms frame: harmonics {ch['harmonics_db']:.2f} "
+                      f"dB (median; worst frame {ch['harmonics_db_worst']:.2f}), pitch {ch['pitch_cents']:.2f} cents")
+    lines += _closing(checked, curves.interrupted, "curves")
     pts = lambda v, scale=1.0: "[" + ", ".join(f"[{t:.6g}, {x * scale:.9g}]" for t, x in zip(curves.times, v)) + "]"  # noqa: E731
-    lines += ["# play it: bowsynth score --score THIS.toml --mix fitted.wav", "",
-              f"title = {_quote('fitted to ' + target_name)}", "", "[[voice]]", 'name = "fit"',
-              f"f0 = {curves.f0:.9g}", f"fb = {pts(curves.beta, w)}", f"vb = {pts(curves.vb)}",
-              f"duration = {max(seconds, float(curves.times[-1])):.9g}", ""]
-    return "\n".join(lines)
+    return _voice(lines, target_name, curves.f0, pts(curves.beta, w), pts(curves.vb),
+                  max(seconds, float(curves.times[-1])))
 
 
 def _quote(s: str) -> str:

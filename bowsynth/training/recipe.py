@@ -59,9 +59,13 @@ def parents(paths) -> dict[Path, Path | None]:
     by_out: dict[Path, Path] = {}
     src_of: dict[Path, Path | None] = {}
     for p in paths:
+        # read by its absolute path: load_recipe puts the folder before a `from` whose file exists, and a relative
+        # folder (`make models` passes bowsynth/models/...) would be put before it twice below
         a = p.resolve()
         r = load_recipe(a)
         by_out[Path(r.get("out", a.with_suffix(".safetensors"))).resolve()] = p
+        # the parent's file need not exist yet (a fresh build): its path as the recipe names it, from its folder
+        # (a name, as `train --from` takes it, is the model file of that name beside the recipe)
         src = Path(r["from"]) if "from" in r else None
         if src is not None and not src.suffix:
             src = src.with_suffix(".safetensors")
@@ -75,20 +79,7 @@ def build_order(paths) -> list[Path]:
     stage) must find its parent built, and a retrained parent must come before what refines it, else `make models`
     refines from the old parent and leaves the child stale for the next run. A cycle is refused."""
     paths = [Path(p) for p in paths]
-    by_out: dict[Path, Path] = {}
-    parent: dict[Path, Path | None] = {}
-    for p in paths:
-        # read by its absolute path: load_recipe puts the folder before a `from` whose file exists, and a relative
-        # folder (`make models` passes bowsynth/models/...) would be put before it twice below
-        a = p.resolve()
-        r = load_recipe(a)
-        by_out[Path(r.get("out", a.with_suffix(".safetensors"))).resolve()] = p
-        # the parent's file need not exist yet (a fresh build): its path as the recipe names it, from its folder
-        # (a name, as `train --from` takes it, is the model file of that name beside the recipe)
-        src = Path(r["from"]) if "from" in r else None
-        if src is not None and not src.suffix:
-            src = src.with_suffix(".safetensors")
-        parent[p] = (a.parent / src).resolve() if src is not None else None
+    up_of = parents(paths)
     order: list[Path] = []
     state: dict[Path, int] = {}  # 1: being placed, 2: placed
 
@@ -98,7 +89,7 @@ def build_order(paths) -> list[Path]:
         if state.get(p) == 1:
             raise UsageError(f"recipes refine each other in a cycle through {p}")
         state[p] = 1
-        up = by_out.get(parent[p]) if parent[p] is not None else None
+        up = up_of[p]
         if up is not None:
             place(up)
         state[p] = 2
