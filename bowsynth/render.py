@@ -53,6 +53,10 @@ class Played(str):
         self.engine, self.oversample, self.fdm_fallback, self.fdm_release = engine, oversample, fdm_fallback, fdm_release
         return self
 
+    def __getnewargs__(self):
+        """What pickle rebuilds it from (a render sent between processes: a Ray task's, a worker pool's)."""
+        return self.engine, self.oversample, self.fdm_fallback, self.fdm_release
+
     def with_fdm_release(self) -> "Played":
         return Played(self.engine, self.oversample, self.fdm_fallback, True)
 
