@@ -167,3 +167,11 @@ def test_played_is_typed_and_reads_as_before():
     assert Played("fdm", 4) == "fdm x4" and Played("fdm", 4).oversample == 4 and not Played("fdm").fdm_release
     with pytest.raises(ValueError):
         Played("telepathy")
+    import pickle  # a render travels between processes (a Ray task, a worker pool): every kind comes back itself
+
+    for p in (Played("operator"), Played("operator", fdm_fallback=True), Played("fdm", 4),
+              Played("operator", fdm_release=True)):
+        q = pickle.loads(pickle.dumps(p))
+        assert type(q) is Played and q == p
+        assert (q.engine, q.oversample, q.fdm_fallback, q.fdm_release) == (p.engine, p.oversample, p.fdm_fallback,
+                                                                          p.fdm_release)
