@@ -49,7 +49,9 @@ def corpus(tmp_path_factory):
     return d, d / "c"
 
 
-def test_the_corpus_loads_with_datasets_and_its_labels_are_its_sound(corpus):
+def test_the_corpus_loads_with_datasets_and_its_labels_are_its_sound(corpus, monkeypatch):
+    monkeypatch.setenv("HF_DATASETS_OFFLINE", "1")  # the audiofolder builder ships with datasets: no network asked
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     datasets = pytest.importorskip("datasets")
     pytest.importorskip("librosa")  # datasets' audio decoding
     from bowsynth import api
