@@ -15,6 +15,7 @@ rerun renders only what is missing.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import shutil
@@ -75,13 +76,14 @@ def check_disk(out: Path, spec: Spec, reference: bool, missing: int) -> None:
 
 def _render_batch(job):
     """A task: render the notes (one batched rollout with the operator; the x100 FDM too with a reference) and
-    return per note its samples and labels. Runs in a worker: no file is written here. A note whose rollout leaves
+    return per note its samples and its metadata row; on this machine (`here`, the corpus's directory) it writes the
+    files itself and returns the rows alone, else the driver writes them (a cluster's nodes share no disk). A note whose rollout leaves
     its model's trained states is finished by the FDM (--fallback fdm) and labelled so ('operator+fdm')."""
     from .. import api
     from ..io.audio import wav_payload
     from ..scene import Scene
 
-    notes, spec, reference = job
+    notes, spec, reference, here = job
     scenes = [Scene(f0=n.f0, fb=n.fb, vb=n.vb, duration=spec.duration, sample_rate=spec.sample_rate) for n in notes]
     renders = api.render(scenes, fallback="fdm")
     out = []
@@ -90,8 +92,20 @@ def _render_batch(job):
         ref = None
         if reference:
             ref = wav_payload(api.render_fdm(sc, oversample=100))
-        out.append((n, x, meta, ref, str(r.method), r.info.model_path))
+        row = _labels(n, spec, str(r.method), r.info.model_path, reference)
+        if here is not None:  # a worker of this machine writes the files itself: the driver only lists them
+            _write_note(Path(here), n, spec, x, meta, ref)
+            x = meta = ref = None
+        out.append((n, x, meta, ref, row))
     return out
+
+
+def _write_note(out: Path, n: NoteSpec, spec: Spec, x, meta, ref) -> None:
+    from ..io.audio import write_float_wav
+
+    write_float_wav(out / "data" / f"{n.name}.wav", x, spec.sample_rate, meta)
+    if ref is not None:
+        write_float_wav(out / "reference" / f"{n.name}.wav", ref[0], spec.sample_rate, ref[1])
 
 
 def _labels(n: NoteSpec, spec: Spec, method: str, model_path, reference: bool) -> dict:
@@ -111,8 +125,9 @@ def _labels(n: NoteSpec, spec: Spec, method: str, model_path, reference: bool) -
     return row
 
 
+@functools.lru_cache(maxsize=256)
 def _accuracy(model_path) -> str:
-    """The playing model's validation, as `bowsynth models` states it."""
+    """The playing model's validation, as `bowsynth models` states it (read once per model and process)."""
     if not model_path:
         return ""
     from ..engines.operator.choose import as_model
@@ -189,9 +204,8 @@ def build(spec: Spec, out, workers: int = 1, address: str | None = None, referen
           progress=None) -> Built:
     """Render what is missing of the spec's corpus into `out`; progress(done, total, eta_seconds) after each batch.
     Ctrl-C (or SIGTERM) stops after the files written so far, which the metadata lists."""
-    from ..io.cluster import Pool
     from ..errors import Terminated
-    from ..io.audio import write_float_wav
+    from ..io.cluster import Pool
 
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -205,16 +219,16 @@ def build(spec: Spec, out, workers: int = 1, address: str | None = None, referen
         (out / "reference").mkdir(exist_ok=True)
     rows = dict(probe_rows)
     _write_meta(out, rows)  # only whole files listed, from the start
-    jobs = [(missing[a:a + BATCH], spec, reference) for a in range(0, len(missing), BATCH)]
     written, interrupted = 0, False
     pool = Pool(workers, address)
+    here = str(out.resolve()) if pool.address is None else None  # workers of this machine write their own files
+    jobs = [(missing[a:a + BATCH], spec, reference, here) for a in range(0, len(missing), BATCH)]
     try:
         for _, results in pool.map(_render_batch, jobs):
-            for n, x, meta, ref, method, model_path in results:
-                write_float_wav(out / "data" / f"{n.name}.wav", x, spec.sample_rate, meta)
-                if ref is not None:
-                    write_float_wav(out / "reference" / f"{n.name}.wav", ref[0], spec.sample_rate, ref[1])
-                rows[n.index] = _labels(n, spec, method, model_path, reference)
+            for n, x, meta, ref, row in results:
+                if x is not None:
+                    _write_note(out, n, spec, x, meta, ref)
+                rows[n.index] = row
                 written += 1
             _write_meta(out, rows)
             if progress is not None:
