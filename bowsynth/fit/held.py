@@ -21,7 +21,7 @@ import numpy as np
 from .. import physics
 from ..errors import Terminated
 from .search import COARSE_SECONDS, STARTS, Candidate, Scorer, coarse, descend, distinct_starts, zoom
-from .target import Target
+from .target import FitMiss, Target
 
 SLACK = 1.0  # a bow within (1 + SLACK) x the best loss, plus NOISE, may be the one that made the sound
 # how much the loss moves between bows 1 % apart where the sound does not change (measured around held notes at 220
@@ -111,7 +111,9 @@ def fit_held(target: Target, models=None, starts: int = STARTS, progress=None, b
         say("coarse", 0, 1)
         grid = coarse(quick)
         if not grid:
-            raise ValueError("no model plays any bow at this pitch")
+            raise FitMiss(f"no model plays a held note at {target.pitch:.4g} Hz at this rate: {target.path or 'the target'} "
+                          f"is not a note the operator can match (its pitch is too high, or too low, for the shipped "
+                          f"models' f0 at {target.sample_rate} Hz)")
         picks = distinct_starts(grid, starts)
         for i, s in enumerate(picks):
             say("zoom", i, len(picks))
@@ -120,6 +122,8 @@ def fit_held(target: Target, models=None, starts: int = STARTS, progress=None, b
             seen += near
             if near:
                 best = min([best, *near], key=lambda c: c.loss) if best else min(near, key=lambda c: c.loss)
+        if best is None:
+            best = grid[0]
         tops = distinct_starts(sorted(seen, key=lambda c: c.loss), starts, apart=0.1)
         for i, s in enumerate(tops):
             say("descent", i, len(tops))
