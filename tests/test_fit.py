@@ -14,6 +14,7 @@ import soundfile as sf
 
 from bowsynth import physics
 from bowsynth.fit.surrogate import note_scene
+from test_report import browser, check_page, open_report  # noqa: F401  (the report tests' browser and checks)
 
 
 def bow(*args, cwd=None):
@@ -37,10 +38,14 @@ def held_target(tmp_path_factory):
     return d, (f0, beta, vb)
 
 
-def test_fit_writes_a_score_that_plays_the_target(held_target):
+def test_fit_writes_a_score_that_plays_the_target(held_target, browser):
     d, (f0, beta, vb) = held_target
-    p = bow("fit", "t.wav", "--out", "fitted.toml", "--starts", 2, cwd=d)
+    p = bow("fit", "t.wav", "--out", "fitted.toml", "--starts", 2, "--report", "fit.html", cwd=d)
     assert p.returncode == 0, p.stderr
+    # the page, in a real browser: the target and the fitted note to listen to (1 s each), harmonics and the bow plane
+    info = open_report(browser, d / "fit.html")
+    check_page(info, [1.0, 1.0], plots=2)
+    assert "twice the best loss" in info["plots"][1]["caption"] and "F_B / w" in info["text"]
     text = (d / "fitted.toml").read_text()
     voice = tomllib.loads(text)["voice"][0]
     # the sound is matched: the fitted note as render plays it, within the instrument's targets of the target

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -15,6 +16,7 @@ def fit(
     out_path: Path = typer.Option(Path("fitted.toml"), "--out", "-o", help="The score to write (TOML, what `bowsynth score` plays)."),
     curves: bool = typer.Option(False, "--curves", help="Also fit the bow as curves (breakpoints every 0.1 s) from the held fit: for a gesture (a crescendo, a bow-speed change)."),
     starts: int = typer.Option(3, "--starts", min=1, max=8, help="The best coarse bows that are refined (zoom and gradient descent)."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write an HTML page: the target and the fit to listen to, their harmonics, the bow plane as the search saw it, the curves."),
     force: bool = typer.Option(False, "--force", help="Write the fit even where it is not a match; replace a read-only --out."),
 ):
     """Find the held bow (F_B / w, v_B) and f0 that make the operator sound like TARGET: a coarse search, then
@@ -30,6 +32,9 @@ def fit(
     t0 = time.monotonic()
     check_not_input(out_path, [target], "--out")
     check_output_path(out_path, force=force)
+    if report is not None:
+        check_not_input(report, [target, out_path], "--report")
+        check_output_path(report, force=force)
     t = read_target(target)  # a bad file is refused before torch is imported
     with err.status("fitting: coarse search") as status:
         def progress(stage, done, total):
@@ -43,6 +48,11 @@ def fit(
         raise FitMiss(f"the nearest note of this instrument is {loss:.3g} away (loss; a note of it is within "
                       f"{held.MISS_LOSS:g}): {target} is not a match; nothing written (--force writes it)")
     write_score(f, out_path, target.name, t.seconds, force=True, curves=c)
+    if report is not None:
+        from ..report.fit_page import fit_page
+        from ..report.html import write_page
+
+        write_page(report, fit_page(t, f, api.render, c), force=force)
     out.print(f"wrote {out_path}: f0 {b.f0:.6g} Hz, F_B {f.fb:.6g} (F_B / w {b.beta:.5g}), v_B {b.vb:.5g}"
               f"{'' if match else ' (not a match: written by --force)'}", soft_wrap=True)
     out.print(f"how well the sound determines it: F_B / w {determined(f, 'beta')}, v_B {determined(f, 'vb')}",

@@ -44,6 +44,7 @@ class Fit:
     seconds: float
     interrupted: bool = False
     checked: dict = field(default_factory=dict)  # the render's note against the target (check())
+    seen: list = field(default_factory=list)  # every bow the search scored at the whole target (the report's map)
 
     @property
     def fb(self) -> float:
@@ -140,7 +141,8 @@ def fit_held(target: Target, models=None, starts: int = STARTS, progress=None, b
             raise
     seen.append(best)
     spread, alike = _spread(seen, best)
-    return Fit(best, spread, alike, quick.evaluations + full.evaluations, time.monotonic() - t0, interrupted)
+    return Fit(best, spread, alike, quick.evaluations + full.evaluations, time.monotonic() - t0, interrupted,
+               seen=seen)
 
 
 def check(fit: Fit, target: Target, render) -> dict:
