@@ -189,11 +189,7 @@ def probe(scorer: Scorer, fit: CurveFit) -> np.ndarray:
         except (NoteFailed, BowsynthError):
             return math.inf
         scorer.evaluations += 1
-        import torch
-
-        with torch.no_grad():
-            p = scorer.loss.parts(torch.as_tensor(q, dtype=torch.float32))
-        return float(p["spectral"] + p["onset"])
+        return scorer.loss.sound(q)
 
     base = loss(fit.beta, fit.vb)
     out = np.full((len(fit.times), 2), np.inf)

@@ -82,10 +82,14 @@ class SoundLoss:
         c = cents(f0_estimate(np.asarray(x, float)[:self.pitch_n], self.sample_rate), self.pitch)
         return ((c / PITCH_CENTS) ** 2 if math.isfinite(c) else math.inf), c
 
-    def value(self, x: np.ndarray) -> float:
-        """The whole loss of a candidate (numpy samples): spectral + onset + pitch."""
+    def sound(self, x: np.ndarray) -> float:
+        """spectral + onset of a candidate (numpy samples), without a graph: what a curve's loss is."""
         import torch
 
         with torch.no_grad():
             p = self.parts(torch.as_tensor(np.asarray(x, np.float64), dtype=torch.float32))
-        return float(p["spectral"] + p["onset"]) + self.pitch_term(x)[0]
+        return float(p["spectral"] + p["onset"])
+
+    def value(self, x: np.ndarray) -> float:
+        """The whole loss of a candidate (numpy samples): spectral + onset + pitch."""
+        return self.sound(x) + self.pitch_term(x)[0]
