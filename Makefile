@@ -40,35 +40,13 @@ test: $(STAMP) chromium jackd
 	$(PY) -m pytest -n auto
 
 # The shipped operators: each is trained by its recipe beside it (bowsynth/models/NAME.toml: the flags of
-# `bowsynth train`), on a 2-core CPU at most 15 minutes for each point model (40 for paper-fb1000-half and -knee, the
+# `bowsynth train`), on a 2-core CPU at most 15 minutes for a point model (40 for paper-fb1000-half and -knee, the
 # paper's stick-slip scene on half-period windows) and 45 for a range model. Only what is missing, unreadable or stale
-# against its recipe is trained (`train --update`); an interrupted run continues from its checkpoint, so `make
-# models` can be stopped and run again. A wide stick-slip range failed its validation and is
-# not shipped; velocity-loud is a small stick-slip tile where loud MIDI notes go, loud-stops their bow stops, loud-mid
-# the soft / stick-slip border at moderate bow speeds, loud-seam the light fast bows between loud-mid and fast-bow;
-# stick-mid, -low, -slow, -high, -stops, -heavy, -creep, -top, floor-long and creep-mid: stick-slip tiles on
-# quarter-period windows; soft-top and soft-high: the soft bow's top
-# forces; soft-fast its fastest bows, fast-long the fastest of them; corner-long the light fast corner (floor-long,
-# creep-mid, fast-long and corner-long learnt from renders of 6, 6, 6 and 16 s: their notes take seconds to settle);
-# stick-halt the heavy bow stops (stick-halt-high those above F_B / w 1.72, halt-edge the damped bows at the space's
-# edge, F_B / w 1.9-2.02 x v_B 0-0.08, halt-floor the heavy bows held just below vb_stop, halt-band, high-band and
-# edge-band those held just above it, stops-band stick-stops' held just above it, failed by ear and played only where
-# measured truer: a rerun of halt-band's or stops-band's recipe need not reproduce its shipped file, as each says)
-# and stick-gap the fast bows between stick-fast and stick-high, refined in stages (bowsynth/models/stages: models
-# a render never picks, kept to rebuild them), gap-top stick-gap refined on its light fast corner, stick-slow refined
-# on a GPU from its session-19 self (stages/stick-slow-1); halt-bottom, bottom-band, upper-band, low-band, floor-band,
-# edge-floor, light-floor, seam-floor, mid-narrow, seam-low, seam-mid, edge-narrow, light-narrow, seam-bottom,
-# seam-light, edge-low, edge-top and edge-sill refine the band just above vb_stop in ever narrower boxes (halt-bottom,
-# low-band, floor-band, edge-floor, light-floor, mid-narrow, seam-mid, edge-narrow, seam-bottom, seam-light, edge-low,
-# edge-top and edge-sill failed by ear and play only where measured truer; seam-bottom, seam-light, edge-low, edge-top
-# and edge-sill trained without the derivative term); seam-roll, edge-roll, seam-edge, seam-corner, mid-edge, mid-high,
-# mid-corner, mid-core, seam-stripe, stripe-edge, stripe-top, high-sill, band-stripe, mid-sill, halt-ledge,
-# floor-ledge, light-ledge, under-ledge, deep-ledge, stops-ledge (failed by ear), floor-high and floor-low are
-# seam-light, edge-top, seam-low, halt-bottom, mid-edge, halt-band, high-band, floor-band, bottom-band and stops-band
-# refined with the rollout term; rim-top stick-slip's top rim; fast-onset stick-fast refined with the rollout term on
-# its fast heavy bows, where its notes spoke a cycle late (BENCHMARKS.md).
-# A recipe with a `from` key refines another model (`train --from`): it is built after the recipe of that model
-# (bowsynth.training.recipe.build_order).
+# against its recipe is trained (`train --update`); an interrupted run continues from its checkpoint, so `make models`
+# can be stopped and run again. A recipe with a `from` key refines another model (`train --from`) and is built after
+# that model's recipe (bowsynth.training.recipe.build_order); bowsynth/models/stages holds models a render never picks,
+# kept to rebuild the ones refined from them. The catalogue, each model's box and validation: `bowsynth models`,
+# docs/models.md.
 RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)
 models: $(STAMP)
 	order=$$($(PY) -m bowsynth.training.recipe $(RECIPES)) || exit 1; \

@@ -69,7 +69,7 @@ CASES = [
     ("an error map's pitch out of range", "bench map --f0 5"),
     ("an error map's notes too short to hear", "bench map --seconds 0.01"),
     ("an error map's model that is not there", "bench map --model nosuch"),
-    # round 3: playing live (no server named so runs here; the rest needs a server: LIVE_ROWS)
+    # playing live (no server named so runs here; the rest needs a server: LIVE_ROWS)
     ("windows that are not locked, free, physics or auto", "render --windows sideways x.wav"),
     ("... for a score", "score --presets paper-fb100 --windows both --mix m.wav"),
     ("no JACK server running", "play --server nosuch"),
@@ -77,7 +77,7 @@ CASES = [
     ("a pitch bend range beyond two octaves", "play --bend-range 99"),
     ("FDM past its uniqueness bound", "render --method fdm --fb 10000 -d 0.05 ok2.wav"),
     ("a scene that would need absurd oversampling", "render --method fdm --fb 1e6 --a 1e6 x.wav"),
-    # round 2: special output paths
+    # special output paths
     ("output through a symlink (written through)", "render --method fdm -d 0.1 link.wav"),
     ("output to a FIFO (written to, not replaced)", "render --method fdm -d 0.1 fifo"),
     ("read-only existing output", "render --method fdm -d 0.1 ro.wav"),
@@ -85,14 +85,14 @@ CASES = [
     ("output path is a directory", "render --method fdm -d 0.1 adir"),
     ("output format not supported", "render --method fdm -d 0.1 x.mp3"),
     ("output to standard output", "render --method fdm -d 0.1 -"),
-    # round 2: files in
+    # files in
     ("WAV cut to half its bytes", "compare half.wav"),
     ("WAV cut by a few bytes", "compare short.wav"),
     ("WAV header promising more data than present", "compare bigheader.wav"),
     ("metadata duration edited", "compare edited.wav"),
     ("FLAC cut short", "compare half.flac"),
     ("lossy OGG compared", "compare ok.ogg"),
-    # round 2: extreme numbers
+    # extreme numbers
     ("bow force 1e308 (FDM)", "render --method fdm --fb 1e308 x.wav"),
     ("bow speed 1e308", "render --method fdm --vb 1e308 x.wav"),
     ("bow force 1e-300", "render --method fdm -d 0.1 --fb 1e-300 x.wav"),
@@ -109,7 +109,7 @@ CASES = [
     ("a network 10^9 wide", "train --fb 100 --width 1000000000"),
     ("compare reference past two minutes of FDM", "compare long.wav --reference high"),
     ("1000-voice mix", "score --score big.toml --method fdm --mix -q mix.wav"),
-    # issue 11: scores, MIDI and pitch names
+    # scores, MIDI and pitch names
     ("MIDI input that is not a MIDI file", "score --score notmidi.mid --method fdm --mix m.wav"),
     ("empty MIDI file", "score --score empty.mid --method fdm --mix m.wav"),
     ("MIDI file with no notes", "score --score notempo.mid --method fdm --mix m.wav"),
@@ -136,12 +136,12 @@ CASES = [
     ("compare: a directory", "compare adir.safetensors"),
     ("compare: /dev/null", "compare /dev/null"),
     ("train --config: a FIFO", "train --config sfifo"),
-    # round 3: MIDI files
+    # MIDI files
     ("MIDI file timed in SMPTE frames", "score --score smpte.mid --method fdm --mix m.wav"),
     ("MIDI file with 0 ticks per beat", "score --score zerodiv.mid --method fdm --mix m.wav"),
     ("MIDI header announcing 65535 tracks, five present", "score --score tracks.mid --method fdm --mix m.wav"),
     ("four parts on their own tracks, all on channel 1, a unison", "score --score chorale.mid --method fdm --mix m.wav"),
-    # round 3: whole jobs, numbers, files
+    # whole jobs, numbers, files
     ("a note starting at 3000 s (mix estimated as a whole)", "score --score late.toml --mix m.wav"),
     ("a note starting at 1e12 s, with --force", "score --score later.toml --mix m.wav --force"),
     ("a score nested 5000 deep", "score --score deep.toml --method fdm --mix m.wav"),

@@ -1,6 +1,6 @@
 """Where a chorale's `score --mix` process spends its time, per engine: the imports, the score's notes (each pitch
 tuned for the engine), the render and the mix written, each timed inside a fresh process, the two engines
-alternated (issue 23's 0.5x target: what the operator's render may cost once the costs both processes share are paid).
+alternated (against the 0.5x target: what the operator's render may cost once the costs both processes share are paid).
 
     PYTHONPATH=. .venv/bin/python benchmarks/chorale_phases.py [--runs 3]
 

@@ -1,4 +1,4 @@
-"""The arithmetic of the chorale's operator render (issue 23's 0.5x target): how many windows and voice-samples the
+"""The arithmetic of the chorale's operator render (against its 0.5x target): how many windows and voice-samples the
 rollouts of `score --mix` roll, what that is in multiply-adds, and how long it would take at this machine's BLAS speed.
 
     PYTHONPATH=. .venv/bin/python benchmarks/chorale_work.py [--windows locked]

@@ -120,7 +120,7 @@ def main():
         print("| what | operator | fdm | operator / fdm |")
         print("|---|---|---|---|")
         renders = [["--fb", "100", "--vb", "0.2", "-d", "5"], ["--fb", "100", "--vb", "0.2", "-d", "1"],
-                   # issue 10: a bow only the soft range model covers (F_B / w 0.1), and a crescendo it follows
+                   # a bow only the soft range model covers (F_B / w 0.1), and a crescendo it follows
                    ["--f0", "440", "--fb", "276", "-d", "5"], ["--fb", "50@0,200@5", "--vb", "0.15", "-d", "5"]]
         for flags in renders:
             a = ["render", *flags, "x.wav"]

@@ -79,7 +79,7 @@ def rollouts() -> None:
     f0 = 100 * 2 ** np.random.default_rng(0).uniform(0, 3, 64)
     dt = 2 * np.pi * f0 / 44100
     rollout_states(m, np.zeros((64, 2)), 100, dt, check_domain=False)
-    for loop, what in (("core-voices", "voice after voice (before session 12)"), ("core-1", "in groups by pitch")):
+    for loop, what in (("core-voices", "voice after voice"), ("core-1", "in groups by pitch")):
         x = 64 * 2 / best_cpu(lambda: rollout_states(m, np.zeros((64, 2)), 2 * 44100, dt, check_domain=False,
                                                      loop=loop), 3)
         g = x * (mac_window * f0.mean() + 2 * (k + 3) * 44100) / 1e9

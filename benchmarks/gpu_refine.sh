@@ -1,15 +1,15 @@
 #!/bin/bash
-# Seven shipped range models refined at once on one GPU, each on its own box from its own weights (session 35:
+# Seven shipped range models refined at once on one GPU, each on its own box from its own weights (measured in
 # docs/BENCHMARKS.md, "Seven refinements on a GPU"). On the device machine, from the repository root, wheels for the
 # packages its image lacks (pytorch-optimizer, soundfile, cffi, pycparser, mido: `pip download --only-binary=:all:
-# --python-version 3.12 --platform manylinux_2_28_x86_64 --no-deps -d scratch/s35/gpu/wheels ...`) carried there:
+# --python-version 3.12 --platform manylinux_2_28_x86_64 --no-deps -d build/wheels ...`, or WHEELS=DIR) carried there:
 #     bash benchmarks/gpu_refine.sh MINUTES [cuda|cpu]      # the models and logs come back in $OUT/models.tgz
 # The core is built there by CMake for that Python. cpu (with PY=.venv/bin/python, STEPS='--steps 2') runs the same
 # here, for a check.
 MIN=${1:-7}; DEV=${2:-cuda}; PY=${PY:-python3}; OUTDIR=${OUT:-/tmp/gpuout}; M=/tmp/m; mkdir -p $M $OUTDIR
 export PYTHONPATH=$PWD OMP_NUM_THREADS=2
 if [ "$DEV" = cuda ]; then
-  $PY -m pip install --no-deps --no-index -q ${WHEELS:-scratch/s35/gpu/wheels}/*.whl 2>&1 | tail -2
+  $PY -m pip install --no-deps --no-index -q ${WHEELS:-build/wheels}/*.whl 2>&1 | tail -2
   rm -f bowsynth/_core*.so
   (cmake -S . -B /tmp/core -G Ninja -DCMAKE_BUILD_TYPE=Release -DPython_EXECUTABLE=$(command -v $PY) > /tmp/cmake.log 2>&1 && cmake --build /tmp/core -j16 >> /tmp/cmake.log 2>&1) || tail -20 /tmp/cmake.log
   cp $(find /tmp/core -name "_core*.so" | head -1) bowsynth/

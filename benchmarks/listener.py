@@ -29,7 +29,7 @@ from bowsynth import BowsynthError, Scene
 from bowsynth.analysis.metrics import frame_errors, listener_errors, nmse, note_sounds, onset_limit_ms
 from bowsynth.api import render
 
-REGIONS = {  # (F_B / w lo, hi), (v_B lo, hi): the issue's soft-bow and stick-slip spaces
+REGIONS = {  # (F_B / w lo, hi), (v_B lo, hi): the soft-bow and stick-slip spaces
     "soft": ((0.02, 0.38), (0.09, 0.26)),
     "stick": ((0.65, 1.9), (0.09, 0.26)),
 }
@@ -87,11 +87,11 @@ GESTURES = {  # name: (f0, F_B / w curve, v_B curve, seconds), curves as (t, val
     "crescendo into stick-slip": (100.0, [(0.3, 0.1), (1.8, 1.2)], 0.2, 2.0),
     "bow stop to v_B 0": (150.0, 0.15, [(1.0, 0.2), (1.1, 0.0)], 1.6),
     "attack from F_B 0": (100.0, [(0.0, 0.0), (0.05, 0.2)], 0.2, 1.5),
-    "stick-slip bow stop": (100.0, 1.0, [(1.0, 0.2), (1.1, 0.0)], 1.6),  # session 19: a stick-slip note's release
-    # session 28: the heavy forces' releases, the paper's stick-slip scene (F_B 1000 at f0 100) and near the space's edge
+    "stick-slip bow stop": (100.0, 1.0, [(1.0, 0.2), (1.1, 0.0)], 1.6),  # a stick-slip note's release
+    # the heavy forces' releases, the paper's stick-slip scene (F_B 1000 at f0 100) and near the space's edge
     "heavy bow stop (F_B 1000)": (100.0, 1000 / (2 * math.pi * 100), [(1.0, 0.2), (1.1, 0.0)], 1.6),
     "heaviest bow stop": (150.0, 1.9, [(1.0, 0.15), (1.05, 0.0)], 1.6),
-    # session 34: at the space's edge, where the stop crosses three tiles (stick-heavy, floor-long, halt-edge)
+    # at the space's edge, where the stop crosses three tiles (stick-heavy, floor-long, halt-edge)
     "bow stop at the edge (F_B / w 2)": (440.0, 2.0, [(1.0, 0.12), (1.05, 0.0)], 1.6),
 }
 def gesture(name: str, model=None) -> dict:

@@ -9,7 +9,7 @@ The column "unsolved" is f0 = the asked pitch (no solve): how flat the friction 
 are what `render --pitch` plays: the note solved again with the sounding ratio of the engine that renders it
 (`music.engine_tuning.ratio_for_engine`: the audio-rate FDM's own, dispersion included; the operator model's own;
 the operator in windows locked to the physics' period, `render --windows physics`: the physics' where the model holds
-it), heard from that engine (issue 21's target: within 0.1 cent, 65-1000 Hz).
+it), heard from that engine (the target: within 0.1 cent, 65-1000 Hz).
 """
 
 import math

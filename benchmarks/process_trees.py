@@ -50,8 +50,8 @@ def main() -> None:
                 root = trees[tr]
                 for c, argv in CASES.items():
                     t0 = time.perf_counter()
-                    # each tree its own cache: one whose measurements have another version (auto windows' in
-                    # session 34) replaced the other's table at every turn, and each run measured afresh (0.4 s)
+                    # each tree its own cache: one whose measurements have another version (auto windows', say)
+                    # would replace the other's table at every turn, and each run would measure afresh (0.4 s)
                     tree_env = {**env, "BOWSYNTH_CACHE": str(Path(d) / f"cache-{tr.split()[0]}")}
                     r = subprocess.run([sys.executable, "-c", RUNNER, str(root), *argv], cwd=d, env=tree_env,
                                        capture_output=True, text=True)

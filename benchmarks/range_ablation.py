@@ -4,7 +4,7 @@ against the FDM x100 (bench.bench_parameter_points).
 
     PYTHONPATH=. .venv/bin/python benchmarks/range_ablation.py [--minutes 10] [--rows base,no_corr_beta] [--box stick]
 
---box stick: the stick-slip box of issue 10 (F_B / w 0.6-2.0, v_B 0.1-0.3) instead of the soft one below, scored on
+--box stick: the stick-slip range box (F_B / w 0.6-2.0, v_B 0.1-0.3) instead of the soft one below, scored on
 its validation grid (9 bows, with the failures named) as well.
 
 Rows (TrainConfig fields changed from the defaults):

@@ -1,15 +1,15 @@
-"""How hard issue 10's range targets are, measured without any network (the FDM only).
+"""How hard the range models' targets are, measured without any network (the FDM only).
 
     PYTHONPATH=. .venv/bin/python benchmarks/range_limits.py [--box soft|stick] [--part cond,blend]
                                                               [--grids 4x2,8x4,16x4,32x4] [--oversample 5]
 
-Both parts score the issue's held-out bows, the 4 x 4 grid of cell centres of the box (log F_B / w), 1 s from rest
-at f0 100, by NMSE(p), the issue's metric.
+Both parts score the targets' held-out bows, the 4 x 4 grid of cell centres of the box (log F_B / w), 1 s from rest
+at f0 100, by NMSE(p), the targets' metric.
 
 cond: the metric's conditioning. The FDM at each bow against the FDM at the bow moved by a relative 1e-2, 1e-3,
   1e-4 in F_B / w (then in v_B). Whatever engine plays the box, an error in the bow it effectively plays costs at
   least this much: it says how exact a parametric operator's dependence on the bow must be to meet a target.
-blend: the floor of the design "point models blended across a grid of bows" (the issue's other design). Each point
+blend: the floor of the design "point models blended across a grid of bows" (the other design for a range). Each point
   model is taken as exact: its one-window map is the FDM from the blended state at the grid bow; each window's
   samples and end state are the Lagrange blend (order 2: bilinear, 4: bicubic, in log F_B / w and v_B) of the maps
   at the grid bows around the played bow. The reference is the same window-restarted FDM at the played bow, so what
@@ -35,7 +35,7 @@ F0 = 100.0
 SR = 44100
 SPW = 441  # samples per window of 2 pi at f0 100 (the models' window)
 W = 2 * math.pi * F0
-BOXES = {"soft": (0.015, 0.4, 0.05, 0.3), "stick": (0.6, 2.0, 0.1, 0.3)}  # issue 10's shipped ranges
+BOXES = {"soft": (0.015, 0.4, 0.05, 0.3), "stick": (0.6, 2.0, 0.1, 0.3)}  # the shipped range boxes
 
 
 def held_out(box) -> np.ndarray:

@@ -88,7 +88,7 @@ def gestures_for(m, f0=100.0):
 
 
 def stick_capture(m):
-    # a point model (no box) is its own box of zero width: paper-fb1000 is the model that plays F_B 1000 today
+    # a point model (no box) is its own box of zero width: paper-fb1000 is a model that plays F_B 1000
     b0, b1, v0, v1 = m.domain.box or (m.domain.beta, m.domain.beta, m.domain.vb, m.domain.vb)
     beta = 1000 / (2 * math.pi * 100)
     if not (b0 * (1 - 1e-9) <= beta <= b1 * (1 + 1e-9) and v0 <= 0.2 <= v1):

@@ -7,7 +7,7 @@ FDM's. Results: docs/BENCHMARKS.md, "A held bow that damps the mass comes to res
 
 Another tree is imported ahead of this install (its editable finder dropped, as benchmarks/chorale_trees.py does) on
 this checkout's compiled core; its source digest is not checked, so TREE's rest flow must be one this core runs alike
-(session 21's stays underdamped, where the two agree).
+(an underdamped one, where the two agree).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ For each piece, three whole processes alternated (medians):
 fdm / stub is the ratio no operator can beat on this machine, whatever its network; the operator's own rollout
 cost is operator - stub. Also the bare interpreter with the imports a render needs, the floor under every command.
 
-Pieces: issue 12's 100 voices x 1 s at 100 pitches (a WAV each, cli_speed.score_file) and issue 11's 8 voices x 60 s
+Pieces: 100 voices x 1 s at 100 pitches (a WAV each, cli_speed.score_file) and 8 voices x 60 s
 (a chord C3-C5, --mix, long_score.score_text).
 """
 

@@ -1,6 +1,6 @@
 """The stick capture at F_B 1000 (the paper's stick-slip scene, f0 100, v_B 0.2, a 100): max |p - p_ref|
 over the limit cycle as a share of the x100 FDM's p range, per model and windows, early (1-3 s) and late (the last
-3-1 s) in a long note from rest. Two readings: sample by sample (round 2's, which also reads the cycle's phase: a note
+3-1 s) in a long note from rest. Two readings: sample by sample (which also reads the cycle's phase: a note
 that speaks 2 ms early has its slip edges 2 ms ahead, up to the whole range) and the cycle's shape
 (`metrics.cycle_shape_error`: one shift for the whole span, so a drifting pitch still shows), read twice: with a
 whole-sample shift, and with a shift on the x100 FDM's own steps (a cycle's phase between samples: the truth half a

@@ -118,7 +118,7 @@ def test_cli_refuses_bad_gestures_in_one_line(flag, needle, tmp_path, monkeypatc
 
 def test_operator_refuses_a_gesture_it_cannot_follow(tmp_path, monkeypatch, capsys):
     """A crescendo past every model's range: one line naming the value, the time it leaves and the train command;
-    nothing written. A shipped soft range model follows one inside its box (since session 14 velocity-soft's)."""
+    nothing written. A shipped soft range model follows one inside its box (velocity-soft's)."""
     out = tmp_path / "x.wav"
     code, _, err = run_main(["render", "--fb", "50@0,3000@0.2", str(out)], capsys, monkeypatch)
     assert code == 1 and "--method fdm" in err and err.count("\n") == 1

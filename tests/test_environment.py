@@ -76,8 +76,8 @@ def test_a_file_where_a_table_would_be_is_left_alone(tmp_path, monkeypatch):
 
 
 def test_two_processes_at_once_keep_what_each_wrote(tmp_path, monkeypatch):
-    """Each process reads the table before the other writes (sessions 1-41 kept a table in one file, and the last
-    process to write it dropped the other's new entries, measured again by every later process: seconds each)."""
+    """Each process reads the table before the other writes (with a table in one file, the last process to write it
+    would drop the other's new entries, measured again by every later process: seconds each)."""
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
     cache.DiskTable("t", "v1").put("old", 0)
     a, b = cache.DiskTable("t", "v1"), cache.DiskTable("t", "v1")

@@ -18,8 +18,8 @@ from bowsynth.api import render
 from bowsynth.report.error_map import table
 
 SOFT = Path(bowsynth.__file__).parent / "models" / "soft-range.safetensors"
-# stick-slow as shipped in sessions 19-34 (now the stage the shipped one is refined from), whose own pitch is off: the
-# case windows locked to the physics are for
+# stages/stick-slow-1, the stage the shipped stick-slow is refined from, whose own pitch is off: the case windows
+# locked to the physics are for
 SLOW_1 = str(Path(bowsynth.__file__).parent / "models" / "stages" / "stick-slow-1.safetensors")
 
 

@@ -43,8 +43,7 @@ def no_shipped_models(tmp_path, monkeypatch):
 
 @SETTINGS
 @given(flag=st.sampled_from(RENDER_FLOATS), value=FLOATS, method=st.sampled_from(["fdm", "operator"]))
-# a subnormal force: the note's growth time overflowed to inf where the operator asked when it should speak (CI,
-# session 39)
+# a subnormal force: the note's growth time can overflow to inf where the operator asks when it should speak
 @example(flag="--fb", value=2.225073858507203e-309, method="operator")
 def test_render_float_flags(flag, value, method, tmp_path, monkeypatch, capsys):
     out = tmp_path / "r.wav"

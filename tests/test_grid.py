@@ -42,7 +42,7 @@ def test_stick_slip_bows_and_only_they_take_whole_windows():
 # period (25.06 and 12.53 samples at 440 and 880 Hz), and their centre bows sound as at 100 Hz, where they were trained:
 # measured at 100 / 440 / 880 Hz, stick-mid +0.53 / +0.50 / +0.50 cents, harmonics 0.024-0.026 dB, the p range 0.3-0.4 %
 # wide; stick-low -0.35 / -0.45 / -0.47 cents, 0.010-0.012 dB, 0.2-0.4 %; stick-slow +0.15 / +0.15 / +0.15
-# cents, 0.020-0.038 dB, 0.6-0.8 % (session 35's refinement is held to the same bounds); stick-high -0.29 / +0.22 /
+# cents, 0.020-0.038 dB, 0.6-0.8 % (its refinement from stages/stick-slow-1 is held to the same bounds); stick-high -0.29 / +0.22 /
 # +0.03 cents, 0.026-0.073 dB, 0.4-0.7 %; stick-stops +1.97 / +1.99 / +2.01 cents (sharp at its centre bow at every
 # pitch), 0.037-0.046 dB, 0.4-0.5 %; slow-bow (a soft tile on quarter windows) -0.95 / -1.21 / -2.62 cents,
 # 0.018-0.031 dB, 0.06-0.44 %. fast-bow and stick-fast are not here: their centre bows' onsets are inaccurate enough for

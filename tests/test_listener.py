@@ -69,8 +69,8 @@ def creep_and_slip(f0, ripple, seconds=1.0):
 
 @pytest.mark.parametrize("ripple", [0.0, 0.01, 0.04])
 def test_a_creeping_waveform_with_a_ripple_at_its_mean_keeps_its_pitch(ripple):
-    """Session 37: such a render, its waveform on the truth's, read 1281 cents sharp where the ripple crossed the
-    mean two or three times a period; a crossing now counts only after a dip toward the trough."""
+    """Such a render, its waveform on the truth's, would read 1281 cents sharp where the ripple crosses the mean two
+    or three times a period if every crossing counted; a crossing counts only after a dip toward the trough."""
     from bowsynth.analysis.metrics import f0_estimate
 
     x = creep_and_slip(10.7, ripple, seconds=2.0)
@@ -79,11 +79,11 @@ def test_a_creeping_waveform_with_a_ripple_at_its_mean_keeps_its_pitch(ripple):
 
 
 def test_a_segment_cut_where_the_creep_crosses_its_mean_keeps_its_pitch_and_harmonics():
-    """Session 58: a second of floor-high's note at 100 Hz (F_B / w 0.79, v_B 0.0709) began where the creep falls
-    slowly through the mean, and a bump there crossed it upward once: that crossing, 418 samples off the period's grid,
-    was kept and the true one half a period later dropped, so the pitch read 0.9 % low and the harmonics fitted there
-    up to 36 dB low (the model chosen by listening then chose a model 12 dB off). Each end now keeps the crossing on
-    the grid of the others."""
+    """A second of floor-high's note at 100 Hz (F_B / w 0.79, v_B 0.0709) can begin where the creep falls slowly
+    through the mean, and a bump there crosses it upward once: kept, that crossing, 418 samples off the period's grid,
+    would drop the true one half a period later, reading the pitch 0.9 % low and the harmonics fitted there up to 36 dB
+    low (and the model chosen by listening a model 12 dB off). Each end keeps the crossing on the grid of the
+    others."""
     from bowsynth.analysis.metrics import f0_estimate, harmonic_levels
 
     f0 = 16.8
@@ -111,7 +111,8 @@ def test_a_growing_note_keeps_its_early_crossings():
 @pytest.mark.parametrize("phase", [0.4, 1.5, 2.5])
 def test_a_second_harmonic_with_a_shallow_dip_does_not_halve_the_period(phase):
     """A second harmonic up to 0.9 of the fundamental adds a crossing a period at some phases, after a shallow dip:
-    it does not count (before session 37, 0.9 at phases 0.4 and 2.5 read 219.9 and 110.3 Hz)."""
+    it does not count (an estimator that read every crossing would read 219.9 and 110.3 Hz there for 0.9 at phases
+    0.4 and 2.5)."""
     from bowsynth.analysis.metrics import f0_estimate
 
     t = np.arange(SR) / SR

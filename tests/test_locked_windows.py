@@ -20,8 +20,8 @@ from bowsynth.engines.operator.windows import Lock, locked_window
 from conftest import run_main
 from test_kernels import torch_rollout
 
-# stick-slow as shipped in sessions 19-34 (now the stage the shipped one is refined from), whose own pitch is off: the
-# case windows locked to the physics are for
+# stages/stick-slow-1, the stage the shipped stick-slow is refined from, whose own pitch is off: the case windows
+# locked to the physics are for
 SLOW_1 = str(Path(bowsynth.__file__).parent / "models" / "stages" / "stick-slow-1.safetensors")
 
 
@@ -209,7 +209,7 @@ def test_physics_windows_hold_the_physical_pitch_over_30_s():
 
 
 def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does():
-    """stick-stops at F_B / w 0.7188, v_B 0.08 (bench map's worst pitch in session 21): the physics' period is 16.9 of
+    """stick-stops at F_B / w 0.7188, v_B 0.08 (a worst pitch of bench map): the physics' period is 16.9 of
     its trained windows; 17 windows of 0.994 T leave its cycle at its own period, 5.3 cents sharp at 110 Hz
     (measured), 18 hold the physics' within 0.02 cent. lock_ratio takes the 18 (a Lock with more = 1) at the shipped
     map's period, and a physics render plays them."""

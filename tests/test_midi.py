@@ -207,7 +207,7 @@ def _type2(p):
 def test_notes_outside_every_model_are_reported_before_rendering(tmp_path, capsys, monkeypatch):
     mid = mido.MidiFile(type=0, ticks_per_beat=TPB)
     # the second note, on its own channel, bowed at full pressure (CC2 127: 4x the force of velocity 120, F_B / w 2.2,
-    # deep in stick-slip where no model plays; velocity 120 alone is velocity-loud's since session 11)
+    # deep in stick-slip where no model plays; velocity 120 alone is velocity-loud's)
     mid.tracks.append(mido.MidiTrack([mido.Message("control_change", channel=1, control=2, value=127, time=0),
                                       mido.Message("note_on", note=60, velocity=64, time=0),  # paper-fb100's scene
                                       mido.Message("note_off", note=60, time=TPB),
@@ -387,7 +387,7 @@ def test_a_header_announcing_more_tracks_than_present_is_truncated(tmp_path):
 
 def test_loud_notes_past_the_stick_slip_boundary_play_with_the_operator_in_tune(tmp_path, capsys, monkeypatch):
     # velocity 110-127 bows at F_B / w 0.44-0.64 (music.midi.bow_beta), just into stick-slip: the shipped
-    # velocity-loud plays them (before session 11 no model did and `score` refused the piece); measured 0.02-0.16
+    # velocity-loud plays them (without it no model would and `score` would refuse the piece); measured 0.02-0.16
     # cents from equal temperament, tuned with the model's own sounding ratio. Their bow stops (v_B -> 0 at that
     # force) leave its box: loud-stops plays those, so no FDM is in the piece's path.
     mid = mido.MidiFile(type=1, ticks_per_beat=TPB)

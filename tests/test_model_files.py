@@ -722,17 +722,17 @@ def test_a_files_physics_verdict_is_kept_by_its_digest_and_an_edited_file_is_che
 
 def test_only_a_box_that_starts_in_the_soft_bow_plays_the_bows_below_it():
     # soft-range (bottom F_B / w 0.01) plays an attack from F_B 0; velocity-loud (bottom 0.42, at the boundary)
-    # learned stick-slip states and does not claim F_B / w 0.02-0.4: before session 11 it did, won those bows as the
-    # smaller box, and left its trained states within 0.06-0.42 s (`bench map`: a row of unplayed cells at v_B 0.24)
+    # learned stick-slip states and does not claim F_B / w 0.02-0.4: if it did, it would win those bows as the smaller
+    # box and leave its trained states within 0.06-0.42 s (`bench map`: a row of unplayed cells at v_B 0.24)
     soft = load_model(SHIPPED_DIR / "soft-range.safetensors")
     loud = load_model(SHIPPED_DIR / "velocity-loud.safetensors")
     assert soft.domain.plays_below and not loud.domain.plays_below
     weak = Scene(f0=110.0, fb=0.1 * 2 * np.pi * 110.0, vb=0.24, duration=0.5)
     assert soft.covers(weak) and not loud.covers(weak)
-    # a soft box plays it: soft-range, or since session 25 soft-fast (soft-range refined on v_B 0.22-0.3, the smaller)
+    # a soft box plays it: soft-range, or soft-fast (soft-range refined on v_B 0.22-0.3, the smaller)
     assert Path(render_operator(weak).info.model_path).stem in ("soft-range", "soft-fast")
     attack = Scene(f0=100.0, fb=[[0.0, 0.0], [0.05, 0.2 * 2 * np.pi * 100.0]], vb=0.2, duration=0.3)
-    # a soft box plays it: since session 14 velocity-soft (bottom 0.038, the smaller box, both at their bottom edge)
+    # a soft box plays it: velocity-soft (bottom 0.038, the smaller box, both at their bottom edge)
     r = render_operator(attack)
     assert soft.covers(attack) and not loud.covers(attack) and load_model(r.info.model_path).domain.plays_below
     assert "velocity-soft" in r.info.model_path

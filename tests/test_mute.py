@@ -43,7 +43,7 @@ def test_the_truth_always_speaks_where_the_check_would_ask_it_to(f0, beta, vb):
 
 
 def test_the_corner_note_is_refused_in_one_line_and_finished_by_the_fdm_on_request(tmp_path):
-    """stick-high, asked for by name (since session 26 the default pick there is stick-top, which speaks)."""
+    """stick-high, asked for by name (the default pick there is stick-top, which speaks)."""
     sc = held(110.0, 2.0, 0.28, 1.0)
     with pytest.raises(DomainError, match="still silent, though its bow drives the mass"):
         render(sc, engine="operator", model="stick-high")

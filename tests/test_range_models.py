@@ -421,7 +421,7 @@ def test_validation_plays_the_windows_a_render_plays():
 def test_validation_tells_a_model_that_rests_where_the_truth_rests_from_one_that_hums(monkeypatch):
     # held bows below vb_stop from rest, where the truth rests: stick-halt rests at F_B / w 1.5, v_B 0.03; at 1.7,
     # 0.065 its state settles 0.024 off the rest point, where left alone it hums (p RMS ~1e-3 over the last half,
-    # measured in session 33). A render rings it down (onset.ring_down: since session 35 from its closest approach),
+    # measured). A render rings it down (onset.ring_down, from its closest approach),
     # and so does the validation, which plays what a render plays; without the ring-down the hum is what a grid bow
     # like it records, and fails a validation (modelfile.validation_failure: 'silent_sounding')
     from bowsynth.engines.operator import engine
@@ -440,8 +440,8 @@ def test_validation_tells_a_model_that_rests_where_the_truth_rests_from_one_that
 
 def test_a_held_bow_that_damps_the_mass_is_played_by_a_model_validated_to_rest(monkeypatch):
     # F_B / w 1.45, v_B 0.07 (just below vb_stop = 0.0707), 110 Hz, 2 s from rest: the truth rests. It lies deep in
-    # stick-halt's box, which plays it as a note (p RMS 0.22, measured in session 34: since session 35 the ring-down
-    # catches it on its way past the rest point), and at the top edge of halt-floor's, validated to rest at every grid
+    # stick-halt's box, which plays it as a note (p RMS 0.22 without the ring-down, which catches it on its way past
+    # the rest point), and at the top edge of halt-floor's, validated to rest at every grid
     # bow: that one plays it (choose.rests_throughout), and rests
     from bowsynth.engines.operator import engine
     from bowsynth.analysis.metrics import note_sounds
@@ -465,9 +465,9 @@ def test_a_held_bow_that_damps_the_mass_is_played_by_a_model_validated_to_rest(m
 
 def test_a_slow_heavy_bow_between_the_creep_tiles_plays_its_note_not_another():
     """F_B / w 1.524, v_B 0.0789 at 133 Hz: a slow heavy bow (sounding ~3 octaves below f0) between stick-creep's forces
-    and floor-long's, which only stick-halt covered until creep-mid. stick-halt plays its own cycle 12
-    cents flat in free windows; locked to the physics' period it plays the note (session 36 read 1250 cents there: the
-    pitch estimator's); creep-mid, picked first, plays it within a tenth of a cent."""
+    and floor-long's, which otherwise only stick-halt covers. stick-halt plays its own cycle 12 cents flat in free
+    windows; locked to the physics' period it plays the note (an estimator that counts every crossing reads 1250 cents
+    there); creep-mid, picked first, plays it within a tenth of a cent."""
     from bowsynth.analysis.metrics import listener_errors
     from bowsynth.api import render
     from bowsynth.engines.operator.choose import covering_model
@@ -531,8 +531,8 @@ def test_light_fast_stick_slip_between_the_soft_and_stick_slip_tiles_plays_withi
 @pytest.mark.parametrize("f0,beta,vb", [(79.3, 1.201, 0.2631), (100.0, 1.2, 0.268)])
 def test_fast_heavy_stick_slip_speaks_on_the_truths_cycle_with_fast_onset(f0, beta, vb):
     """Fast bows at F_B / w 1.2, where the truth's note speaks on its second or third cycle and the cycle it speaks on
-    steps with v_B: stick-fast's steps lay 0.3-0.7 % of v_B lower, so at these bows it spoke a cycle late, 8-12 ms
-    (session 57's whole-space draw: 10.2 ms against a 5 ms limit). fast-onset, stick-fast refined there, is the pick
+    steps with v_B: stick-fast's steps lie 0.3-0.7 % of v_B lower, so at these bows it speaks a cycle late, 8-12 ms
+    (10.2 ms at the first, from a whole-space draw, against a 5 ms limit). fast-onset, stick-fast refined there, is the pick
     and speaks within the limit, on pitch."""
     from bowsynth.analysis.metrics import listener_errors, onset_limit_ms
     from bowsynth.api import render

@@ -165,7 +165,7 @@ def test_kill_training_then_resume(tmp_path):
         step = json.loads(f.metadata()["bowsynth_checkpoint"])["step"]
     assert step > 0
     kept = ckpt.read_bytes()
-    # the same command again, without --resume: the interrupted run is not thrown away (session 42 lost 40 minutes so)
+    # the same command again, without --resume: the interrupted run is not thrown away (it may hold 40 minutes)
     again = subprocess.run(BOW + common + ["--steps", str(step + 20)], capture_output=True, text=True, timeout=300)
     assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
     assert "unfinished run" in again.stderr and "--resume" in again.stderr and "--force" in again.stderr

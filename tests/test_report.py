@@ -244,7 +244,7 @@ def test_models_report(browser, tmp_path, capsys, monkeypatch):
 
 
 def test_a_validation_grid_says_whether_the_model_rests_where_the_truth_rests():
-    # validate_range's records since session 34 say, per grid bow, whether the truth and the model sound
+    # validate_range's records say, per grid bow, whether the truth and the model sound
     from bowsynth.report.models_page import _validation_table
 
     pts = [{"beta": 2.0, "vb": 0.04, "speaks": False, "truth_sounds": False, "op_sounds": False},

@@ -78,8 +78,8 @@ def test_a_slow_note_speaks_when_the_truth_does(monkeypatch):
     assert np.max(np.abs(r.q[:h] - q)) <= 1e-6 * np.max(np.abs(q))  # float32 of the exact flow
     e = listener_errors(r.p, ref.p, sc.sample_rate)
     assert abs(e["onset_err_ms"]) <= max(5.0, 0.02 * e["onset_ref_ms"]), e
-    # soft-corner alone (the pick here before session 27) misses it; corner-long, which learnt from 16 s renders from
-    # rest and plays it now, speaks on time even alone (measured: 0.9 ms off)
+    # soft-corner alone misses it; corner-long, which learnt from 16 s renders from rest and is the pick here, speaks
+    # on time even alone (measured: 0.9 ms off)
     monkeypatch.setattr(onset, "uses_rest_flow", lambda m: False)
     alone = render(sc, engine="operator", model="soft-corner", windows="free")
     assert alone.info.rest_flow is None
