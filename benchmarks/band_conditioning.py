@@ -6,7 +6,7 @@ relative share, both signs; the worse sign's |cents| per share.
                                                                   [--rel 0.001] [--bows F0:BETA:VB,...]
     PYTHONPATH=. .venv/bin/python benchmarks/band_conditioning.py --models MODEL:F0:BETA:VB,...
 
-The pitch target (1 cent worst) holds where a bow 0.1 % off moves the pitch 0.3-1.2 cents (GUIDE section 9):
+The pitch target (1 cent worst) holds where a bow 0.1 % off moves the pitch 0.3-1.2 cents (docs/measures.md):
 a target a model meets by knowing its bow to ~0.1 %. Just above vb_stop = 1 / sqrt(2a) the pitch moves far faster
 with v_B (the creep before each slip lengthens without bound as v_B falls to vb_stop), and this table says how much:
 a miss there reads as the bow error that would cause it (--bows: each bow's cents per 0.1 % at its own bow).

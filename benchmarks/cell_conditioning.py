@@ -4,7 +4,7 @@ the operator (metrics.listener_errors: harmonics median / worst in dB, pitch cen
 
     PYTHONPATH=. .venv/bin/python benchmarks/cell_conditioning.py BETA VB [F0,F0...] [--rel 0.001,0.01]
 
-The GUIDE's study (section 9) found harmonics move at most 0.06 dB for a bow 0.1 % off; where a note from rest is
+The reference's own study (docs/measures.md) found harmonics move at most 0.06 dB for a bow 0.1 % off; where a note from rest is
 still growing at the end of its 2 s (a light, fast bow) they move far more, and an operator's error there is to be
 read against this spread, as NMSE from rest was.
 """

@@ -4,7 +4,7 @@ whole processes alternated with `bowsynth --help`, and how far the operator's mi
     PYTHONPATH=. .venv/bin/python benchmarks/chorale.py [--runs 3] [--keep DIR] [--model PATH] [--velocity 90]
                                                         [--windows locked,free]
 
-The piece is written here (no corpus file ships with the repository) in the layout GUIDE section 9 describes for a
+The piece is written here (no corpus file ships with the repository) in the layout of a
 chorale exported from a public corpus: MIDI type 1, a tempo track and four part tracks, every part on channel 1, one
 velocity (90), 4 notes a beat at 76 bpm in four-part harmony (MIDI 42-76), 152 notes, ~25 s, with held notes, repeated
 notes and unisons between parts. Prints Markdown: medians of the whole processes, notes played, and the median

@@ -69,7 +69,7 @@ def rollouts() -> None:
     k = m.cfg.k
     print(f"\nfloat32 matrix product (numpy's BLAS, one thread) in this run: {gmac:.1f} GMAC/s\n")
     print("| rollout (paper-fb100, CPU time, best of 5) | x real time | GMAC/s | of the BLAS speed |\n|---|---|---|---|")
-    mac_window = 32_800  # the branch per window (GUIDE 9); per sample the window's basis: 2 (k + 3)
+    mac_window = 32_800  # the branch per window (docs/measures.md); per sample the window's basis: 2 (k + 3)
     for f0 in (100.0, 440.0, 880.0):
         dt = 2 * np.pi * f0 / 44100
         rollout_states(m, [[0.0, 0.0]], 100, dt, check_domain=False)

@@ -25,7 +25,7 @@ from bowsynth import api
 from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
 from bowsynth.training.ranges import ParamBox
 
-BOX = ParamBox(0.08, 0.32, 0.1, 0.28, 100.0)  # the box of the first range measurement (shared/GUIDE.md 8)
+BOX = ParamBox(0.08, 0.32, 0.1, 0.28, 100.0)  # the box of the first range measurement
 STICK = ParamBox.from_forces((376.9, 1256.7), (0.1, 0.3), 100.0, 100.0)  # F_B / w 0.6-2.0 at f0 100
 ROWS = {
     "base": {},

@@ -131,7 +131,7 @@ def test_slow_onset_model_from_rest(case):
 # derivative term): bows of the held-out grid of benchmarks/ranges.py (cell centres in log F_B / w; no training bow is
 # one) and a crescendo through the box, 1 s from rest at f0 100 against FDM x100 (the crescendo's reference follows
 # the curve per step; the operator holds each window's bow at its middle). NMSE from rest is ill-conditioned in the
-# bow (GUIDE section 9), so the held bows are pinned by what a listener hears too (RANGE_HEARD: the worst of harmonics
+# bow (docs/measures.md), so the held bows are pinned by what a listener hears too (RANGE_HEARD: the worst of harmonics
 # 1-10 in dB and the pitch in cents, over the last 0.5 s): an NMSE of 1e-4 to 6e-3 here can hide harmonics 30 dB off.
 # This model (width 128) is within 0.34 dB and 0.3 cents, at NMSE 1e-4 to 1e-2 (python tests/test_accuracy.py prints
 # both).

@@ -50,7 +50,7 @@ def test_the_harmonic_fit_without_a_design_matrix_is_the_least_squares_fit_with_
 
 
 def test_a_pitch_offset_does_not_read_as_a_timbre_error():
-    # at a shared pitch a 0.16 % difference smears harmonic 10 (GUIDE section 9); each at its own pitch it does not
+    # at a shared pitch a 0.16 % difference smears harmonic 10 (docs/measures.md); each at its own pitch it does not
     e = listener_errors(tone(100.0 * 2 ** (3 / 1200), phase_seed=1), tone(100.0), SR)
     assert e["cents"] == pytest.approx(3.0, abs=0.02)
     assert e["harm_db_max"] < 0.02

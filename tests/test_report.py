@@ -166,7 +166,7 @@ def test_compare_report_range_model_crescendo(browser, tmp_path, capsys, monkeyp
     [table] = metrics_cells(info)
     assert_table_holds(table, j)
     assert "range model" in info["text"] and "50 at 0 s, 200 at 1 s" in info["text"]
-    # the range model's weak upper harmonics show in the bars (GUIDE section 9): several dB, not hundredths
+    # the range model's weak upper harmonics show in the bars (docs/measures.md): several dB, not hundredths
     [lt] = [t for t in info["tables"] if t["cls"] == "listener"]
     assert float(lt["rows"][1][1]) > 0.5
 
@@ -321,7 +321,7 @@ def test_harmonic_levels_each_at_its_own_pitch():
     t = np.arange(SR) / SR
     amps = 10 ** (-np.arange(10) * 0.5)  # 0, -10, -20, ... dB
     ref = sum(a * np.sin(2 * np.pi * (k + 1) * 100.0 * t + k) for k, a in enumerate(amps))
-    # 0.16 % sharp and harmonic 3 lowered 3 dB: at a shared pitch harmonic 10 would smear (GUIDE section 9)
+    # 0.16 % sharp and harmonic 3 lowered 3 dB: at a shared pitch harmonic 10 would smear (docs/measures.md)
     x = sum(a * (10 ** (-3 / 20) if k == 2 else 1) * np.sin(2 * np.pi * (k + 1) * 100.16 * t + 2 * k)
             for k, a in enumerate(amps))
     h = harmonic_levels_db(x, ref, SR)

@@ -26,8 +26,8 @@ from ..music.engine_tuning import check_windows, sounding_for
 from ..scene import Scene
 from .metrics import listener_errors, nmse, note_sounds
 
-BETA_RANGE = (0.02, 2.0)  # F_B / w across the issue's playing space (0 is a lifted bow: silence, nothing to map)
-VB_RANGE = (0.0, 0.28)  # v_B from a stopped bow to the fastest the issue asks for
+BETA_RANGE = (0.02, 2.0)  # F_B / w across the playing space (0 is a lifted bow: silence, nothing to map)
+VB_RANGE = (0.0, 0.28)  # v_B from a stopped bow to the fastest the playing space holds
 
 
 def grid(n_beta: int, n_vb: int, beta_range=BETA_RANGE, vb_range=VB_RANGE) -> tuple[list[float], list[float]]:

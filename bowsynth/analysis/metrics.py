@@ -25,8 +25,7 @@ def ncc(x, ref) -> float:
 
 
 # An upward zero crossing counts toward the pitch only where the signal dipped at least this share of the deepest dip
-# within a period of it below its mean since the previous crossing (a Schmitt trigger's lower threshold). Why (session
-# 37): the slowest heavy bows, just above vb_stop, creep for most of a period with p drifting down to its mean before
+# within a period of it below its mean since the previous crossing (a Schmitt trigger's lower threshold). Why: the slowest heavy bows, just above vb_stop, creep for most of a period with p drifting down to its mean before
 # each slip, and there a render's ripple of a few hundredths (a lock's window handovers) crosses the mean two or three
 # times a period. Those crossings halved the median period, the filter below then kept them, and a note whose waveform
 # lies on the truth's read 1281 cents sharp (stick-halt at 110 Hz, F_B / w 1.6, v_B 0.071: dips 0.003-0.047 against
@@ -179,7 +178,7 @@ def compare_signals(x, ref, sample_rate: float, pitch_signal_x=None, pitch_signa
     }
 
 
-# --- What a listener hears (GUIDE section 9): timbre, pitch and onset, each well conditioned in the bow, unlike NMSE
+# --- What a listener hears (docs/measures.md): timbre, pitch and onset, each well conditioned in the bow, unlike NMSE
 # from rest (a bow 0.1 % off moves harmonics by <= 0.06 dB and the pitch by 0.3-1.2 cents, NMSE by 3e-3 to 0.1).
 
 HARMONICS = 10

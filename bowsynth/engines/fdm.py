@@ -29,7 +29,7 @@ from ..errors import SceneError
 from ..render import Played, Render, RenderInfo
 from ..scene import Scene
 
-# the truth every accuracy figure is measured against: this FDM at 100x the sample rate (GUIDE section 2)
+# the truth every accuracy figure is measured against: this FDM at 100x the sample rate (docs/measures.md)
 TRUTH_OVERSAMPLE = 100
 MAX_OVERSAMPLE = 1024  # beyond this a render would run for minutes to hours: refuse instead
 DENSE_BELOW = 512  # states: below this `_solve_eta_vec` iterates densely (see _solve_eta_dense)

@@ -63,7 +63,7 @@ def _metrics_table(c: Comparison) -> str:
 
 
 def listener(c: Comparison, k: int | None = None) -> dict:
-    """The report's own measures (GUIDE section 9) of the file and the audio-rate FDM against the reference: harmonic
+    """The report's own measures (docs/measures.md) of the file and the audio-rate FDM against the reference: harmonic
     levels at each one's own pitch over compare's steady part, pitch tracks, onsets. k: the sustain's length in
     samples (a stem's note without its bow stop), as compare's pitch_seconds."""
     r = roles(c)
@@ -193,7 +193,7 @@ def comparison_section(c: Comparison, meta: dict | None, name: str, k: int | Non
           "<h3>Metrics</h3>",
           '<p class="why">The numbers <code>bowsynth compare</code> prints, each column one pair of signals.</p>',
           _metrics_table(c),
-          '<p class="why">What a listener hears (GUIDE section 9), measured by this report:</p>',
+          '<p class="why">What a listener hears (docs/measures.md), measured by this report:</p>',
           _listener_table(m),
           '<div class="grid2">',
           H.figure(harmonic_plot(m, plt), "Timbre: each harmonic's level, the file against the reference, over "

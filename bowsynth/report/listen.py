@@ -1,4 +1,4 @@
-"""What a listener hears, measured for the report (GUIDE section 9): harmonic levels each at the signal's own pitch,
+"""What a listener hears, measured for the report (docs/measures.md): harmonic levels each at the signal's own pitch,
 a pitch track, the onset.
 
 The measurements themselves are bowsynth.analysis.metrics'; this module holds what only the report draws: levels re the

@@ -271,7 +271,7 @@ def models_page(found: list, grid: int = 3, progress=lambda s: None) -> str:
             '<p class="why">Every model file found (./models, then the shipped ones). For each: what the file '
             'carries (its domain, training, selection and validation) and what this page measured when it was made '
             'against a x100 FDM: a point model at its own scene, a range model on held-out bows over its box. '
-            'Pitch and harmonics are what a listener hears (GUIDE section 9); NMSE is the paper\'s score.</p>',
+            'Pitch and harmonics are what a listener hears (docs/measures.md); NMSE is the paper\'s score.</p>',
             H.table(["model", "kind", "validation NMSE(p) (carried)", "pitch error, cents (measured; a range "
                      "model: median |cents|)", "harmonics, mean |dB| (measured; a range model: median)", "note"],
                     rows, {2, 3, 4}, cls="summary"),

@@ -150,7 +150,7 @@ def validate_range(model, scene: Scene, box, n: int = 3, seconds: float = 1.0,
         out["nmse"] = float(np.median(vals))
         out["nmse_max"] = float(np.max(vals))
     heard = [r for r in spk if isinstance(r.get("harm_db_median"), float)]
-    if heard:  # what a listener hears, over the speaking grid points (GUIDE section 9)
+    if heard:  # what a listener hears, over the speaking grid points (docs/measures.md)
         out["harm_db_median"] = float(np.median([r["harm_db_median"] for r in heard]))
         out["harm_db_max"] = float(np.max([r["harm_db_max"] for r in heard if r.get("harm_db_max") is not None]))
         out["cents_abs_max"] = float(np.max([abs(r["heard_cents"]) for r in heard if r.get("heard_cents") is not None]))

@@ -90,8 +90,8 @@ def _cycle_error(q, p, rq, rp, lq, lp, dtau: float, floor: float) -> float:
     shifted by the one offset (at most half the reference's sounding period, from its zero crossings) that fits best;
     without a sounding period (a bow that does not oscillate) unshifted. Why: a stick-slip note from rest at the
     heavy fast corner sounds at a third of f0, and a tile that catches its stick phase a quarter period early plays
-    the physics' cycle from then on, shifted: sample by sample over 16 free periods that read as another bow (session
-    26: `stick-top` 2.3 from rest at its claim, 0.36 at v_B 5 % lower; shifted, 6.8e-6 against 0.15-0.59)."""
+    the physics' cycle from then on, shifted: sample by sample over 16 free periods that read as another bow
+    (`stick-top` 2.3 from rest at its claim, 0.36 at v_B 5 % lower; shifted, 6.8e-6 against 0.15-0.59)."""
     a = int(round(ONSET_PERIODS * 2.0 * math.pi / dtau))
     n = len(rq)
     if n - a < 8:

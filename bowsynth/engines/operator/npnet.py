@@ -47,7 +47,7 @@ class NetConfig:
 
 
 # Parameter inputs normalised to [-1, 1] like the state made rollouts diverge (median NMSE(p) 32 over a 4 x 4 grid);
-# scaled to [-0.3, 0.3] the branch is smoother in the bow: median 0.15 after the same 15 minutes (shared/GUIDE.md 8)
+# scaled to [-0.3, 0.3] the branch is smoother in the bow: median 0.15 after the same 15 minutes of training
 PARAM_SPAN = 0.3
 
 

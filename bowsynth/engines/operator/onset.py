@@ -90,8 +90,8 @@ def rest_onset(sc: Scene, m, spw: float):
 # A note must speak where the physics says it does. A stick-slip tile can play F_B / w 2, v_B 0.28 (the playing
 # space's corner) from rest as a note that never speaks: p spanned 0.02 where the truth's spans 2.46, inside the
 # trained states, so nothing else stops it. About the rest point a held bow above vb_stop grows any motion at
-# physics.onset_rate; from the note's initial offset it reaches the scale v_B - vb_stop by t_speak. Measured (session
-# 20, benchmarks/mute_check.py: bench map's 160 bows at 110 and 440 Hz, 2 s from rest, the x8 FDM): the truth's p spans
+# physics.onset_rate; from the note's initial offset it reaches the scale v_B - vb_stop by t_speak. Measured
+# (benchmarks/mute_check.py: bench map's 160 bows at 110 and 440 Hz, 2 s from rest, the x8 FDM): the truth's p spans
 # a quarter of that scale before t_speak at every bow, and wherever 1.5 t_speak falls inside the note its last four
 # free periods span at least 1.5x the scale. So a held note whose p spans less than MUTE_FRACTION of the scale from
 # MUTE_SAFETY t_speak to its end, at least MUTE_PERIODS free periods (a stick-slip cycle at F_B / w 2 is three), did

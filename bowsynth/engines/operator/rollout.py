@@ -32,7 +32,7 @@ BATCH_FROM = 8
 # voices' pitches alone and split over threads as whole groups, so a voice's samples never depend on the threads.
 # A run of groups must hold MIN_THREAD_SAMPLES of work: below, starting a thread costs more than it saves. Per voice
 # the work is n_samples (1 + WINDOW_SAMPLES / samples per window): a window's branch costs ~33k multiply-adds, a
-# sample ~134 (shared/GUIDE.md 9), so a window weighs ~245 samples.
+# sample ~134 (benchmarks/core_speed.py), so a window weighs ~245 samples.
 GROUP = 4
 MIN_THREAD_SAMPLES = 100_000
 WINDOW_SAMPLES = 245.0
@@ -119,7 +119,7 @@ def _roll_groups(args: tuple, n_threads: int) -> None:
 def scene_bows(scene: Scene, spw: float, n_samples: int | None = None) -> np.ndarray:
     """The bow (beta, v_B) the operator applies in each window of a render of the scene: the controls at the
     window's middle (held over the window: second order in the window length; held at its start the error of a
-    crescendo is 200x larger, shared/GUIDE.md 8). (W, 2)."""
+    crescendo is 200x larger, docs/measures.md). (W, 2)."""
     starts, ends = window_bounds(spw, scene.n_samples if n_samples is None else n_samples)
     t = 0.5 * (starts + ends) / scene.sample_rate
     return np.stack([scene.fb_at(t) / scene.omega, scene.vb_at(t)], axis=1)
