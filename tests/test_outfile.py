@@ -3,10 +3,13 @@ kept, stdout, WAV/FLAC/OGG with their metadata, DC removed without touching the 
 
 import json
 import os
+import shutil
+import tempfile
 import stat
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -305,3 +308,45 @@ def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path, caps
                                   monkeypatch)
         assert code == 2 and "collide" in err, err
     assert not (tmp_path / "m.wav").exists() and list((tmp_path / "st").iterdir()) == []
+
+
+def _as_user(tmp_path):
+    """The command prefix that runs a process without write permission on a mode-555 folder: as nobody where this
+    runs as root (root writes anywhere), else as the user itself."""
+    if os.geteuid() != 0:
+        return []
+    if not shutil.which("setpriv"):
+        pytest.skip("running as root without setpriv: no unprivileged user to run as")
+    # nobody must reach the folder by its path: pytest's own folders are root's alone
+    for d in [tmp_path, *tmp_path.parents]:
+        if d == Path(tempfile.gettempdir()):
+            break
+        d.chmod(d.stat().st_mode | 0o711)
+    tmp_path.chmod(0o777)
+    return ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+
+
+@pytest.mark.parametrize("args", [
+    ["score", "--score", "s.toml", "--mix", "m.wav", "--stems", "ro/stems"],
+    ["train", "--fb", "100", "--steps", "2", "--out", "ro/m.safetensors"],
+    ["dataset", "spec.toml", "--out", "ro/corpus"],
+], ids=["score-stems", "train-out", "dataset-out"])
+def test_a_folder_without_write_permission_is_one_line(args, tmp_path):
+    """A real process run by a user who may not write into ro/: one line naming the path, exit 1, nothing written
+    anywhere (the mix waits for its stems)."""
+    prefix = _as_user(tmp_path)
+    (tmp_path / "ro").mkdir(mode=0o555)
+    (tmp_path / "ro").chmod(0o555)
+    (tmp_path / "s.toml").write_text("[[voice]]\nf0 = 220\nfb = 300\nvb = 0.17\nduration = 0.3\n")
+    (tmp_path / "spec.toml").write_text("count = 2\nseed = 1\n")
+    (tmp_path / "cache").mkdir(mode=0o777)
+    (tmp_path / "cache").chmod(0o777)
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache"), "HOME": str(tmp_path)}
+    before = sorted(p.name for p in tmp_path.iterdir())
+    p = subprocess.run(prefix + [sys.executable, "-m", "bowsynth", *args], cwd=tmp_path, env=env, capture_output=True,
+                       text=True, timeout=300)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 1 and len(lines) == 1, p.stderr
+    assert lines[0].startswith("error: ro/") and "Permission denied" in lines[0] and "internal" not in lines[0]
+    assert list((tmp_path / "ro").iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

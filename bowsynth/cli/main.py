@@ -100,6 +100,12 @@ def _run() -> None:
     except Exception as e:  # a bug: still one line unless --debug
         if debug:
             raise
+        if isinstance(e, OSError) and e.filename:
+            # the file system refused a named path (a folder without write permission, a read-only mount, a full
+            # disk): what the user must change, not a bug
+            other = f" -> {e.filename2}" if e.filename2 else ""
+            err.print(f"error: {e.filename}{other}: {e.strerror or type(e).__name__}", soft_wrap=True, markup=False)
+            sys.exit(1)
         notes = "".join(f"; {n}" for n in getattr(e, "__notes__", ()))
         err.print(f"internal error: {type(e).__name__}: {e} (rerun with --debug for the traceback){notes}",
                   soft_wrap=True)

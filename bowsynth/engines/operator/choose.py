@@ -28,8 +28,11 @@ def model_dirs() -> list[Path]:
     dirs = [Path.cwd() / "models", SHIPPED_DIR]
     out = []
     for d in dirs:
-        if d.is_dir() and d.resolve() not in [o.resolve() for o in out]:
-            out.append(d)
+        try:
+            if d.is_dir() and d.resolve() not in [o.resolve() for o in out]:
+                out.append(d)
+        except OSError:  # a folder this user may not search (a working directory under another's): none to read
+            continue
     return out
 
 
