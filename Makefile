@@ -5,7 +5,7 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models tables docs-models bench bench-quick clean chromium jackd core
+.PHONY: setup demo test models tables docs docs-models bench bench-quick clean chromium jackd core
 
 $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -61,6 +61,12 @@ tables: $(STAMP)
 	$(PY) -m bowsynth.music.ratio_map build
 	$(PY) -m bowsynth.music.ratio_map check --n 80
 	$(PY) -m bowsynth.music.model_ratio
+
+# docs/api/: the API reference, built by pdoc from the numpydoc docstrings of these modules (not committed;
+# tests/test_docs.py runs their examples and builds the same page from this list)
+DOC_MODULES := bowsynth.api bowsynth.scene bowsynth.render bowsynth.music.score bowsynth.music.note bowsynth.live.stream
+docs: $(STAMP)
+	$(PY) -m pdoc --docformat numpy -o docs/api $(DOC_MODULES)
 
 # docs/models.md and docs/atlas.png: the shipped catalogue as `bowsynth models` lists it, and its tiling
 docs-models: $(STAMP)

@@ -1,4 +1,5 @@
-"""The Python API the CLI and notebooks share. torch is imported only when an operator is used."""
+"""The Python API the CLI and notebooks share: render a Scene, tune a pitch for its engine, fit a recording, train
+an operator. torch is imported only when an operator is used."""
 
 from __future__ import annotations
 
@@ -13,7 +14,20 @@ from .scene import Scene
 
 
 class Interrupted(BowsynthError):
-    """Training stopped by Ctrl-C (exit 130) or SIGTERM (exit 143) after saving its checkpoint."""
+    """Training stopped by Ctrl-C (exit 130) or SIGTERM (exit 143) after saving its checkpoint.
+
+    Parameters
+    ----------
+    msg : str
+        What stopped, and where its checkpoint is.
+    exit_code : int
+        The CLI's exit status: 130 (Ctrl-C) or 143 (SIGTERM).
+
+    Examples
+    --------
+    >>> Interrupted("terminated at step 40", exit_code=143).exit_code
+    143
+    """
 
     def __init__(self, msg: str, exit_code: int = 130):
         super().__init__(msg)
@@ -22,26 +36,71 @@ class Interrupted(BowsynthError):
 
 def render(scene, engine: str = "operator", model=None, fallback: str = "none", oversample: int = 1,
            force: bool = False, windows: str | None = None):
-    """Render a Scene (or a list of Scenes) with engine 'operator' or 'fdm'; see `bowsynth.engines.render`.
+    """Render a Scene (or a list of Scenes) with the trained operator or the FDM; see `bowsynth.engines.render`.
 
-    windows (operator; None: 'auto', `music.engine_tuning.RENDER_WINDOWS`): 'free' rolls each voice in windows of
-    the trained length; 'locked' a held bow's voice in windows locked to the period its playing model sounds at (the
-    model's own, measured once per model and bow and cached: `music.engine_tuning.operator_sounding`); 'physics' in
-    windows that divide the physics' period at its bow, which pulls the note onto the physical pitch where the model
-    holds it, else to the model's own (`model_ratio.lock_ratio`); 'auto' the physics' period where the model holds
-    it, else free (`engine_tuning.auto_lock`). The physics' period comes from the shipped map (`music.ratio_map`);
-    whether a model holds it, the operator measures of itself (once per model and bow, cached): no reference runs.
-    A note whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture
-    rolls free. With no model given, of the models that cover a held note the one whose own cycle lies nearest the
-    physics' period plays it (`music.pick.heard_pick`; a gesture: `engines.operator.choose.find_model`'s pick).
-    Free windows spread the network's error into faint lines between and below the harmonics (60 dB
-    down), locked ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics
-    truer free, a chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked
-    (`score`'s default); a held note at a given f0 sounds the physical pitch with 'physics' (0.0005 cents median for
-    stick-slip bows against 1.3 locked), after a pull-in a short note sounds. See
-    `engines.operator.windows.locked_window`.
-    A request estimated past minutes of FDM work or gigabytes of memory is refused with the estimate (a UsageError)
-    unless force=True; see `bowsynth.engines.limits`."""
+    Parameters
+    ----------
+    scene : Scene or list of Scene
+        The note to play; a list is rolled out batched (the operator) and gives a list of renders.
+    engine : {'operator', 'fdm'}
+        The trained operator, or the finite-difference reference.
+    model : OperatorModel, path or str, optional
+        The operator's model (a model, a file, or a shipped model's name). None: of the models that cover a held
+        note the one whose own cycle lies nearest the physics' period plays it (`music.pick.heard_pick`; a gesture:
+        `engines.operator.choose.find_model`'s pick).
+    fallback : {'none', 'fdm'}
+        'fdm' finishes with the FDM an operator voice that leaves its model's domain (said in `Render.info`);
+        'none' raises DomainError.
+    oversample : int
+        The FDM's steps per output sample.
+    force : bool
+        Render a request estimated past minutes of FDM work or gigabytes of memory, which is otherwise refused with
+        the estimate (see `bowsynth.engines.limits`).
+    windows : {'auto', 'free', 'locked', 'physics'}, optional
+        The operator's windows (None: 'auto', `music.engine_tuning.RENDER_WINDOWS`). 'free' rolls each voice in
+        windows of the trained length; 'locked' a held bow's voice in windows locked to the period its playing model
+        sounds at (the model's own, measured once per model and bow and cached:
+        `music.engine_tuning.operator_sounding`); 'physics' in windows that divide the physics' period at its bow,
+        which pulls the note onto the physical pitch where the model holds it, else to the model's own
+        (`model_ratio.lock_ratio`); 'auto' the physics' period where the model holds it, else free
+        (`engine_tuning.auto_lock`). The physics' period comes from the shipped map (`music.ratio_map`); whether a
+        model holds it, the operator measures of itself (once per model and bow, cached): no reference runs. A note
+        whose bow moves only for an attack or a stop locks to the bow it holds (`Scene.held_bow`); a gesture rolls
+        free. See `engines.operator.windows.locked_window`.
+
+    Returns
+    -------
+    Render or list of Render
+        The samples (float32 from the operator, float64 from the FDM), the engine that played them
+        (`Render.method`) and what it reports (`Render.info`).
+
+    Raises
+    ------
+    UsageError
+        An unknown engine, fallback or windows, or a request past the limits without `force`.
+    DomainError
+        No model covers the scene (or a rollout left its model) and `fallback` is 'none'.
+    ModelFileError
+        A model file that is missing, unreadable, or does not do what its metadata claims.
+
+    Notes
+    -----
+    Free windows spread the network's error into faint lines between and below the harmonics (60 dB down), locked
+    ones put it on the harmonics (0.1 dB median instead of 0.03): a single note keeps its harmonics truer free, a
+    chord or a mix (whose voices fill each other's gaps) sounds closer to the physics locked (`score`'s default); a
+    held note at a given f0 sounds the physical pitch with 'physics' (0.0005 cents median for stick-slip bows against
+    1.3 locked), after a pull-in a short note sounds.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> r = api.render(Scene(duration=0.2))
+    >>> r.method, r.q.shape, r.q.dtype
+    ('operator', (8820,), dtype('float32'))
+    >>> [str(x.method) for x in api.render([Scene(duration=0.2), Scene(f0=150, duration=0.2)], engine="fdm")]
+    ['fdm', 'fdm']
+    """
     from .engines import Engine, parse_choice
     from .engines import render as _r
     from .engines.limits import check_request
@@ -80,8 +139,31 @@ def _render_operator(scene, model, fallback: str, windows: str | None):
 
 
 def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: int = 1, windows: str | None = None):
-    """(ratio, what): the sounding ratio of the engine that will play the scene in these windows (render's), for
-    `make_scene(pitch=..., ratio=ratio)` (see `music.engine_tuning.ratio_for_engine`)."""
+    """The sounding ratio of the engine that will play the scene in these windows, to tune a pitch with.
+
+    Parameters
+    ----------
+    scene : Scene
+        The note as it will be played (its bow, rate and duration).
+    engine, model, oversample, windows
+        As `render` takes them.
+
+    Returns
+    -------
+    ratio : callable
+        ratio(beta, vb, a, f0): the sounding ratio, for `make_scene(pitch=..., ratio=ratio)` (see
+        `music.engine_tuning.ratio_for_engine`).
+    what : str
+        Whose ratio it is (a model in its windows, the FDM, or the physics' map and why).
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> ratio, what = api.tuning_for(Scene(duration=0.2), engine="fdm")
+    >>> what
+    'the FDM at x1'
+    """
     from .music.engine_tuning import ratio_for_engine
 
     return ratio_for_engine(scene, engine, model, oversample, windows=windows, heard=True)
@@ -89,7 +171,34 @@ def tuning_for(scene: Scene, engine: str = "operator", model=None, oversample: i
 
 def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):
     """Render a Scene with the FDM; see `bowsynth.engines.fdm.render_fdm` (imported here on first use).
-    Refused past the estimates of `bowsynth.engines.limits` unless force=True."""
+
+    Parameters
+    ----------
+    scene : Scene
+        The note to play.
+    oversample : int
+        Steps per output sample.
+    force : bool
+        Render past the estimates of `bowsynth.engines.limits` (else refused).
+
+    Returns
+    -------
+    Render
+        float64 samples; `method` 'fdm' (or 'fdm xN' oversampled).
+
+    Raises
+    ------
+    UsageError
+        A request past the limits without `force`.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> r = api.render_fdm(Scene(duration=0.2), oversample=2)
+    >>> r.method, r.q.dtype, len(r.q)
+    ('fdm x2', dtype('float64'), 8820)
+    """
     from .engines.fdm import render_fdm as _r
     from .engines.limits import check_request
 
@@ -99,15 +208,77 @@ def render_fdm(scene: Scene, oversample: int = 1, force: bool = False):
 
 def render_operator(scene, model=None, fallback: str = "none"):
     """Render a Scene (or a list of Scenes, batched) with the operator, in render's default windows (auto); see
-    `bowsynth.engines.operator.engine.render_operator`."""
+    `bowsynth.engines.operator.engine.render_operator`.
+
+    Parameters
+    ----------
+    scene : Scene or list of Scene
+        The note(s) to play.
+    model : OperatorModel, path or str, optional
+        The model; None: the one `render` picks.
+    fallback : {'none', 'fdm'}
+        As `render` takes it.
+
+    Returns
+    -------
+    Render or list of Render
+        float32 samples, the network's precision.
+
+    Raises
+    ------
+    DomainError
+        No model covers the scene and `fallback` is 'none'.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> r = api.render_operator(Scene(duration=0.2), model="paper-fb100")
+    >>> r.method, r.info.model_id.split("@")[0]
+    ('operator', 'fb100_f0100_vb0.2_a100')
+    """
     return render(scene, engine="operator", model=model, fallback=fallback)
 
 
 def fit(target, models=None, starts=None, progress=None, check: bool = True, curves: bool = False):
-    """The held bow (F_B / w, v_B) and f0 that make the operator sound like `target` (a mono recording's path):
-    a `bowsynth.fit.held.Fit` (best, the spread the sound leaves open, bows that sound alike, and with `check` the
-    fitted note as `render` plays it against the target). curves: also the bow as breakpoint curves from it
-    (`bowsynth.fit.curves.CurveFit`), returned as (fit, curves). See `bowsynth fit` and docs/fit.md."""
+    """The held bow (F_B / w, v_B) and f0 that make the operator sound like `target`. See `bowsynth fit` and
+    docs/fit.md.
+
+    Parameters
+    ----------
+    target : str or Path
+        A mono recording.
+    models : list, optional
+        The operator models to search with (default: the shipped and ./models ones).
+    starts : int, optional
+        Starts of the search's descent (default `bowsynth.fit.held.STARTS`).
+    progress : callable, optional
+        progress(stage, done, total), called as the search goes.
+    check : bool
+        Also play the fitted note as `render` plays it and measure it against the target.
+    curves : bool
+        Also fit the bow as breakpoint curves from the held fit (`bowsynth.fit.curves.CurveFit`).
+
+    Returns
+    -------
+    Fit or (Fit, CurveFit)
+        A `bowsynth.fit.held.Fit` (best, the spread the sound leaves open, bows that sound alike, and with `check`
+        the fitted note against the target); with `curves`, (fit, curves).
+
+    Raises
+    ------
+    FitError
+        A target that cannot be read or used (a UsageError); FitMiss where no match is found.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> api.fit("no-such-recording.wav")
+    Traceback (most recent call last):
+    ...
+    bowsynth.fit.target.FitError: no-such-recording.wav: no such file
+    >>> best = api.fit("note.wav", check=False).best  # doctest: +SKIP
+    """
     from .fit import held
     from .fit.target import read_target
 
@@ -127,14 +298,56 @@ def fit(target, models=None, starts=None, progress=None, check: bool = True, cur
 
 
 def load_model(path):
-    """Load an operator model file (safetensors + JSON metadata, no pickle)."""
+    """Load an operator model file (safetensors + JSON metadata, no pickle).
+
+    Parameters
+    ----------
+    path : str or Path
+        The model file (`model_path` finds one by name).
+
+    Returns
+    -------
+    OperatorModel
+
+    Raises
+    ------
+    ModelFileError
+        A file that is missing, corrupt, foreign or of another format version.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> api.load_model(api.model_path("paper-fb100")).meta.name
+    'fb100_f0100_vb0.2_a100'
+    """
     from .engines.operator.modelfile import load_model as _l
 
     return _l(path)
 
 
 def model_path(name) -> Path:
-    """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`)."""
+    """A model file given as a path, or by its name in ./models or the shipped models (`soft-range`).
+
+    Parameters
+    ----------
+    name : str or Path
+        A path (returned as it is), or a model's name.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ModelFileError
+        No model of that name.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> api.model_path("soft-range").name
+    'soft-range.safetensors'
+    """
     from .engines.operator.choose import model_path as _m
 
     return _m(name)
@@ -142,18 +355,56 @@ def model_path(name) -> Path:
 
 def train(scene: Scene, config=None, out=None, force=False, resume=False, progress=False, console=None, box=None,
           init=None, **settings):
-    """Train an operator for `scene`, save it to `out` (default ./models/<name>.safetensors) and validate it.
+    """Train an operator for `scene`, save it to `out` and validate it.
 
-    box: a `bowsynth.training.ParamBox` of bows (beta, v_B) to train a range model for (see `range_scene`); the
-    scene then gives the pitch, sample rate and a at which the training renders are made.
+    Parameters
+    ----------
+    scene : Scene
+        The bow to train for; with `box`, the pitch, sample rate and a at which the training renders are made.
+    config : TrainConfig, optional
+        A `bowsynth.training.TrainConfig`; else made from `settings`. Its defaults are the only ones.
+    out : str or Path, optional
+        The model file (default ./models/<name>.safetensors). Checkpoints go beside it.
+    force : bool
+        Overwrite `out`, or start over from an unfinished run's checkpoint.
+    resume : bool
+        Continue from the checkpoint beside `out`.
+    progress : bool
+        Report progress on `console`.
+    console : rich.console.Console, optional
+        Where progress goes.
+    box : ParamBox, optional
+        A `bowsynth.training.ParamBox` of bows (beta, v_B) to train a range model for (see `range_scene`).
+    init : OperatorModel, path or str, optional
+        A trained range model to refine for `box` (or for the scene's own bow, a box of zero width): its network
+        and scalings are kept and trained further on this box's data (`train --from`).
+    **settings
+        The config's fields as keywords (minutes=, steps=, seed=, optimizer=, ...); `window_ms` gives the window in
+        ms at the scene's pitch, `width` / `depth` the network's (`make_train_config`).
 
-    init: a trained range model (a path or an OperatorModel) to refine for `box` (or for the scene's own bow, a box
-    of zero width): its network and scalings are kept and trained further on this box's data (`train --from`).
+    Returns
+    -------
+    TrainResult
+        The model, the file it was saved to and the training's history. A model whose validation rollout fails is
+        saved but marked failed in its record (it is never picked by default).
 
-    config: a `bowsynth.training.TrainConfig`; or settings as keywords (minutes=, steps=, seed=, optimizer=, ...:
-    its fields; `window_ms` gives the window in ms at the scene's pitch; `width`/`depth` the network's). Its
-    defaults are the only ones. Checkpoints go beside `out`; `resume=True` continues from one. Returns a TrainResult.
-    A model whose validation rollout fails is saved but marked failed in its record (it is never picked by default).
+    Raises
+    ------
+    UsageError
+        A bad setting or file name, an existing `out` without `force`, an unfinished run without `resume` or
+        `force`, or another training writing `out`.
+    Interrupted
+        Ctrl-C or SIGTERM, after the checkpoint is saved.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> api.train(Scene(), out="model.pt")
+    Traceback (most recent call last):
+    ...
+    bowsynth.errors.UsageError: model files end in .safetensors, got model.pt
+    >>> result = api.train(Scene(), minutes=1, out="models/mine.safetensors")  # doctest: +SKIP
     """
     from .training.config import check_net_options, check_refine, checkpoint_path, default_model_name
 
@@ -302,20 +553,65 @@ def _alive(pid: int) -> bool:
 
 
 def range_scene(box, f0: float = 100.0, sample_rate: int = 44100, duration: float = 1.0) -> Scene:
-    """The scene a range model trains at: the box's centre bow (geometric in beta) at this pitch and rate."""
+    """The scene a range model trains at: the box's centre bow (geometric in beta) at this pitch and rate.
+
+    Parameters
+    ----------
+    box : ParamBox
+        The bows (beta_lo..beta_hi, vb_lo..vb_hi, a) the model is to play.
+    f0 : float
+        Hz.
+    sample_rate : int
+        Hz.
+    duration : float
+        s.
+
+    Returns
+    -------
+    Scene
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.training import ParamBox
+    >>> api.range_scene(ParamBox(0.1, 0.2, 0.1, 0.3, 100.0), f0=220).describe()
+    'fb=195.487 f0=220 vb=0.2 a=100'
+    """
     beta = math.sqrt(max(box.beta_lo, 1e-12) * max(box.beta_hi, 1e-12))
     return Scene(f0=f0, fb=beta * physics.omega(f0), vb=(box.vb_lo + box.vb_hi) / 2, a=box.a, duration=duration,
                  sample_rate=sample_rate)
 
 
 def model_status(scene: Scene, config, out, box=None, init=None) -> str | None:
-    """Why the model file `out` is not what training `scene` (and `box`) with `config` makes, in a few words:
-    missing, unreadable (with the loader's reason), or stale (it plays another scene or box, or was trained with
-    another budget, seed, batch, window, derivative or rollout weight or network); None when it is what the recipe
-    asks for. What `train --update` (and so `make models`) asks before training. Settings a recipe does not name are
-    not compared: a model trained by an older version of the trainer stays current until its recipe changes. init:
-    the model a refinement starts from (a path or a name, as `train --from`): the file must have been refined from
-    that model as it is now."""
+    """Why the model file `out` is not what training `scene` (and `box`) with `config` makes, in a few words.
+
+    What `train --update` (and so `make models`) asks before training. Settings a recipe does not name are not
+    compared: a model trained by an older version of the trainer stays current until its recipe changes.
+
+    Parameters
+    ----------
+    scene, config, box
+        As `train` takes them.
+    out : str or Path
+        The model file.
+    init : path or str, optional
+        The model a refinement starts from (as `train --from`): the file must have been refined from that model as
+        it is now.
+
+    Returns
+    -------
+    str or None
+        missing, unreadable (with the loader's reason), or stale (it plays another scene or box, or was trained with
+        another budget, seed, batch, window, derivative or rollout weight or network); None when it is what the
+        recipe asks for.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> api.model_status(Scene(), api.make_train_config(Scene(), steps=10), "models/none.safetensors")
+    'missing'
+    """
     import dataclasses
 
     from .engines.operator.modelfile import load_model
@@ -366,13 +662,51 @@ def model_status(scene: Scene, config, out, box=None, init=None) -> str | None:
 
 
 def range_model_name(scene: Scene, box) -> str:
+    """The name a range model trained for `box` at `scene`'s pitch gets (its file's stem by default).
+
+    Examples
+    --------
+    >>> from bowsynth.training import ParamBox
+    >>> range_model_name(Scene(f0=220), ParamBox(0.1, 0.2, 0.1, 0.3, 100.0))
+    'range_fb138.2-276.5_f0220_vb0.1-0.3_a100'
+    """
     w = scene.omega
     return (f"range_fb{box.beta_lo * w:.4g}-{box.beta_hi * w:.4g}_f0{scene.f0:g}_vb{box.vb_lo:g}-{box.vb_hi:g}"
             f"_a{box.a:g}")
 
 
 def make_train_config(scene: Scene, window_ms=None, width=None, depth=None, **fields):
-    """A TrainConfig from keyword settings (None means the config's default)."""
+    """A TrainConfig from keyword settings (None means the config's default).
+
+    Parameters
+    ----------
+    scene : Scene
+        What `window_ms` is measured against (the window in units of its w).
+    window_ms : float, optional
+        The window in ms at the scene's pitch.
+    width, depth : int, optional
+        The network's.
+    **fields
+        Other `bowsynth.training.TrainConfig` fields; a step budget alone (steps= without minutes=) has no time
+        limit.
+
+    Returns
+    -------
+    TrainConfig
+
+    Raises
+    ------
+    UsageError
+        An unknown setting, or a window that holds no sample.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> c = api.make_train_config(Scene(), steps=10)
+    >>> c.steps, c.minutes
+    (10, None)
+    """
     import dataclasses
 
     from .engines.operator.npnet import NetConfig  # torch-free: `train --update` on a current model loads no torch

@@ -1,4 +1,5 @@
-"""Render: what every engine (FDM or operator) returns, and the one entry point that picks the engine."""
+"""Render: what every engine (FDM or operator) returns; `bowsynth.api.render` is the one entry point that picks the
+engine."""
 
 from __future__ import annotations
 
@@ -11,9 +12,23 @@ from .scene import Scene
 
 
 class LazyControls(Mapping):
-    """A render's controls (fb, vb per output sample), computed on first use by `make`: two float64 arrays per voice
-    are a measurable share of a many-voice score that never reads them (a 172-note chorale spent 35 ms
-    expanding the operator's per-window bows)."""
+    """A render's controls (fb, vb per output sample), computed on first use by `make`.
+
+    Two float64 arrays per voice are a measurable share of a many-voice score that never reads them (a 172-note
+    chorale spent 35 ms expanding the operator's per-window bows).
+
+    Parameters
+    ----------
+    make : callable
+        make() returns {'fb': array, 'vb': array}; called once, on the first read.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> c = LazyControls(lambda: {"fb": np.full(3, 100.0), "vb": np.full(3, 0.2)})
+    >>> sorted(c), c["vb"].tolist()
+    (['fb', 'vb'], [0.2, 0.2, 0.2])
+    """
 
     def __init__(self, make):
         self._make, self._arrays = make, None
@@ -35,9 +50,35 @@ class LazyControls(Mapping):
 
 
 class Played(str):
-    """Which engines played a render, as a typed value that still reads (and compares) as the text users see:
+    """Which engines played a render, as a typed value that still reads (and compares) as the text users see.
+
     "fdm", "fdm x4" (oversampled), "operator", "operator+fdm" (a voice the FDM finished after it left its model),
-    "operator+fdm + fdm release" (a note whose bow stop the FDM played)."""
+    "operator+fdm + fdm release" (a note whose bow stop the FDM played).
+
+    Parameters
+    ----------
+    engine : {'operator', 'fdm'}
+        The engine that played the render.
+    oversample : int
+        The FDM's steps per output sample.
+    fdm_fallback : bool
+        The FDM finished an operator voice after it left its model.
+    fdm_release : bool
+        The FDM played the note's bow stop.
+
+    Raises
+    ------
+    ValueError
+        Another engine.
+
+    Examples
+    --------
+    >>> p = Played("operator", fdm_fallback=True).with_fdm_release()
+    >>> p == "operator+fdm + fdm release", p.engine, p.fdm_release
+    (True, 'operator', True)
+    >>> str(Played("fdm", 4))
+    'fdm x4'
+    """
 
     engine: str
     oversample: int
@@ -58,12 +99,21 @@ class Played(str):
         return self.engine, self.oversample, self.fdm_fallback, self.fdm_release
 
     def with_fdm_release(self) -> "Played":
+        """The same engines, with the bow stop played by the FDM."""
         return Played(self.engine, self.oversample, self.fdm_fallback, True)
 
 
 @dataclass
 class RenderInfo:
-    """What an engine reports beside the samples."""
+    """What an engine reports beside the samples (each field None, or empty, where it does not apply).
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> api.render(Scene(duration=0.2)).info.model_id
+    'fb100_f0100_vb0.2_a100@...'
+    """
 
     model_id: str | None = None  # the operator's model
     model_path: str | None = None
@@ -84,13 +134,37 @@ class RenderInfo:
 @dataclass
 class Render:
     """A rendered scene: one value per output sample at the scene's sample rate (float64 from the FDM, float32 from
-    the operator, the network's precision).
+    the operator, the network's precision). Engines make it; `bowsynth.api.render` returns it.
 
-    q = w u and p = u_t (m/s); u the mass displacement (m); t in s (an engine may pass None: the sample times are
-    then made on first use, as few callers read them and they cost a render of 5 s ~1 ms of fresh memory).
-    `seconds` is the wall time the engine took.
-    `controls` holds the bow force fb (m/s^2) and speed vb (m/s) the engine applied, one value per output sample
-    (the operator holds them per window, so they may differ from the scene's curves between windows).
+    Parameters
+    ----------
+    scene : Scene
+        What was rendered.
+    t : numpy.ndarray or None
+        The sample times (s). An engine may pass None: they are then made on first use, as few callers read them
+        and they cost a render of 5 s ~1 ms of fresh memory.
+    q, p : numpy.ndarray
+        q = w u and p = u_t (m/s); u the mass displacement (m, `u`).
+    method : Played
+        The engines that played it ("fdm", "operator", "operator+fdm", ...).
+    seconds : float
+        The wall time the engine took.
+    info : RenderInfo
+        What the engine reports beside the samples.
+    controls : Mapping, optional
+        The bow force fb (m/s^2) and speed vb (m/s) the engine applied, one value per output sample (the operator
+        holds them per window, so they may differ from the scene's curves between windows). None: the scene's
+        curves at `t`, made on first use.
+
+    Examples
+    --------
+    >>> from bowsynth import api
+    >>> from bowsynth.scene import Scene
+    >>> r = api.render(Scene(duration=0.2), engine="fdm")
+    >>> r.method, r.q.dtype, r.t.shape, r.controls["fb"][:2].tolist()
+    ('fdm', dtype('float64'), (8820,), [100.0, 100.0])
+    >>> f"{abs(r.u).max() * 1e3:.2f} mm"
+    '0.48 mm'
     """
 
     scene: Scene
@@ -108,6 +182,7 @@ class Render:
 
     @property
     def u(self) -> np.ndarray:
+        """The mass displacement u = q / w (m), w following the pitch where it varies."""
         if self.scene.pitch_varies:
             return self.q / (2.0 * np.pi * self.scene.f0_at(self.t))
         return self.q / self.scene.omega
@@ -118,7 +193,29 @@ class Render:
         return self.scene.duration / self.seconds if self.seconds > 0 else float("inf")
 
     def signal(self, name: str = "u") -> np.ndarray:
-        """The named signal: 'u' (displacement), 'p' (velocity) or 'q'."""
+        """The named signal: 'u' (displacement), 'p' (velocity) or 'q'.
+
+        Parameters
+        ----------
+        name : {'u', 'p', 'q'}
+
+        Returns
+        -------
+        numpy.ndarray
+            One value per output sample.
+
+        Raises
+        ------
+        ValueError
+            Another name.
+
+        Examples
+        --------
+        >>> from bowsynth import api
+        >>> from bowsynth.scene import Scene
+        >>> api.render(Scene(duration=0.2), engine="fdm").signal("p").shape
+        (8820,)
+        """
         if name not in ("u", "p", "q"):
             raise ValueError(f"signal must be u, p or q, got {name!r}")
         return getattr(self, name)

@@ -34,11 +34,47 @@ HELD_SHARE = 0.5
 class Scene:
     """One render: a bowed mass at pitch f0, bowed with force fb at speed vb, for duration seconds.
 
-    Units: f0 Hz; fb bow force per unit mass (m/s^2); vb m/s; a friction shape (s^2/m^2); duration s;
-    sample_rate Hz; q0 = w u(0) and p0 = u_t(0) in m/s.
-    fb and vb are numbers or curves (a `Curve`, or a list of [t, value] pairs in s: linear between, held outside):
-    bow gestures within the note. f0 may be a curve too (vibrato, glissando, pitch bend): the FDM follows w(t) at
-    every step, the operator per window. A scene whose f0 varies has no single `omega` or `dtau`: use `f0_at`.
+    Frozen and checked on construction. fb and vb are numbers or curves (a `Curve`, or a list of [t, value] pairs
+    in s: linear between, held outside): bow gestures within the note. f0 may be a curve too (vibrato, glissando,
+    pitch bend): the FDM follows w(t) at every step, the operator per window. A scene whose f0 varies has no single
+    `omega` or `dtau`: use `f0_at`. Other constructors: `from_dict`, `load_preset` (a preset's fields) and
+    `bowsynth.music.request.make_scene` (a preset, a pitch such as "A4" tuned for the engine, F_B / w).
+
+    Parameters
+    ----------
+    f0 : float or Curve
+        The mass's natural frequency (Hz), below Nyquist.
+    fb : float or Curve
+        Bow force per unit mass (m/s^2), >= 0.
+    vb : float or Curve
+        Bow speed (m/s).
+    a : float
+        Friction shape (s^2/m^2), > 0.
+    duration : float
+        Seconds, at most 3600 and at least 2 samples.
+    sample_rate : int
+        Hz, 8000 to 384000.
+    q0, p0 : float
+        The initial state: q0 = w u(0) and p0 = u_t(0), in m/s.
+
+    Raises
+    ------
+    SceneError
+        A value that is not a number (or a curve where one may be), not finite, or outside its range.
+
+    Examples
+    --------
+    >>> s = Scene(f0=220, fb=[[0, 50], [0.5, 200]], duration=0.5)
+    >>> s.varying, s.n_samples, s.describe()
+    (True, 22050, 'fb=50@0,200@0.5 f0=220 vb=0.2 a=100')
+    >>> s.fb_at([0, 0.25, 1.0]).tolist()
+    [50.0, 125.0, 200.0]
+    >>> round(Scene().beta, 6)  # F_B / w of a constant bow
+    0.159155
+    >>> Scene(f0=-1)
+    Traceback (most recent call last):
+    ...
+    bowsynth.errors.SceneError: f0 must be > 0 Hz, got -1
     """
 
     f0: float = 100.0
@@ -98,12 +134,14 @@ class Scene:
 
     @property
     def omega(self) -> float:
+        """w = 2 pi f0 (rad/s); SceneError where f0 varies."""
         if isinstance(self.f0, Curve):
             raise SceneError("f0 varies in this scene; it has no single w (see f0_at)")
         return physics.omega(self.f0)
 
     @property
     def pitch_varies(self) -> bool:
+        """Is f0 a curve?"""
         return isinstance(self.f0, Curve)
 
     def f0_at(self, t) -> "np.ndarray":
@@ -112,6 +150,7 @@ class Scene:
 
     @property
     def f0_max(self) -> float:
+        """The highest f0 (Hz) over the scene."""
         return controls.bounds(self.f0)[1]
 
     @property
@@ -128,6 +167,7 @@ class Scene:
 
     @property
     def beta_range(self) -> tuple[float, float]:
+        """(lowest, highest) F_B / w over the scene."""
         if isinstance(self.f0, Curve):  # fb / w of two piecewise-linear curves: extremes at their breakpoints
             t = np.union1d(controls.breakpoints(self.fb)[0], self.f0.times)
             b = self.fb_at(t) / (2.0 * math.pi * self.f0_at(t))
@@ -137,10 +177,12 @@ class Scene:
 
     @property
     def vb_range(self) -> tuple[float, float]:
+        """(lowest, highest) bow speed (m/s) over the scene."""
         return controls.bounds(self.vb)
 
     @property
     def fb_max(self) -> float:
+        """The highest bow force (m/s^2) over the scene."""
         return controls.bounds(self.fb)[1]
 
     def fb_at(self, t) -> "np.ndarray":
@@ -160,14 +202,30 @@ class Scene:
 
     @property
     def n_samples(self) -> int:
+        """Samples in the render: duration x sample_rate, rounded."""
         return int(round(self.duration * self.sample_rate))
 
     def held_bow(self) -> "Scene | None":
-        """The scene with its bow held throughout at the bow it holds for most of the note, where its curves move
-        only for an attack (rising from F_B or v_B = 0) before that stretch and a stop (falling to 0) after it: what
-        a held note's windows lock to (music.engine_tuning.sounding_for), as a score's note locks to its sustain.
-        The scene itself where its bow holds still; None for a gesture (a bow that moves otherwise, or holds for
-        less than HELD_SHARE of the note) or a moving pitch."""
+        """The scene with its bow held throughout at the bow it holds for most of the note.
+
+        Where its curves move only for an attack (rising from F_B or v_B = 0) before that stretch and a stop
+        (falling to 0) after it: what a held note's windows lock to (music.engine_tuning.sounding_for), as a
+        score's note locks to its sustain.
+
+        Returns
+        -------
+        Scene or None
+            The held scene; the scene itself where its bow holds still; None for a gesture (a bow that moves
+            otherwise, or holds for less than HELD_SHARE of the note) or a moving pitch.
+
+        Examples
+        --------
+        >>> attack = Scene(fb=[[0, 0], [0.05, 100]], vb=[[0, 0], [0.05, 0.2]], duration=0.5)
+        >>> attack.held_bow().describe()
+        'fb=100 f0=100 vb=0.2 a=100'
+        >>> Scene(fb=[[0, 50], [0.5, 200]], duration=0.5).held_bow() is None
+        True
+        """
         if self.pitch_varies:
             return None
         if not self.varying:
@@ -193,15 +251,34 @@ class Scene:
         return self.replace(fb=float(fb[a]), vb=float(vb[a])) if attack and stop else None
 
     def replace(self, **changes) -> "Scene":
+        """A copy with `changes` (fields by name) applied and checked again.
+
+        Examples
+        --------
+        >>> Scene().replace(f0=220.0).f0
+        220.0
+        """
         return dataclasses.replace(self, **changes)
 
     def after(self, t0: float, **changes) -> "Scene":
-        """The rest of the scene from t0 s on (its curves shifted so that t0 is 0), with `changes` applied."""
+        """The rest of the scene from t0 s on (its curves shifted so that t0 is 0), with `changes` applied.
+
+        Examples
+        --------
+        >>> Scene(fb=[[0, 50], [0.5, 200]], duration=0.5).after(0.25, duration=0.25).describe()
+        'fb=125@0,200@0.25 f0=100 vb=0.2 a=100'
+        """
         return self.replace(fb=controls.after(self.fb, t0), vb=controls.after(self.vb, t0),
                             f0=controls.after(self.f0, t0), **changes)
 
     def to_dict(self) -> dict:
-        """Plain data (curves as lists of [t, value]): for JSON, TOML and WAV metadata."""
+        """Plain data (curves as lists of [t, value]): for JSON, TOML and WAV metadata; `from_dict` reads it back.
+
+        Examples
+        --------
+        >>> Scene(fb=[[0, 50], [0.5, 200]], duration=0.5).to_dict()["fb"]
+        [[0.0, 50.0], [0.5, 200.0]]
+        """
         return {f.name: (v.to_list() if isinstance(v, Curve) else v)
                 for f in dataclasses.fields(self) for v in [getattr(self, f.name)]}
 
@@ -212,6 +289,27 @@ class Scene:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Scene":
+        """A Scene from plain data (what `to_dict` writes, or a subset of the fields).
+
+        Parameters
+        ----------
+        d : dict
+            Field names to values (curves as lists of [t, value]).
+
+        Returns
+        -------
+        Scene
+
+        Raises
+        ------
+        SceneError
+            An unknown field, or a value the constructor refuses.
+
+        Examples
+        --------
+        >>> Scene.from_dict({"f0": 220.0, "fb": [[0, 50], [1, 200]]}) == Scene(f0=220.0, fb=[[0, 50], [1, 200]])
+        True
+        """
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(d) - names
         if unknown:
@@ -220,11 +318,43 @@ class Scene:
 
 
 def list_presets() -> list[str]:
+    """The shipped presets' names (bowsynth/presets/*.toml), sorted.
+
+    Examples
+    --------
+    >>> "paper-fb100" in list_presets()
+    True
+    """
     return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
 
 
 def load_preset(name: str) -> dict:
-    """The scene fields a preset sets (a dict, so CLI flags can override them before validation)."""
+    """The scene fields a preset sets (a dict, so CLI flags can override them before validation).
+
+    Parameters
+    ----------
+    name : str
+        A preset's name (`list_presets`), never a path.
+
+    Returns
+    -------
+    dict
+        Its fields, without its description; a preset may give pitch and beta instead of f0 and fb
+        (`bowsynth.music.request.make_scene` reads those).
+
+    Raises
+    ------
+    UsageError
+        An unknown preset.
+
+    Examples
+    --------
+    >>> fields = load_preset("paper-fb100")
+    >>> fields
+    {'f0': 100.0, 'fb': 100.0, 'vb': 0.2, 'a': 100.0, 'duration': 1.0}
+    >>> Scene(**{**fields, "duration": 0.2}).n_samples
+    8820
+    """
     path = PRESET_DIR / f"{name}.toml"
     # a preset is a name, never a path: "../x" or "./bad.toml" must not reach a file outside the presets
     if not isinstance(name, str) or name not in list_presets() or not path.is_file():
@@ -236,6 +366,13 @@ def load_preset(name: str) -> dict:
 
 
 def preset_description(name: str) -> str:
+    """The one-line description a preset's file gives (empty where it has none).
+
+    Examples
+    --------
+    >>> preset_description("paper-fb100")
+    "The DAFx25 paper's F_B = 100 case (f0 100 Hz, v_B 0.2 m/s, a 100)"
+    """
     with (PRESET_DIR / f"{name}.toml").open("rb") as fh:
         return tomllib.load(fh).get("description", "")
 

@@ -1,35 +1,5 @@
-"""The streaming engine: MIDI events in, blocks of audio out, the same notes `bowsynth score` renders from a MIDI file.
-
-    from bowsynth.live import Stream
-    s = Stream(sample_rate=44100, block=512, voices=16)        # everything prepared here (seconds)
-    out = s.process(512, [(0, b"\\x90\\x45\\x40"), (300, b"\\x80\\x45\\x00")])   # float32 view, 512 samples
-
-A note is what `score` makes of a MIDI note (`music.score.load_midi_score`): its bow from the velocity and the channel's
-CC2 / CC11 at the note-on (`midi.bow_beta`, `midi.bow_vb`, the one mapping), tuned with the truth's sounding ratio,
-its sustain rolled out by the operator from rest starting at the note-on's frame, window after window exactly as
-offline (window w at the sample nearest w T from the note's start), and at the note-off's frame the bow stop
-(v_B -> 0 over `release` s) and tail by the FDM from the sustain's state there. So each live note is the offline note
-sample for sample (up to float32 rounding: offline may run the numpy loop), and the output is their sum times `amp`
-through a causal DC blocker (offline removes the DC with a zero-phase filter over the whole file).
-
-Real time: `__init__` loads the model, evaluates the trunk on a fine grid, measures or reads every velocity's sounding
-ratio and allocates every buffer; `process` then creates no numpy array, imports nothing and loads nothing: per event
-it writes a few numbers into a voice's slot and builds the voice's window basis by interpolation in place, and
-renders with the compiled core's voice loop (`_core.Voices`, src/core/voices.cpp; the slots:
-`engines.operator.bank.VoiceBank`), which releases the GIL.
-
-What differs from offline, by design:
-- a controller changed while a note sounds acts on the notes struck after it (the file reader follows it within the
-  note, with a 5 ms ramp, and tunes the note at the bow's median over the note, which a live note cannot know);
-- a note struck with CC2 / CC11 away from neutral is tuned with a ratio interpolated on a grid of measured bows
-  (the 127 velocities at neutral controllers are measured exactly before activation);
-- a note the model does not cover (its bow outside the model's box, its pitch too high for one sample per window) is
-  played whole by the FDM, as `score --fallback fdm` does;
-- with every voice busy a new note takes the voice nearest its end (releasing first, then the oldest): `stolen`;
-- note-ons beyond what the block's time allows (`busy_fraction` of the period spent) wait for the next block and start
-  at its first frame, in order (`deferred`, `max_defer` frames late); past PENDING waiting they are dropped and
-  counted, so a flood of 10,000 notes a second keeps the engine on time; malformed MIDI bytes are dropped, counted.
-"""
+"""The streaming engine (`Stream`): MIDI events in, blocks of audio out, the same notes `bowsynth score` renders
+from a MIDI file; what `bowsynth play` runs inside its JACK client (`bowsynth.live.jack_client`)."""
 
 from __future__ import annotations
 
@@ -55,8 +25,82 @@ PENDING = 64  # note-ons waiting for time (a 64-key chord; a flood beyond it is 
 
 
 class Stream(VoiceBank):
-    """Events in, blocks out; see the module docstring. engine: 'operator' or 'fdm'. model: a model, path or name
-    (default: the validated model covering the most velocities). release: the bow stop's length (s)."""
+    """MIDI events in, blocks of audio out: the notes `bowsynth score` makes of a MIDI file, played live.
+
+    A note is what `score` makes of a MIDI note (`music.score.load_midi_score`): its bow from the velocity and the
+    channel's CC2 / CC11 at the note-on (`midi.bow_beta`, `midi.bow_vb`, the one mapping), tuned with the truth's
+    sounding ratio, its sustain rolled out by the operator from rest starting at the note-on's frame, window after
+    window exactly as offline (window w at the sample nearest w T from the note's start), and at the note-off's
+    frame the bow stop (v_B -> 0 over `release` s) and tail by the FDM from the sustain's state there. So each live
+    note is the offline note sample for sample (up to float32 rounding: offline may run the numpy loop), and the
+    output is their sum times `amp` through a causal DC blocker (offline removes the DC with a zero-phase filter
+    over the whole file).
+
+    Real time: `__init__` loads the model, evaluates the trunk on a fine grid, measures or reads every velocity's
+    sounding ratio and allocates every buffer (seconds); `process` then creates no numpy array, imports nothing and
+    loads nothing: per event it writes a few numbers into a voice's slot and builds the voice's window basis by
+    interpolation in place, and renders with the compiled core's voice loop (`_core.Voices`, src/core/voices.cpp;
+    the slots: `engines.operator.bank.VoiceBank`), which releases the GIL.
+
+    Parameters
+    ----------
+    sample_rate : int
+        Hz.
+    block : int
+        The most frames one `process` call renders.
+    voices : int
+        Notes that sound at once.
+    engine : {'operator', 'fdm'}
+        Who plays the sustains.
+    model : OperatorModel, path or str, optional
+        The operator's model (default: the validated model covering the most velocities).
+    a4 : float
+        Hz, the tuning of MIDI note numbers.
+    release : float, optional
+        The bow stop's length (s; default `music.note.RELEASE`).
+    amp : float
+        The output is amp x the sum of the notes' q = w u (m/s).
+    busy_fraction : float
+        The share of a block's period that note-ons may take before the rest wait for the next block.
+    dc_hz : float
+        The DC blocker's corner (Hz).
+    bend_range : float
+        Semitones of the pitch wheel, 0..24.
+    windows : {'free', 'locked', 'physics', 'auto'}, optional
+        The operator's windows (None: `music.engine_tuning.LIVE_WINDOWS`, free); locked: a note held at its pitch
+        in windows locked to it, as `score` renders it.
+
+    Raises
+    ------
+    UsageError
+        A bad voice count, engine, block, bend range or windows.
+
+    Notes
+    -----
+    What differs from offline, by design:
+
+    - a controller changed while a note sounds acts on the notes struck after it (the file reader follows it within
+      the note, with a 5 ms ramp, and tunes the note at the bow's median over the note, which a live note cannot
+      know);
+    - a note struck with CC2 / CC11 away from neutral is tuned with a ratio interpolated on a grid of measured bows
+      (the 127 velocities at neutral controllers are measured exactly before activation);
+    - a note the model does not cover (its bow outside the model's box, its pitch too high for one sample per
+      window) is played whole by the FDM, as `score --fallback fdm` does;
+    - with every voice busy a new note takes the voice nearest its end (releasing first, then the oldest): `stolen`;
+    - note-ons beyond what the block's time allows (`busy_fraction` of the period spent) wait for the next block and
+      start at its first frame, in order (`deferred`, `max_defer` frames late); past PENDING waiting they are
+      dropped and counted, so a flood of 10,000 notes a second keeps the engine on time; malformed MIDI bytes are
+      dropped, counted.
+
+    Examples
+    --------
+    >>> from bowsynth.live import Stream
+    >>> s = Stream(engine="fdm", voices=2, block=256)  # everything prepared here
+    >>> on, off = bytes((0x90, 69, 64)), bytes((0x80, 69, 0))  # A4 at velocity 64, then its release
+    >>> out = s.process(256, [(0, on), (200, off)])
+    >>> out.dtype, out.shape, s.counts["notes"], s.frame
+    (dtype('float32'), (256,), 1, 256)
+    """
 
     def __init__(self, sample_rate: int = 44100, block: int = 512, voices: int = 16, engine: str = "operator",
                  model=None, a4: float = 440.0, release: float | None = None, amp: float = AMP,
@@ -160,7 +204,16 @@ class Stream(VoiceBank):
         self.reset()
 
     def reset(self) -> None:
-        """Silence: every voice freed, controllers neutral, counters and timings cleared, time back to frame 0."""
+        """Silence: every voice freed, controllers neutral, counters and timings cleared, time back to frame 0.
+
+        Examples
+        --------
+        >>> s = Stream(engine="fdm", voices=1, block=64)
+        >>> _ = s.process(64, [(0, bytes((0x90, 60, 100)))])
+        >>> s.reset()
+        >>> s.frame, s.counts["notes"], len(s.callback_times())
+        (0, 0, 0)
+        """
         self.mode[:] = V.FREE
         self.end[:] = -1
         self.key[:] = -1
@@ -180,8 +233,29 @@ class Stream(VoiceBank):
     # --- the audio side ---------------------------------------------------------------------------------------
 
     def process(self, n: int, events=()) -> np.ndarray:
-        """Render the next n frames (n <= block) with `events`, (frame offset in this block, MIDI bytes) in time
-        order, applied at their frames. Returns a float32 view of the output (valid until the next call)."""
+        """Render the next n frames with `events` applied at their frames.
+
+        Parameters
+        ----------
+        n : int
+            Frames, at most `block`.
+        events : iterable of (int, bytes)
+            (frame offset in this block, MIDI bytes), in time order: note on / off, CC 2 / 11 (the bow), CC 1
+            (vibrato), the pitch wheel, CC 120 / 123 (the channel's notes released); system messages are ignored
+            and malformed ones dropped, each counted in `counts`.
+
+        Returns
+        -------
+        numpy.ndarray
+            A float32 view of the output, n samples (valid until the next call).
+
+        Examples
+        --------
+        >>> s = Stream(engine="fdm", voices=2, block=128)
+        >>> _ = s.process(128, [(0, b"\\xf8"), (1, b"\\x90\\x45")])  # a clock tick; a note-on one byte short
+        >>> s.counts["ignored"], s.counts["dropped_bytes"]
+        (1, 1)
+        """
         t0 = time.perf_counter()
         self._busy_until = t0 + self.busy_fraction * n / self.sample_rate
         mix = self.mix
@@ -379,6 +453,6 @@ class Stream(VoiceBank):
     # --- what it did ------------------------------------------------------------------------------------------
 
     def callback_times(self) -> np.ndarray:
-        """The durations (s) of the last process() calls."""
+        """The durations (s) of the last process() calls (up to TIMES of them), a copy."""
         return self.times[:min(self.n_times, TIMES)].copy()
 

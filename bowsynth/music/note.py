@@ -24,7 +24,27 @@ def stop_tail(fb: float, f0: float, a: float) -> float:
 
     On a stopped bow the friction is a damper of rate c = F_B phi'(0): the mass rings down at c / 2 when c < 2w;
     above that it creeps back to rest at the slow root (c - sqrt(c^2 - 4 w^2)) / 2 (a pressed bow holds the mass
-    aside: measured at F_B / w 0.64, C2, 19 % of the peak was left 30 ms after the stop)."""
+    aside: measured at F_B / w 0.64, C2, 19 % of the peak was left 30 ms after the stop).
+
+    Parameters
+    ----------
+    fb : float
+        The bow force at the stop (m/s^2).
+    f0 : float
+        Hz.
+    a : float
+        The friction shape (s^2/m^2).
+
+    Returns
+    -------
+    float
+        Seconds, from TAIL to MAX_TAIL (MAX_TAIL where no friction damps the mass).
+
+    Examples
+    --------
+    >>> round(stop_tail(100.0, 100.0, 100.0), 4), stop_tail(0.0, 100.0, 100.0)
+    (0.0544, 2.0)
+    """
     c = fb * physics.dphi(0.0, a)
     if c <= 0:
         return MAX_TAIL
@@ -35,10 +55,41 @@ def stop_tail(fb: float, f0: float, a: float) -> float:
 
 @dataclass
 class Note:
-    """One note: its own bowed mass from rest, starting `start` s into the piece.
+    """One note: its own bowed mass from rest, starting `start` s into the piece (what a score is made of).
 
-    `scene` is the whole note (its sustain of `hold` s, then the bow stop of `release` s and the tail); `name` is
-    its voice. `pitch` is the asked pitch in Hz (None for a note given by f0)."""
+    A voice is a name for a group of notes (one stem), and its notes may overlap. The end of a note is a physical
+    bow stop: v_B falls linearly to 0 over `release` seconds, the friction (its slope is positive below
+    v_B = 1/sqrt(2a)) damps the mass, and the render stops TAIL s later (`stop_tail`). A note's sustain is rendered
+    by the chosen engine; its release by a model whose box reaches v_B = 0 where one covers it, else by the FDM,
+    from the sustain's state at the hold (`perform.finish_releases`). `bowsynth.music.score` reads notes from TOML
+    scores and MIDI files.
+
+    Parameters
+    ----------
+    name : str
+        Its voice.
+    scene : Scene
+        The whole note: its sustain of `hold` s, then the bow stop of `release` s and the tail.
+    start : float
+        Seconds into the piece.
+    hold : float, optional
+        Seconds of bowing before the release (default: the scene's duration).
+    release : float
+        Seconds of the bow stop.
+    pitch : float, optional
+        The asked pitch in Hz (None for a note given by f0).
+    label : str
+        What messages call it (`describe`; default its voice's name).
+    extra : dict
+        What the reader adds (a MIDI note's number and velocity).
+
+    Examples
+    --------
+    >>> from bowsynth.scene import Scene
+    >>> n = Note("solo", Scene(duration=0.5), start=1.0)
+    >>> n.hold, n.end, n.gesture, n.describe()
+    (0.5, 1.5, False, 'solo')
+    """
 
     name: str
     scene: Scene
@@ -55,6 +106,7 @@ class Note:
 
     @property
     def end(self) -> float:
+        """Seconds into the piece where its render (tail included) ends."""
         return self.start + self.scene.duration
 
     @property
@@ -72,6 +124,7 @@ class Note:
 
     @property
     def hold_samples(self) -> int:
+        """Samples of the sustain: hold x the sample rate, rounded."""
         return int(round(self.hold * self.scene.sample_rate))
 
     def rollout_scene(self) -> Scene:
@@ -81,6 +134,7 @@ class Note:
         return self.sustain_scene(self.scene.n_samples - self.hold_samples if self.release > 0 else 0)
 
     def describe(self) -> str:
+        """What messages call the note: its label, else its voice."""
         return self.label or self.name
 
 

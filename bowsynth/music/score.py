@@ -1,29 +1,6 @@
-"""Scores: notes in time, from a TOML score (docs/score.md), a MIDI file (`bowsynth.music.midi`) or a list of presets,
-rendered in one batched rollout and mixed with each note at its start.
-
-    # score.toml (docs/score.md has the whole format)
-    a4 = 440.0
-    [defaults]
-    beta = 0.15915494     # F_B / w, so one model plays every pitch (or fb = 100.0, a fixed force)
-    vb = 0.2
-    release = 0.05        # the bow slows to a stop over 50 ms after each note's duration
-    [[voice]]
-    name = "melody"
-    [[voice.note]]
-    start = 0.0
-    duration = 0.5
-    pitch = "A4"
-    [[voice.note]]
-    start = 0.5
-    duration = 1.0
-    pitch = "C#5"
-    vb = [[0.0, 0.15], [0.8, 0.25]]   # a gesture: times from the note's start
-
-A note is its own bowed mass from rest; a voice is a name for a group of notes (one stem), and its notes may
-overlap. The end of a note is a physical bow stop: v_B falls linearly to 0 over `release` seconds, the friction
-(its slope is positive below v_B = 1/sqrt(2a)) damps the mass, and the render stops TAIL s later. A note's sustain
-is rendered by the chosen engine; its release by a model whose box reaches v_B = 0 where one covers it, else by the
-FDM, from the sustain's state at the hold (`perform.finish_releases`).
+"""Scores: notes in time (`Note`s), read from a TOML score (docs/score.md), a MIDI file (`bowsynth.music.midi`) or a
+list of presets, for `bowsynth score` to render in one batched rollout and mix with each note at its start.
+`load_score` reads either kind of file.
 """
 
 from __future__ import annotations
@@ -50,7 +27,15 @@ EXCLUSIVE = (("pitch", "f0"), ("fb", "beta"))
 
 
 class ScoreError(UsageError):
-    """A score (TOML or MIDI) that cannot be played as written."""
+    """A score (TOML or MIDI) that cannot be played as written (a UsageError: CLI exit code 2).
+
+    Examples
+    --------
+    >>> load_score("no-such-score.toml")
+    Traceback (most recent call last):
+    ...
+    bowsynth.music.score.ScoreError: score file no-such-score.toml not found
+    """
 
 
 def _num(where: str, key: str, v, lo=None, hi=None) -> float:
@@ -110,9 +95,37 @@ def _merge(*layers: dict) -> dict:
 
 
 def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, label: str = "", ratio_for=None) -> Note:
-    """A Note from merged score fields (start, duration, pitch or f0, fb or beta, vb, a, release, ...). A pitch is
-    tuned with ratio_for(scene)'s sounding ratio (the engine that will play it: `engine_tuning.ratio_for_engine`), else the
-    truth's."""
+    """A Note from merged score fields (start, duration, pitch or f0, fb or beta, vb, a, release, ...).
+
+    Parameters
+    ----------
+    name : str
+        The note's voice.
+    fields : dict
+        The note's fields, its defaults and voice merged (a score's keys: docs/score.md).
+    where, label : str
+        Where the note is, and what it is called (default `where`), for messages.
+    a4 : float
+        Hz, the tuning of note names.
+    ratio_for : callable, optional
+        ratio_for(scene): the sounding ratio of the engine that will play it (`engine_tuning.ratio_for_engine`),
+        which a pitch is tuned with; else the truth's.
+
+    Returns
+    -------
+    Note
+
+    Raises
+    ------
+    ScoreError
+        A field outside its range.
+
+    Examples
+    --------
+    >>> n = note_from_fields("solo", {"pitch": "A3", "duration": 0.2, "beta": 0.15915494}, "solo")
+    >>> n.pitch, n.hold, n.release
+    (220.0, 0.2, 0.05)
+    """
     from . import tuning as P
     from .notes import parse_pitch
 
@@ -179,6 +192,8 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
 
 
 def load_toml_score(path, ratio_for=None) -> list[Note]:
+    """The notes of a TOML score, in the order written; see `load_score` (which reads this and MIDI files) for the
+    format, and `note_from_fields` for `ratio_for`."""
     p = Path(path)
     regular_file(p, "score file", "a score file", ScoreError)
     try:
@@ -233,8 +248,14 @@ def load_toml_score(path, ratio_for=None) -> list[Note]:
 
 
 class ScoreNotes(list):
-    """A score's notes, and what the reader changed or dropped on the way (`remarks`, one line each, for the user:
-    `score` prints them before it renders)."""
+    """A score's notes (a list of `Note`), and what the reader changed or dropped on the way (`remarks`, one line
+    each, for the user: `score` prints them before it renders).
+
+    Examples
+    --------
+    >>> ScoreNotes([], ["a note-off with no note-on was dropped"]).remarks
+    ['a note-off with no note-on was dropped']
+    """
 
     def __init__(self, notes=(), remarks=()):
         super().__init__(notes)
@@ -242,7 +263,36 @@ class ScoreNotes(list):
 
 
 def load_midi_score(path, a4: float = 440.0, ratio_for=None, bend_range: float | None = None) -> ScoreNotes:
-    """The notes of a MIDI file with the bow of `bowsynth.music.midi`'s mapping; a track's channel is a voice."""
+    """The notes of a MIDI file with the bow of `bowsynth.music.midi`'s mapping; a track's channel is a voice.
+
+    Parameters
+    ----------
+    path : str or Path
+        A standard MIDI file.
+    a4, ratio_for
+        As `note_from_fields` takes them.
+    bend_range : float, optional
+        Semitones of the pitch wheel (default `bowsynth.music.midi.BEND_RANGE`).
+
+    Returns
+    -------
+    ScoreNotes
+        Each note with `extra` {'midi_note', 'velocity'}, and the reader's `remarks`.
+
+    Raises
+    ------
+    ScoreError
+        A note outside C0..B8, or a file that is not MIDI.
+
+    Examples
+    --------
+    >>> import mido
+    >>> a4 = [mido.Message("note_on", note=69, velocity=64), mido.Message("note_off", note=69, time=240)]
+    >>> mido.MidiFile(tracks=[a4]).save("a4.mid")
+    >>> notes = load_midi_score("a4.mid")
+    >>> [(n.name, n.pitch, n.hold, n.extra["velocity"]) for n in notes], notes.remarks
+    ([('ch1', 440.0, 0.25, 64)], [])
+    """
     from . import midi as M
     from .midi import read_midi
 
@@ -278,7 +328,53 @@ def _midi_control(piece, n, cc, bow):
 
 def load_score(path, a4: float | None = None, ratio_for=None, bend_range: float | None = None) -> list[Note]:
     """The notes of a TOML score or a MIDI file (told apart by content and name), each pitch tuned for the engine
-    ratio_for(scene) names (see note_from_fields)."""
+    ratio_for(scene) names (see note_from_fields). What a note is: `bowsynth.music.note.Note`.
+
+    Parameters
+    ----------
+    path : str or Path
+        A TOML score (docs/score.md has the whole format) or a MIDI file (`load_midi_score`).
+    a4 : float, optional
+        Hz: retunes a MIDI file (default 440); a TOML score sets its own with a top-level a4 = ...
+    ratio_for : callable, optional
+        As `note_from_fields` takes it.
+    bend_range : float, optional
+        A MIDI file's pitch wheel range, semitones; a TOML score writes its pitch curves.
+
+    Returns
+    -------
+    list of Note
+        In the order written (a MIDI file's: a `ScoreNotes`, with its remarks).
+
+    Raises
+    ------
+    ScoreError
+        A file that cannot be read or played as written (`load_score("no-such-score.toml")`), or a4 / bend_range
+        given for a TOML score.
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> _ = Path("score.toml").write_text('''a4 = 440.0
+    ... [defaults]
+    ... beta = 0.15915494     # F_B / w, so one model plays every pitch (or fb = 100.0, a fixed force)
+    ... vb = 0.2
+    ... release = 0.05        # the bow slows to a stop over 50 ms after each note's duration
+    ... [[voice]]
+    ... name = "melody"
+    ... [[voice.note]]
+    ... start = 0.0
+    ... duration = 0.5
+    ... pitch = "A4"
+    ... [[voice.note]]
+    ... start = 0.5
+    ... duration = 1.0
+    ... pitch = "C#5"
+    ... vb = [[0.0, 0.15], [0.8, 0.25]]   # a gesture: times from the note's start
+    ... ''')
+    >>> [(n.label, n.start, n.hold, round(n.pitch, 2), n.gesture) for n in load_score("score.toml")]
+    [('melody #1', 0.0, 0.5, 440.0, False), ('melody #2', 0.5, 1.0, 554.37, True)]
+    """
     from .midi import is_midi
     from .notes import A4_HZ, check_a4
 
@@ -292,6 +388,24 @@ def load_score(path, a4: float | None = None, ratio_for=None, bend_range: float 
 
 
 def voices_from_presets(names: list[str], **overrides) -> list[Note]:
+    """One note per preset, each its own voice from 0 s (a preset listed twice is two voices: name, name-2, ...).
+
+    Parameters
+    ----------
+    names : list of str
+        Preset names (`bowsynth.scene.list_presets`).
+    **overrides
+        `bowsynth.music.request.make_scene`'s keywords for every note (pitch=, duration=, ...).
+
+    Returns
+    -------
+    list of Note
+
+    Examples
+    --------
+    >>> [(n.name, n.scene.duration) for n in voices_from_presets(["paper-fb100", "paper-fb100"], duration=0.2)]
+    [('paper-fb100', 0.2), ('paper-fb100-2', 0.2)]
+    """
     from ..music.request import make_scene
 
     seen: dict[str, int] = {}
