@@ -13,7 +13,7 @@ import warnings
 from pathlib import Path
 
 from bowsynth import BowsynthError, Scene
-from bowsynth.analysis.metrics import frame_errors
+from bowsynth.metrics import frame_errors
 from bowsynth.api import render
 
 

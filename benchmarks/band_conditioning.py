@@ -49,7 +49,7 @@ def model_row(path: str, f0: float, beta: float, vb: float) -> dict:
     import torch
 
     from bowsynth import Scene
-    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.metrics import listener_errors
     from bowsynth.api import render
     from bowsynth.engines.fdm import render_fdm
     from bowsynth.engines.operator.modelfile import load_model

@@ -15,7 +15,7 @@ import argparse
 
 import numpy as np
 
-from bowsynth.analysis.metrics import listener_errors
+from bowsynth.metrics import listener_errors
 from bowsynth.engines import render
 from bowsynth.engines.fdm import TRUTH_OVERSAMPLE
 from bowsynth.scene import Scene

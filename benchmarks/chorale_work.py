@@ -42,7 +42,7 @@ def main() -> None:
     def counted(model, x0, n_samples, dtau, *a, **k):
         out = real(model, x0, n_samples, dtau, *a, **k)
         B = np.asarray(x0).reshape(-1, 2).shape[0]
-        T = rollout._operator(model).window
+        T = rollout.numpy_operator(model).window
         win = np.broadcast_to(np.asarray(T if k.get("window") is None else k["window"], float), (B,))
         spw = win / np.broadcast_to(np.asarray(dtau, float), (B,))
         c = counts[model.path.stem if model.path else model.meta.name]

@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 
 from bowsynth import BowsynthError, Scene
-from bowsynth.analysis.metrics import frame_errors, listener_errors, nmse, note_sounds, onset_limit_ms
+from bowsynth.metrics import frame_errors, listener_errors, nmse, note_sounds, onset_limit_ms
 from bowsynth.api import render
 
 REGIONS = {  # (F_B / w lo, hi), (v_B lo, hi): the soft-bow and stick-slip spaces

@@ -72,7 +72,7 @@ class Server:
 
 def jack_melody() -> None:
     import test_live as T
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
     from bowsynth.music.notes import midi_to_hz
 
     srv = Server()
@@ -145,7 +145,7 @@ def curves(model: str = MODEL) -> None:
     same curve: per 100 ms frame the pitch (zero crossings) and harmonics 1-6 (each frame's FFT peaks)."""
     from bowsynth import Scene
     from bowsynth.engines.fdm import render_fdm
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
     from bowsynth.engines.operator.engine import render_operator
 
     beta, vb, f0 = 0.1591549, 0.2, 220.0 / 0.9131957277611572  # A3 tuned with the bow's sounding ratio
@@ -177,7 +177,7 @@ def curves(model: str = MODEL) -> None:
 def _harm_db(x, y, n=6):
     """Max |dB| difference of harmonics 1..n (each relative to its signal's fundamental) between two frames, from
     Hann-windowed FFT peaks around multiples of y's pitch."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
 
     f = f0_estimate(y, RATE, tail=1.0)
     nfft = 1 << 16

@@ -12,7 +12,7 @@ import sys
 import warnings
 
 from bowsynth import Scene
-from bowsynth.analysis.metrics import listener_errors
+from bowsynth.metrics import listener_errors
 from bowsynth.api import render
 from bowsynth.engines import render as engine_render
 from bowsynth.engines.operator.windows import Lock

@@ -16,7 +16,7 @@ import argparse
 
 import numpy as np
 
-from bowsynth.analysis.metrics import f0_estimate, harmonic_levels
+from bowsynth.metrics import f0_estimate, harmonic_levels
 from bowsynth.engines import render
 from bowsynth.scene import Scene
 

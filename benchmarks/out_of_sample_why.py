@@ -8,7 +8,7 @@ import numpy as np
 from scipy import signal as sps
 
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth.analysis.metrics import nmse
+from bowsynth.metrics import nmse
 from bowsynth.engines.fdm import TRUTH_OVERSAMPLE
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 

@@ -25,7 +25,7 @@ PITCHES = (50, 100, 200, 400, 800)
 def on_grid(m, sc):
     """The check's error on the scene's own samples: the first two windows of its render against RK4 there."""
     dtau = sc.omega / sc.sample_rate
-    n = int(R.CHECK_WINDOWS * R._operator(m).window / dtau)
+    n = int(R.CHECK_WINDOWS * R.numpy_operator(m).window / dtau)
     q, p, _ = R.rollout_states(m, [[sc.q0, sc.p0]], n, dtau, check_domain=False, loop="numpy")
     d = m.domain
     rq, rp = R.reference_tau(sc.q0, sc.p0, d.beta, d.vb, d.a, dtau, n)

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ranges import REF, gesture  # noqa: E402
 
 from bowsynth import Scene  # noqa: E402
-from bowsynth.analysis.metrics import cents, f0_estimate, nmse  # noqa: E402
+from bowsynth.metrics import cents, f0_estimate, nmse  # noqa: E402
 from bowsynth.engines.fdm import render_fdm  # noqa: E402
 from bowsynth.engines.operator.engine import render_operator  # noqa: E402
 from bowsynth.engines.operator.modelfile import load_model  # noqa: E402

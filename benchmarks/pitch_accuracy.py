@@ -17,7 +17,7 @@ import time
 
 from bowsynth import Scene
 from bowsynth.api import render as api_render
-from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.metrics import cents, f0_estimate
 from bowsynth.engines import render
 from bowsynth.music.engine_tuning import ratio_for_engine
 from bowsynth.music.notes import note_name, parse_pitch

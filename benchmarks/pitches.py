@@ -10,7 +10,7 @@ samples; elsewhere windows of two lengths keep their starts on the multiples of 
 import math
 
 from bowsynth import Scene, render_fdm
-from bowsynth.analysis.metrics import nmse
+from bowsynth.metrics import nmse
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model

@@ -13,7 +13,7 @@ import math
 import warnings
 
 from bowsynth import Scene
-from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.metrics import cents, f0_estimate
 from bowsynth.api import render
 from bowsynth.music.tuning import sounding_ratio
 

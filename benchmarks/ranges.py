@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from bowsynth import Scene, render_fdm
-from bowsynth.analysis.metrics import nmse
+from bowsynth.metrics import nmse
 from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
 from bowsynth.controls import Curve
 from bowsynth.engines.operator.choose import SHIPPED_DIR
@@ -53,12 +53,12 @@ def step_curve(bows_per_window, starts, ends, sample_rate, scale=1.0):
 
 
 def gesture(m, name, fb, vb, f0=100.0, seconds=1.0):
-    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.basis import numpy_operator
     from bowsynth.engines.operator.windows import window_bounds
 
     sc = Scene(f0=f0, fb=fb, vb=vb, a=m.domain.a, duration=seconds)
     r = render_operator(sc, model=m, fallback="fdm")
-    spw = _operator(m).samples_per_window(sc.dtau)
+    spw = numpy_operator(m).samples_per_window(sc.dtau)
     bows = scene_bows(sc, spw)
     st, en = window_bounds(spw, sc.n_samples)
     applied = sc.replace(fb=step_curve(bows[:, 0], st, en, sc.sample_rate, sc.omega),

@@ -17,7 +17,7 @@ import argparse
 import numpy as np
 
 from bowsynth import Scene, render_fdm
-from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.metrics import cents, f0_estimate
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.onset import settled_seconds

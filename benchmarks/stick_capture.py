@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bowsynth.analysis.metrics import cycle_shape_error, listener_errors
+from bowsynth.metrics import cycle_shape_error, listener_errors
 from bowsynth.engines.fdm import TRUTH_OVERSAMPLE, fdm_steps_p
 from bowsynth.engines.operator.choose import as_model, find_model
 from bowsynth.engines.operator.engine import render_operator

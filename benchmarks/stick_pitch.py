@@ -17,7 +17,7 @@ import math
 import warnings
 
 from bowsynth import BowsynthError, Scene, load_model
-from bowsynth.analysis.metrics import listener_errors, nmse
+from bowsynth.metrics import listener_errors, nmse
 from bowsynth.api import model_path, render_fdm, render_operator
 from bowsynth.engines.operator import engine
 

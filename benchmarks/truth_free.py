@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(__file__))
 
 from bowsynth import BowsynthError, Scene  # noqa: E402
-from bowsynth.analysis.metrics import listener_errors, nmse, note_sounds, onset_limit_ms  # noqa: E402
+from bowsynth.metrics import listener_errors, nmse, note_sounds, onset_limit_ms  # noqa: E402
 from bowsynth.api import render  # noqa: E402
 
 REF = 100
@@ -51,7 +51,7 @@ def no_reference():
 
     def boom(*a, **k):
         raise ReferenceRan("the reference ran during an operator render")
-    saved = [(C, "fdm_run"), (F, "run_fdm_raw"), (F, "render_fdm"), (F, "fdm_batch"), (T, "_measure_ratio")]
+    saved = [(C, "fdm_run"), (F, "run_fdm_raw"), (F, "render_fdm"), (F, "fdm_batch"), (T, "measure_ratio")]
     old = [getattr(m, n) for m, n in saved]
     for m, n in saved:
         setattr(m, n, boom)

@@ -14,9 +14,9 @@ import warnings
 import numpy as np
 
 from bowsynth import Scene
-from bowsynth.analysis.metrics import listener_errors
+from bowsynth.metrics import listener_errors
 from bowsynth.api import render
-from bowsynth.engines.operator.basis import _operator
+from bowsynth.engines.operator.basis import numpy_operator
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.modelfile import load_model
 
@@ -27,7 +27,7 @@ BOWS = [(103.6, 0.130, 0.166), (344.4, 0.183, 0.152), (509.8, 0.054, 0.141), (80
 def main() -> None:
     path = SHIPPED_DIR / "soft-range.safetensors"
     m32, m16 = load_model(path), load_model(path)
-    op = _operator(m16)  # the loops' float32 weights, converted once per model object: round this one's
+    op = numpy_operator(m16)  # the loops' float32 weights, converted once per model object: round this one's
     op.weights = tuple(np.ascontiguousarray(w.astype(np.float16).astype(np.float32)) if w.ndim >= 2 else w
                        for w in op.weights)
     print("| f0 (Hz) | F_B / w | v_B | float32: harmonics dB / cents / onset ms | float16 weights | max |difference| "

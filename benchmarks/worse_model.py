@@ -13,7 +13,7 @@ import sys
 import torch
 
 from bowsynth import Scene, load_model, render_fdm, render_operator
-from bowsynth.analysis.metrics import nmse
+from bowsynth.metrics import nmse
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 
 name, sigma, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]

@@ -21,7 +21,7 @@ import pytest
 
 import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
-from bowsynth.analysis.metrics import nmse
+from bowsynth.metrics import nmse
 
 MODELS = Path(os.environ.get("BOWSYNTH_TEST_MODELS") or Path(bowsynth.__file__).parent / "models")
 DURATION = 0.25
@@ -157,7 +157,7 @@ def test_soft_range_model_held_out_bows(case):
 
 
 def heard(model, sc: Scene) -> tuple[float, float]:
-    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.metrics import listener_errors
 
     e = listener_errors(render_operator(sc, model=model).p, render_fdm(sc, oversample=100).p, sc.sample_rate,
                         steady_seconds=0.5)

@@ -10,7 +10,7 @@ import pytest
 import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
 from bowsynth.analysis import out_of_sample as B
-from bowsynth.analysis.metrics import nmse
+from bowsynth.metrics import nmse
 from bowsynth.engines.fdm import TRUTH_OVERSAMPLE
 from bowsynth.report.bench_report import out_of_sample_tables
 
@@ -71,7 +71,7 @@ def test_bench_equal_quick_reports_the_operator_against_the_fdm(tmp_path, capsys
 
     from conftest import run_main
 
-    from bowsynth.analysis.metrics import as_accurate
+    from bowsynth.metrics import as_accurate
 
     code, so, err = run_main(["bench", "equal", "--quick", "--json", "--out", str(tmp_path / "eq")], capsys,
                              monkeypatch)

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, render_fdm, render_operator
-from bowsynth.analysis.metrics import frame_errors, listener_errors
+from bowsynth.metrics import frame_errors, listener_errors
 from bowsynth.controls import Curve, between
 from bowsynth.engines.operator.chain import EDGE, LOOKS_PER_PERIOD, MIN_SEGMENT, _depths, chain_plan
 from bowsynth.engines.operator.choose import available_models

@@ -38,7 +38,7 @@ def test_train_render_compare(tmp_path, monkeypatch, capsys):
     assert info.scene.fb == 100 and info.sample_rate == 44100
     # the file holds what the API renders (float32 samples scaled to their peak)
     from bowsynth import load_model, render_fdm, render_operator
-    from bowsynth.analysis.metrics import nmse
+    from bowsynth.metrics import nmse
     from bowsynth.io.audio import remove_dc
 
     assert info.dc_removed  # the default: the static offset is not sound

@@ -39,8 +39,8 @@ def test_a_gesture_is_compared_with_the_fdm_of_the_same_curves(tmp_path, capsys,
 
 
 def test_speed_at_equal_accuracy_names_the_cheapest_fdm_that_is_as_accurate(tmp_path, capsys, monkeypatch):
-    from bowsynth.analysis.metrics import EQUAL_OVERSAMPLES
-    from bowsynth.analysis.metrics import as_accurate
+    from bowsynth.metrics import EQUAL_OVERSAMPLES
+    from bowsynth.metrics import as_accurate
 
     # an FDM file is as accurate as itself: the audio-rate FDM matches it at once, and the ratio is its own time's
     out = tmp_path / "fdm.wav"
@@ -67,7 +67,7 @@ def test_speed_at_equal_accuracy_names_the_cheapest_fdm_that_is_as_accurate(tmp_
 
 
 def test_as_accurate_asks_every_error_and_skips_what_the_target_cannot_state():
-    from bowsynth.analysis.metrics import as_accurate
+    from bowsynth.metrics import as_accurate
 
     want = {"harm_db": 0.5, "cents": 0.2, "nmse": 1e-3}
     assert as_accurate({"harm_db": 0.5, "cents": 0.2, "nmse": 1e-3}, want)

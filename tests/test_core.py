@@ -304,18 +304,18 @@ def test_the_weights_in_panels_change_no_sample(tmp_path):
 
 def test_the_weights_and_bases_the_loops_read_start_on_64_byte_lines():
     """The compiled products load 8 or 16 floats along a weight row or a basis row: the operator's weights and every
-    row of a stack of window bases start on a 64-byte line (basis._lined), so that no load straddles two lines
+    row of a stack of window bases start on a 64-byte line (basis.lined), so that no load straddles two lines
     (where the arrays fell 16 or 48 bytes past one, 64 voices ran 2688-3287x by the process, 3602-3955x on lines).
     The values are the model's."""
-    from bowsynth.engines.operator.basis import _bases, _operator
+    from bowsynth.engines.operator.basis import window_bases, numpy_operator
 
     for name in ("paper-fb100", "soft-range"):
         m = load_model(SHIPPED_DIR / f"{name}.safetensors")
-        op = _operator(m)
+        op = numpy_operator(m)
         assert all(a.ctypes.data % 64 == 0 and a.flags.c_contiguous and a.dtype == np.float32 for a in op.weights)
         assert np.array_equal(op.weights[-2], m.weights["branch.out.weight"].T)
         dt = [2 * np.pi * f / 44100 for f in (97.0, 440.0, 880.0)]
-        spw, n_lo, Bq, Bp, endb, endlin = _bases(m, [(d, None) for d in dt])
+        spw, n_lo, Bq, Bp, endb, endlin = window_bases(m, [(d, None) for d in dt])
         assert Bq.shape[2] % 16 == 0 and Bq.shape[2] >= np.ceil(spw).max()
         for B in (Bq, Bp):
             assert B.ctypes.data % 64 == 0 and B.flags.c_contiguous

@@ -13,7 +13,7 @@ import pytest
 import bowsynth
 from bowsynth import Scene
 from bowsynth.analysis import error_map as E
-from bowsynth.analysis.metrics import listener_errors
+from bowsynth.metrics import listener_errors
 from bowsynth.api import render
 from bowsynth.report.error_map import table
 

@@ -60,7 +60,7 @@ def test_fit_writes_a_score_that_plays_the_target(held_target, browser):
     assert s.returncode == 0, s.stderr
     x, rate = sf.read(d / "fitted.wav")
     y, _ = sf.read(d / "t.wav")
-    from bowsynth.analysis.metrics import cents, f0_estimate
+    from bowsynth.metrics import cents, f0_estimate
 
     n = int(0.8 * rate)
     assert abs(cents(f0_estimate(x[:n], rate), f0_estimate(y[:n], rate))) < 2.0

@@ -193,11 +193,11 @@ def test_numpy_loop_stops_a_failing_voice_like_the_compiled_ones(tiny_model):
 
 def test_trunk_features_interpolated_for_many_pitches_match_the_network():
     from bowsynth.engines.operator import npnet
-    from bowsynth.engines.operator.basis import DIRECT_POINTS, _operator
+    from bowsynth.engines.operator.basis import DIRECT_POINTS, numpy_operator
     from bowsynth.engines.operator.choose import SHIPPED_DIR
 
     for name in ("paper-fb10", "paper-fb100", "paper-fb1000"):
-        op = _operator(load_model(SHIPPED_DIR / f"{name}.safetensors"))
+        op = numpy_operator(load_model(SHIPPED_DIR / f"{name}.safetensors"))
         f0 = 100 * 2 ** (np.arange(40) / 40)
         offsets = [np.arange(442 * 100 // int(f) + 2) * (2 * np.pi * f / 44100) / op.window for f in f0]
         assert sum(map(len, offsets)) > DIRECT_POINTS  # the interpolated path

@@ -14,13 +14,20 @@ import pytest
 
 PKG_DIR = Path(__file__).resolve().parents[1] / "bowsynth"
 
-# The stages, lowest first: a module may import its own stage or a lower one, never a higher one.
+# The stages, lowest first, as the data flows: a Scene and the physics (with what a listener hears of a signal, the
+# measures every later stage scores with) -> files in and out -> the engines -> the decisions a render makes from what
+# ships (model, windows, tuning) and the music built on them -> training -> analysis against the reference -> the
+# uses of it all (sound matching, live play) -> reports -> the Python API -> the CLI. A module may import its own
+# stage or a lower one, never a higher one.
 STAGES = [
     ("core", {"bowsynth", "bowsynth.errors", "bowsynth.physics", "bowsynth.controls", "bowsynth.scene",
-              "bowsynth.render", "bowsynth.compiled"}),
+              "bowsynth.render", "bowsynth.compiled", "bowsynth.metrics"}),
     ("io", {"bowsynth.io"}),
     ("engines", {"bowsynth.engines"}),
-    ("uses", {"bowsynth.music", "bowsynth.live", "bowsynth.analysis", "bowsynth.training", "bowsynth.fit"}),
+    ("decisions", {"bowsynth.music"}),
+    ("training", {"bowsynth.training"}),
+    ("analysis", {"bowsynth.analysis"}),
+    ("uses", {"bowsynth.live", "bowsynth.fit"}),
     ("report", {"bowsynth.report"}),
     ("api", {"bowsynth.api", "bowsynth.corpus"}),
     ("cli", {"bowsynth.cli", "bowsynth.__main__"}),
@@ -167,7 +174,7 @@ def test_top_level_is_short():
 def test_missing_numbers_are_written_one_way():
     import math
 
-    from bowsynth.text import jsonable, num
+    from bowsynth.io.text import jsonable, num
 
     assert num(None) == num(float("nan")) == num(math.inf) == "n/a"
     assert num(0.000123, ".2e") == "1.23e-04" and num(3.14159, "{:.3g}") == "3.14"
@@ -193,3 +200,16 @@ def test_played_is_typed_and_reads_as_before():
         assert type(q) is Played and q == p
         assert (q.engine, q.oversample, q.fdm_fallback, q.fdm_release) == (p.engine, p.oversample, p.fdm_fallback,
                                                                           p.fdm_release)
+
+
+def test_no_private_name_is_imported_from_another_module():
+    """What a module shares it names without a leading underscore; the compiled extension (_core) is the one
+    private module imported, by bowsynth.compiled alone."""
+    found = []
+    for mod, path in modules().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("bowsynth")):
+                found += [f"{mod}: from {'.' * node.level}{node.module or ''} import {a.name}" for a in node.names
+                          if a.name.startswith("_") and not a.name.startswith("__")
+                          and not (mod == "bowsynth.compiled" and a.name == "_core")]
+    assert not found, "\n".join(found)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from bowsynth import Scene, physics
-from bowsynth.analysis.metrics import harmonic_levels, listener_errors, onset_time
+from bowsynth.metrics import harmonic_levels, listener_errors, onset_time
 from bowsynth.engines.fdm import render_fdm
 
 SR = 44100
@@ -31,7 +31,7 @@ def test_the_harmonic_fit_without_a_design_matrix_is_the_least_squares_fit_with_
     """harmonic_amplitudes solves the normal equations from phasors and closed-form sums; the oracle is lstsq on
     the matrix of cosines and sines. Random pitches (also near Nyquist for harmonic 10), lengths, a DC offset, noise
     and a fitting pitch 0.1 % off the signal's."""
-    from bowsynth.analysis.metrics import harmonic_amplitudes
+    from bowsynth.metrics import harmonic_amplitudes
 
     rng = np.random.default_rng(seed)
     f0 = [40.0, 2150.0, 210.0, 1000.0, 77.7, 440.0][seed] * rng.uniform(0.99, 1.01)
@@ -71,7 +71,7 @@ def creep_and_slip(f0, ripple, seconds=1.0):
 def test_a_creeping_waveform_with_a_ripple_at_its_mean_keeps_its_pitch(ripple):
     """Such a render, its waveform on the truth's, would read 1281 cents sharp where the ripple crosses the mean two
     or three times a period if every crossing counted; a crossing counts only after a dip toward the trough."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
 
     x = creep_and_slip(10.7, ripple, seconds=2.0)
     assert f0_estimate(x, SR, tail=1.0) == pytest.approx(10.7, rel=2e-4)
@@ -84,7 +84,7 @@ def test_a_segment_cut_where_the_creep_crosses_its_mean_keeps_its_pitch_and_harm
     would drop the true one half a period later, reading the pitch 0.9 % low and the harmonics fitted there up to 36 dB
     low (and the model chosen by listening a model 12 dB off). Each end keeps the crossing on the grid of the
     others."""
-    from bowsynth.analysis.metrics import f0_estimate, harmonic_levels
+    from bowsynth.metrics import f0_estimate, harmonic_levels
 
     f0 = 16.8
     x = creep_and_slip(f0, 0.0, seconds=3.0)
@@ -101,7 +101,7 @@ def test_a_segment_cut_where_the_creep_crosses_its_mean_keeps_its_pitch_and_harm
 def test_a_growing_note_keeps_its_early_crossings():
     """A note that grows tenfold while it glides 100 -> 101 Hz: its crossings all count, the low ones included, so the
     estimate is the glide's mean (a threshold on the segment's deepest dip would read only its loud end, ~100.7)."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
 
     t = np.arange(SR) / SR
     x = 10 ** t * np.sin(2 * np.pi * (100 * t + 0.5 * t * t))
@@ -113,7 +113,7 @@ def test_a_second_harmonic_with_a_shallow_dip_does_not_halve_the_period(phase):
     """A second harmonic up to 0.9 of the fundamental adds a crossing a period at some phases, after a shallow dip:
     it does not count (an estimator that read every crossing would read 219.9 and 110.3 Hz there for 0.9 at phases
     0.4 and 2.5)."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
 
     t = np.arange(SR) / SR
     for second in (0.3, 0.6, 0.9):
@@ -140,7 +140,7 @@ def test_onset_is_where_the_tone_starts():
 def test_frame_errors_find_the_frame_whose_pitch_wanders_and_skip_the_silent_ones():
     """Per 100 ms frame, as a gesture is scored: a tone 5 cents sharp over 0.4-0.5 s reads 5 cents in that frame
     and none elsewhere; the frames where the reference is silent (its last 0.3 s) are not scored."""
-    from bowsynth.analysis.metrics import frame_errors
+    from bowsynth.metrics import frame_errors
 
     f0, t = 110.0, np.arange(int(1.5 * SR)) / SR
     ref = np.cos(2 * np.pi * f0 * t) * (t < 1.2)
@@ -282,7 +282,7 @@ def test_a_release_is_handed_over_at_the_hold_to_a_model_that_covers_the_bow_sto
 
 
 def test_the_cycle_shape_error_reads_the_shape_not_the_phase():
-    from bowsynth.analysis.metrics import cycle_shape_error
+    from bowsynth.metrics import cycle_shape_error
 
     sr, f = 44100, 97.0
     t = np.arange(2 * sr) / sr
@@ -300,7 +300,7 @@ def test_the_cycle_shape_error_reads_the_shape_not_the_phase():
 
 
 def test_the_cycle_shape_error_reads_a_phase_between_samples_on_a_finer_reference():
-    from bowsynth.analysis.metrics import cycle_shape_error
+    from bowsynth.metrics import cycle_shape_error
 
     sr, f, os_ = 8000, 97.0, 10
     fine = np.tanh(20 * np.sin(2 * np.pi * f * np.arange(os_ * sr) / (os_ * sr)))  # steep edges, like a slip's

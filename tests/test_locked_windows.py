@@ -85,7 +85,7 @@ def test_locked_windows_keep_the_error_off_the_lines_below_the_note():
     """velocity-soft, B3 from the chorale (f0 299 Hz sounding at 247 Hz): in free windows (the free period, 52 Hz
     from the note's) the network's error comes out in lines below the fundamental, 60 dB under its peak where the
     FDM has nothing above -120 dB (measured); locked, 20 dB lower. The pitch and the harmonics stay the note's."""
-    from bowsynth.analysis.metrics import f0_estimate, harmonic_levels
+    from bowsynth.metrics import f0_estimate, harmonic_levels
 
     sc = Scene(f0=299.1011833723276, fb=530.0139512674551, vb=0.2192929, duration=1.5)
     free = render(sc, model="velocity-soft", windows="free")
@@ -155,7 +155,7 @@ def test_windows_locked_to_the_physics_period_play_the_physical_pitch_at_the_ask
     period the note sounds 2.4 cents sharp of the physics (measured); locked to the physics' period, which the model
     holds, within a hundredth of a cent, its harmonics 1-10 within a dB of the own lock's (0.8 dB at the tenth, -34
     dB: measured)."""
-    from bowsynth.analysis.metrics import f0_estimate, harmonic_levels
+    from bowsynth.metrics import f0_estimate, harmonic_levels
     from bowsynth.music.tuning import sounding_ratio
 
     f0, beta, vb = 220.0, 1.324, 0.149
@@ -191,7 +191,7 @@ def test_physics_windows_hold_the_physical_pitch_over_30_s():
     """A long note: SLOW_1's centre bow, 30 s at 100 Hz. Its own cycle is 3.3 cents sharp of the physics
     (measured, free windows); in windows locked to the physics' period it is within a hundredth of a cent at 10 s and
     at 29 s, its amplitude within 1 % of the free render's."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
     from bowsynth.music.tuning import sounding_ratio
 
     beta, vb = 1.28, 0.12
@@ -213,7 +213,7 @@ def test_where_the_fewest_windows_do_not_hold_the_physics_period_one_more_does()
     its trained windows; 17 windows of 0.994 T leave its cycle at its own period, 5.3 cents sharp at 110 Hz
     (measured), 18 hold the physics' within 0.02 cent. lock_ratio takes the 18 (a Lock with more = 1) at the shipped
     map's period, and a physics render plays them."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
     from bowsynth.engines.operator.choose import as_model
     from bowsynth.music.model_ratio import LOCK_HOLDS_CENTS, lock_ratio, operator_ratio
     from bowsynth.music.ratio_map import physics_ratio
@@ -236,7 +236,7 @@ def test_a_slow_heavy_bow_holds_the_physics_period_in_two_windows_more():
     flat in free windows at 807 Hz, 1.65 / 0.54 cents in the fewest windows and one more (measured); two more hold the
     physics' period. lock_ratio takes them (LOCK_MORE), and the note plays within 0.1 cent of a x100 FDM in physics
     windows and in auto windows."""
-    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.metrics import listener_errors
     from bowsynth.engines.operator.choose import as_model
     from bowsynth.music.model_ratio import lock_ratio
     from bowsynth.music.ratio_map import physics_ratio
@@ -258,7 +258,7 @@ def test_a_note_with_a_bow_stop_locks_its_windows_to_the_bow_it_holds():
     its held bow. stick-stops at F_B / w 1.0, v_B 0.2, 220 Hz, in physics windows: within a hundredth of a cent of
     the physics while it holds (free windows: 1.3-1.5 cents flat, measured), then stopped as the free render is.
     Before, a bow that moved at all (to stop) rolled free."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
     from bowsynth.music.ratio_map import physics_ratio
 
     f0, beta, vb = 220.0, 1.0, 0.2
@@ -304,7 +304,7 @@ def test_auto_windows_lock_a_note_whose_own_cycle_wanders_from_frame_to_frame():
     to frame it wanders (a median of about a cent per 100 ms frame), which the operator measures of its own free note
     against the shipped map's period. So auto locks it, and the heaviest bow stop (a second of that bow, stopped over
     50 ms) plays within a tenth of the gestures' 1-cent median per frame; free windows miss it."""
-    from bowsynth.analysis.metrics import frame_errors
+    from bowsynth.metrics import frame_errors
     from bowsynth.engines.fdm import render_fdm
 
     f0, beta, vb = 150.0, 1.9, 0.15

@@ -10,7 +10,7 @@ import pytest
 import soundfile as sf
 from conftest import run_main
 
-from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.metrics import cents, f0_estimate
 from bowsynth.errors import UsageError
 from bowsynth.io.audio import read_wav, remove_dc
 from bowsynth.music.midi import read_midi, velocity_beta, velocity_vb

@@ -418,11 +418,11 @@ def test_the_check_floor_binds_only_where_two_windows_carry_no_friction(name):
     import math
 
     from bowsynth import physics
-    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.basis import numpy_operator
     from bowsynth.engines.operator.check import CHECK_FLOOR, CHECK_STEPS, CHECK_WINDOWS, reference_tau
 
     m = load_model(SHIPPED_DIR / f"{name}.safetensors")
-    op, d = _operator(m), m.domain
+    op, d = numpy_operator(m), m.domain
     dtau, n = op.window / CHECK_STEPS, CHECK_WINDOWS * CHECK_STEPS
     rq, rp = reference_tau(0.0, 0.0, d.beta, d.vb, d.a, dtau, n)
     lq, lp = physics.linear_flow(0.0, 0.0, np.arange(n) * dtau)
@@ -602,7 +602,7 @@ def test_a_range_model_must_rest_where_the_truth_rests_and_a_grid_that_all_rests
     by the render's RMS in units of the silence threshold."""
     from dataclasses import replace
 
-    from bowsynth.analysis.metrics import SILENT
+    from bowsynth.metrics import SILENT
     from bowsynth.engines.operator.modelfile import validation_failure
     from bowsynth.training.selection import listener_score
 
@@ -644,7 +644,7 @@ def test_a_tile_that_catches_the_stick_early_is_judged_by_its_limit_cycle(tmp_pa
     better than its claim, which would call an honest file a lie. Its limit cycle, shifted, fits the claim and no
     neighbour, so the corner plays; the same weights labelled as a weaker tile (F_B / w 20 % lower, its box moved
     with it) are still refused."""
-    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.basis import numpy_operator
     from bowsynth.engines.operator.check import LONG_CHECK_PERIODS, NEIGHBOURS, PHYSICS_MAX_ERROR, claim_fits_best, \
         physics_error
 
@@ -653,7 +653,7 @@ def test_a_tile_that_catches_the_stick_early_is_judged_by_its_limit_cycle(tmp_pa
     d = m.domain
     err = physics_error(m, 0.0, 0.0)
     assert err > PHYSICS_MAX_ERROR
-    long = int(np.ceil(LONG_CHECK_PERIODS * 2 * np.pi / _operator(m).window - 1e-9))
+    long = int(np.ceil(LONG_CHECK_PERIODS * 2 * np.pi / numpy_operator(m).window - 1e-9))
     plain = [physics_error(m, 0.0, 0.0, d.beta * fb, d.vb * fv, long) for fb, fv in ((1.0, 1.0), *NEIGHBOURS)]
     assert min(plain[1:]) < plain[0]
     assert claim_fits_best(m, err)[0]
@@ -673,13 +673,13 @@ def test_a_quarter_window_tile_is_told_from_a_mislabelled_file_over_16_periods()
     """fast-bow's onset from rest sticks to the bow, whatever the force: over 16 of its quarter-period windows (4
     periods) a bow 10 % away fits about as well as its claim, which would call the file a lie and refuse it; over 16
     periods the claim fits best, and a v_B 0.28 note plays, with a note on its onset."""
-    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.basis import numpy_operator
     from bowsynth.engines.operator.check import NEIGHBOURS, PHYSICS_MAX_ERROR, claim_fits_best, physics_error
 
     path = SHIPPED_DIR / "fast-bow.safetensors"
     m = load_model(path)
     d = m.domain
-    assert _operator(m).window == pytest.approx(np.pi / 2)
+    assert numpy_operator(m).window == pytest.approx(np.pi / 2)
     err = physics_error(m, 0.0, 0.0)
     assert err > PHYSICS_MAX_ERROR
     near = min(physics_error(m, 0.0, 0.0, d.beta * fb, d.vb * fv, 16) for fb, fv in NEIGHBOURS)

@@ -6,7 +6,7 @@ import torch
 from conftest import tiny_config
 
 from bowsynth import DomainError, ModelFileError, Scene, render_fdm
-from bowsynth.analysis.metrics import nmse
+from bowsynth.metrics import nmse
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.network import DeepONet, NetConfig
@@ -243,7 +243,7 @@ def test_selection_keeps_the_best_scored_weights(monkeypatch, tmp_path):
 
 def test_selection_scores_a_rollout_from_a_state_the_validation_and_the_window_starts_never_use(tiny_model):
     from bowsynth import render_fdm, render_operator
-    from bowsynth.analysis.metrics import nmse
+    from bowsynth.metrics import nmse
     from bowsynth.training.data import window_starts
 
     tr = Trainer(Scene(fb=100), tiny_config(steps=1, sampling="box"), "t")  # the tiny model's own settings

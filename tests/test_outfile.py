@@ -178,7 +178,7 @@ def _harmonics_db(x, rate, f0, n=10):
                                    Scene(f0=65.4, fb=65.4, duration=2.0)], ids=["fb100", "fb1000-31Hz", "f0-65"])
 def test_dc_removal_leaves_the_harmonics(scene):
     """Measured: the 5 Hz zero-phase high-pass changes no harmonic (all above 20 Hz) by 0.01 dB."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
 
     u = render_fdm(scene).u
     f0 = f0_estimate(u, scene.sample_rate)

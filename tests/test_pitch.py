@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bowsynth import Scene, UsageError, make_scene
-from bowsynth.analysis.metrics import cents, f0_estimate
+from bowsynth.metrics import cents, f0_estimate
 from bowsynth.engines.fdm import render_fdm
 from bowsynth.music.notes import midi_to_hz, note_name, note_number, parse_pitch
 from bowsynth.music.tuning import SilentNoteError, held_value, sounding_pitch, sounding_ratio, tune
@@ -137,7 +137,7 @@ def test_cli_render_pitch(tmp_path, capsys, monkeypatch):
 def test_score_notes_are_tuned_for_the_engine_that_plays_them(tmp_path, capsys, monkeypatch):
     """An A5 in a score played by the audio-rate FDM sounds at 880 Hz: tuned with the FDM's own ratio (its dispersion
     made it +2.2 cents sharp when tuned with the truth's). Measured on the written mix, in a real score run."""
-    from bowsynth.analysis.metrics import cents, f0_estimate
+    from bowsynth.metrics import cents, f0_estimate
     from bowsynth.io.audio import read_wav
 
     (tmp_path / "a5.toml").write_text('[[voice]]\nname = "v"\n[[voice.note]]\npitch = "A5"\nfb = 553.0\n'
@@ -177,7 +177,7 @@ def _forget(monkeypatch):
 
     pitch.sounding_ratio.cache_clear()
     monkeypatch.setattr(pitch, "_ratios", pitch.DiskTable("sounding-ratio", pitch.RATIO_VERSION))
-    monkeypatch.setattr(pitch, "_measure_ratio", lambda *a: pytest.fail("measured again"))
+    monkeypatch.setattr(pitch, "measure_ratio", lambda *a: pytest.fail("measured again"))
 
 
 def test_sounding_ratios_are_remembered_on_disk(fresh_cache, monkeypatch):
@@ -288,7 +288,7 @@ def test_a_note_is_tuned_by_the_engine_that_plays_it(pitch, fb, engine):
     """The audio-rate FDM's dispersion makes A5 +1.9 cents sharp and 1 kHz +3.0 when tuned with the truth's ratio;
     the range model plays its own ratio (-0.30 cents here): tuned with the engine's own, each sounds within 0.1 cent."""
     from bowsynth import api
-    from bowsynth.analysis.metrics import cents, f0_estimate
+    from bowsynth.metrics import cents, f0_estimate
     from bowsynth.music.notes import parse_pitch
     from bowsynth.music.request import make_scene
 
@@ -309,7 +309,7 @@ def test_a_note_with_a_bow_stop_is_tuned_with_the_lock_it_plays_in():
     (Scene.held_bow), so its f0 is solved with the physics' ratio the lock plays, and the held part sounds A3 within
     0.1 cent (0.001 measured)."""
     from bowsynth import api
-    from bowsynth.analysis.metrics import cents, f0_estimate
+    from bowsynth.metrics import cents, f0_estimate
     from bowsynth.music.request import make_scene
 
     kw = dict(pitch="A3", fb=1382.3, vb=[(0.0, 0.2), (1.8, 0.2), (1.9, 0.0)], duration=2.5)

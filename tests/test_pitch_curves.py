@@ -12,7 +12,7 @@ import pytest
 
 from bowsynth import Scene
 from bowsynth.engines.fdm import render_fdm
-from bowsynth.analysis.metrics import f0_estimate
+from bowsynth.metrics import f0_estimate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_stream import MODEL, offline, play  # noqa: E402

@@ -11,7 +11,7 @@ import torch
 from conftest import run_main, tiny_config
 
 from bowsynth import Scene
-from bowsynth.engines.operator.basis import _operator
+from bowsynth.engines.operator.basis import numpy_operator
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import RANGE_VERSION, load_model
 from bowsynth.engines.operator.rollout import rollout_states, scene_bows
@@ -148,7 +148,7 @@ def test_a_gesture_render_reports_the_controls_it_applied(range_model):
     r = render_operator(sc, model=m, fallback="fdm")
     fb, vb = r.controls["fb"], r.controls["vb"]
     assert fb.shape == vb.shape == (sc.n_samples,)
-    spw = _operator(m).samples_per_window(sc.dtau)
+    spw = numpy_operator(m).samples_per_window(sc.dtau)
     starts, ends = window_bounds(spw, sc.n_samples)
     for s, e in zip(starts[:-1], ends[:-1]):
         assert np.all(fb[s:e] == fb[s]) and np.all(vb[s:e] == vb[s])  # held over the window
@@ -263,7 +263,7 @@ def test_train_score_with_one_bow_trains_a_point_model_and_says_so(tmp_path, cap
 def test_bench_scores_held_out_bows_of_a_range_model(range_model):
     """bench: a range model's held-out bows are the grid of cell centres of its box, each scored against the FDM
     x100 where the note speaks (nmse is the metrics' NMSE of p), reported finite where it does not."""
-    from bowsynth.analysis.metrics import nmse
+    from bowsynth.metrics import nmse
     from bowsynth.analysis.out_of_sample import bench_parameter_points, parameter_summary
     from bowsynth.engines.fdm import render_fdm
 
@@ -444,7 +444,7 @@ def test_a_held_bow_that_damps_the_mass_is_played_by_a_model_validated_to_rest(m
     # the rest point), and at the top edge of halt-floor's, validated to rest at every grid
     # bow: that one plays it (choose.rests_throughout), and rests
     from bowsynth.engines.operator import engine
-    from bowsynth.analysis.metrics import note_sounds
+    from bowsynth.metrics import note_sounds
     from bowsynth.engines.fdm import render_fdm
     from bowsynth.engines.operator.choose import as_model, find_model, rests_throughout
 
@@ -468,7 +468,7 @@ def test_a_slow_heavy_bow_between_the_creep_tiles_plays_its_note_not_another():
     and floor-long's, which otherwise only stick-halt covers. stick-halt plays its own cycle 12 cents flat in free
     windows; locked to the physics' period it plays the note (an estimator that counts every crossing reads 1250 cents
     there); creep-mid, picked first, plays it within a tenth of a cent."""
-    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.metrics import listener_errors
     from bowsynth.api import render
     from bowsynth.engines.operator.choose import covering_model
 
@@ -486,7 +486,7 @@ def test_a_slow_heavy_bow_between_the_creep_tiles_plays_its_note_not_another():
 def held_note(f0, beta, vb):
     """A held note 2 s from rest as a render plays it: (scene, the x100 FDM's render, the operator's render, the
     listener's errors of the one against the other)."""
-    from bowsynth.analysis.metrics import listener_errors
+    from bowsynth.metrics import listener_errors
     from bowsynth.api import render
 
     sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
@@ -500,7 +500,7 @@ def test_a_creeping_note_just_above_vb_stop_is_read_at_its_true_pitch():
     and a second that begins on the creep's slow fall through the mean once kept a crossing off the period's grid (28
     cents flat, harmonics 25 dB off, fitted at the wrong pitch). An autocorrelation of the same second, which has no
     crossings, agrees with the estimate within 0.1 cent, on the truth and on the operator's note."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
 
     sc, truth, r, e = held_note(70.671, 1.66839, 0.0709725)
 
@@ -534,7 +534,7 @@ def test_fast_heavy_stick_slip_speaks_on_the_truths_cycle_with_fast_onset(f0, be
     steps with v_B: stick-fast's steps lie 0.3-0.7 % of v_B lower, so at these bows it speaks a cycle late, 8-12 ms
     (10.2 ms at the first, from a whole-space draw, against a 5 ms limit). fast-onset, stick-fast refined there, is the pick
     and speaks within the limit, on pitch."""
-    from bowsynth.analysis.metrics import listener_errors, onset_limit_ms
+    from bowsynth.metrics import listener_errors, onset_limit_ms
     from bowsynth.api import render
 
     sc, truth, r, e = held_note(f0, beta, vb)
@@ -557,7 +557,7 @@ def test_a_render_of_the_paper_stick_slip_scene_holds_the_stick_capture_within_t
     # against the x100 FDM kept at every step, the cycle's shape read with a shift between samples. The point model
     # with the lowest validation NMSE plays (choose.validation_rank): within 1.8 % of the p range, its NMSE over 1 s
     # 1.9e-5 (a model locked to the physics' period holds the capture within 0.6 % at NMSE 1.8e-2)
-    from bowsynth.analysis.metrics import cycle_shape_error, listener_errors, nmse
+    from bowsynth.metrics import cycle_shape_error, listener_errors, nmse
     from bowsynth.api import render
     from bowsynth.engines.fdm import TRUTH_OVERSAMPLE, fdm_steps_p
 

@@ -333,7 +333,7 @@ def test_harmonic_levels_each_at_its_own_pitch():
 
 
 def test_onset_and_pitch_track():
-    from bowsynth.analysis.metrics import onset_time
+    from bowsynth.metrics import onset_time
     from bowsynth.report.listen import cents, pitch_track
 
     t = np.arange(SR) / SR

@@ -11,7 +11,7 @@ import pytest
 
 from bowsynth import Scene, physics
 from bowsynth import compiled as core
-from bowsynth.analysis.metrics import listener_errors
+from bowsynth.metrics import listener_errors
 from bowsynth.api import render
 from bowsynth.engines.operator import onset
 

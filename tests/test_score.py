@@ -101,7 +101,7 @@ import math  # noqa: E402
 import pytest  # noqa: E402
 import soundfile as sf  # noqa: E402
 
-from bowsynth.analysis.metrics import cents, f0_estimate  # noqa: E402
+from bowsynth.metrics import cents, f0_estimate  # noqa: E402
 from bowsynth.music.notes import parse_pitch  # noqa: E402
 from bowsynth.music.tuning import tune  # noqa: E402
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bowsynth import Scene, render_fdm
-from bowsynth.analysis.metrics import cents, f0_estimate, nmse, note_sounds
+from bowsynth.metrics import cents, f0_estimate, nmse, note_sounds
 from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.engine import render_operator
 from bowsynth.engines.operator.modelfile import load_model

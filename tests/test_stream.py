@@ -106,7 +106,7 @@ def test_a_note_struck_with_moved_controllers_plays_the_bow_score_gives_it(tmp_p
     """CC2 and CC11 set before the note: the bow is the file reader's (one mapping), so the onset is the offline
     onset; the tuning comes from the truth's ratio on a grid (the operator's own ratio at this bow, which `score`
     uses, is 0.99 cents away: docs/live.md)."""
-    from bowsynth.analysis.metrics import f0_estimate
+    from bowsynth.metrics import f0_estimate
 
     ev = [(0, b"\xb0\x02\x50"), (0, b"\xb0\x0b\x64"), (100, b"\x90\x3c\x3c"), (30000, b"\x80\x3c\x00")]
     s = Stream(block=512, voices=2, model=MODEL)

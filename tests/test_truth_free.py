@@ -26,7 +26,7 @@ def boom(name):
         sys.stderr.flush()
         import os; os._exit(99)
     return f
-for m, n in [(C, "fdm_run"), (F, "run_fdm_raw"), (F, "render_fdm"), (F, "fdm_batch"), (T, "_measure_ratio")]:
+for m, n in [(C, "fdm_run"), (F, "run_fdm_raw"), (F, "render_fdm"), (F, "fdm_batch"), (T, "measure_ratio")]:
     setattr(m, n, boom(n))
 sys.argv = ["bowsynth"] + sys.argv[1:]
 from bowsynth.cli.main import main
@@ -98,7 +98,7 @@ def test_the_live_engines_tables_come_from_what_ships(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise AssertionError("the reference ran")
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
-    for m, n in [(C, "fdm_run"), (F, "run_fdm_raw"), (F, "render_fdm"), (F, "fdm_batch"), (T, "_measure_ratio")]:
+    for m, n in [(C, "fdm_run"), (F, "run_fdm_raw"), (F, "render_fdm"), (F, "fdm_batch"), (T, "measure_ratio")]:
         monkeypatch.setattr(m, n, boom)
     t = Tuning(100.0, 440.0, 44100)
     v, n = 64, 69

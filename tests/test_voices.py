@@ -186,16 +186,16 @@ def test_a_live_voices_window_basis_is_the_offline_one(which):
     """The voice loop builds its window basis from the trunk grid in the core (Voices.trunk_basis, its linear rows by
     the rest flow's own step for a rest-linearised model); the offline rollout from numpy (window_basis): the same
     rows, to float32 rounding, and the same end-state rows."""
-    from bowsynth.engines.operator.basis import _operator
+    from bowsynth.engines.operator.basis import numpy_operator
     from bowsynth.engines.operator.choose import SHIPPED_DIR
     from bowsynth.engines.operator.modelfile import load_model
 
     name = "paper-fb100" if which == "rotation" else "scratch-g2"
     m = load_model(SHIPPED_DIR / f"{name}.safetensors")
-    assert (m.cfg.rest_linear and _operator(m).lin is not None) == (which == "rest-linearised")
+    assert (m.cfg.rest_linear and numpy_operator(m).lin is not None) == (which == "rest-linearised")
     b = VoiceBank(44100, 64, 1, "operator", m, 90.0)
     dtau = physics.dtau(147.3, 44100)
-    spw, n_lo, Bq, Bp, endb, endlin = _operator(m).window_basis(dtau)
+    spw, n_lo, Bq, Bp, endb, endlin = numpy_operator(m).window_basis(dtau)
     n_hi = Bq.shape[1]
     b.voices.trunk_basis(0, dtau, n_lo, n_hi)
     k3 = Bq.shape[0]

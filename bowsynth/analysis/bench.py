@@ -10,7 +10,7 @@ import numpy as np
 
 from ..engines.fdm import TRUTH_OVERSAMPLE, fdm_batch, render_fdm
 from ..scene import Scene
-from .metrics import EQUAL_OVERSAMPLES
+from ..metrics import EQUAL_OVERSAMPLES
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -46,10 +46,10 @@ def bench_fdm(quick: bool = False) -> list[dict]:
 # --- speed against error -----------------------------------------------------------------------------------------
 
 
-def _score(r, ref) -> dict:
+def score_render(r, ref) -> dict:
     """NMSE(p) over the whole render and over its first 0.1 s and 0.5 s (the paper's spans), with the
     phase-insensitive measures beside it: pitch (cents, on q), harmonic amplitudes and log-spectral distance (on p)."""
-    from .metrics import compare_signals, nmse
+    from ..metrics import compare_signals, nmse
 
     sr = r.scene.sample_rate
     m = compare_signals(r.p, ref.p, sr, r.q, ref.q)
@@ -71,7 +71,7 @@ def bench_scene(scene: Scene, models, repeats: int, oversamples=(1, 2, 4, 8)) ->
         r = render_fdm(scene, oversample=os_)
         sec = _median_time(lambda: render_fdm(scene, oversample=os_), repeats)
         rows.append({"scene": scene, "method": f"FDM x{os_}", "sec_per_audio_s": sec / scene.duration,
-                     **_score(r, ref)})
+                     **score_render(r, ref)})
     for m in models:
         if not m.covers(scene):
             continue
@@ -79,7 +79,7 @@ def bench_scene(scene: Scene, models, repeats: int, oversamples=(1, 2, 4, 8)) ->
         sec = _median_time(lambda: render_operator(scene, model=m), repeats)
         rows.append({"scene": scene, "method": f"operator {m.path.name if m.path else m.meta.name}",
                      "sec_per_audio_s": sec / scene.duration, "train_s": m.meta.training.get("seconds"),
-                     **_score(r, ref)})
+                     **score_render(r, ref)})
     front = pareto(rows)
     for i, r in enumerate(rows):
         r["pareto"] = i in front
@@ -119,7 +119,7 @@ def bench_batch(model, n_voices: int, duration: float, repeats: int) -> dict:
 
 def bench_paper_anchors(anchor_dir) -> list[dict]:
     """The paper's own operator rollouts (shared/anchors) scored against our high-rate FDM over 0.1 and 0.5 s."""
-    from .metrics import ncc, nmse
+    from ..metrics import ncc, nmse
 
     rows = []
     for fb, fname in ((10, "paper_deeponet_fb10"), (100, "paper_deeponet_fb100"), (1000, "paper_deeponet_fb1000"),
@@ -159,9 +159,9 @@ def sample_macs(model) -> int:
 def macs_per_second(model, scene: Scene) -> float:
     """The operator's multiply-adds per second of audio at the scene's pitch: window_macs once a window, sample_macs
     once a sample."""
-    from ..engines.operator.basis import _operator
+    from ..engines.operator.basis import numpy_operator
 
-    windows = scene.sample_rate / _operator(model).samples_per_window(scene.dtau)
+    windows = scene.sample_rate / numpy_operator(model).samples_per_window(scene.dtau)
     return window_macs(model) * windows + sample_macs(model) * scene.sample_rate
 
 
@@ -194,7 +194,7 @@ def equal_accuracy(model, f0s=EQUAL_F0, duration: float = 2.0, repeats: int = 3,
     from ..engines.operator.engine import render_operator
     from ..errors import DomainError
     from ..music.engine_tuning import check_windows, sounding_for
-    from .metrics import accuracy, as_accurate
+    from ..metrics import accuracy, as_accurate
 
     windows = check_windows(windows)
     d, rows = model.domain, []

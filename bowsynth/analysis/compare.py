@@ -12,8 +12,8 @@ from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import UsageError
 from ..io.audio import DC_HZ, read_wav, remove_dc
 from ..scene import Scene
-from ..text import jsonable, num
-from .metrics import EQUAL_OVERSAMPLES, compare_signals
+from ..io.text import jsonable, num
+from ..metrics import EQUAL_OVERSAMPLES, compare_signals
 
 
 @dataclass
@@ -163,7 +163,7 @@ def compare_wav(path, other=None, scene: Scene | None = None, reference: str = "
 def _equal_fdm(sc: Scene, sig: str, dc_removed: bool, x, truth, first) -> dict:
     """The cheapest FDM of EQUAL_OVERSAMPLES as accurate as x against the truth: the audio-rate render is `first`
     (signal, seconds), the others are rendered here until one is as accurate."""
-    from .metrics import accuracy, as_accurate
+    from ..metrics import accuracy, as_accurate
 
     want = accuracy(x, truth, sc.sample_rate)
     n = len(truth)

@@ -24,7 +24,7 @@ from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..errors import BowsynthError
 from ..music.engine_tuning import check_windows, sounding_for
 from ..scene import Scene
-from .metrics import listener_errors, nmse, note_sounds
+from ..metrics import listener_errors, nmse, note_sounds
 
 BETA_RANGE = (0.02, 2.0)  # F_B / w across the playing space (0 is a lifted bow: silence, nothing to map)
 VB_RANGE = (0.0, 0.28)  # v_B from a stopped bow to the fastest the playing space holds

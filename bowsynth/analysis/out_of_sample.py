@@ -10,8 +10,8 @@ import numpy as np
 from .. import physics
 from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..scene import Scene
-from .bench import _score
-from .metrics import nmse
+from .bench import score_render
+from ..metrics import nmse
 
 
 def band_states(model, n: int, rng: np.random.Generator, away: float = 0.25) -> np.ndarray:
@@ -50,7 +50,7 @@ def _one_case(model, scene: Scene) -> dict:
         r = render_operator(scene, model=model)
     except DomainError as e:
         return {"failed": str(e)}
-    return _score(r, ref)
+    return score_render(r, ref)
 
 
 def _summary(label: str, scores: list[dict], detail: str) -> dict:
@@ -146,7 +146,7 @@ def bench_parameter_points(model, pitches=(100.0,), n: int = 4, duration: float 
         return None
     from ..engines.operator.engine import render_operator
     from ..training.ranges import ParamBox, speaks
-    from .metrics import cents, f0_estimate
+    from ..metrics import cents, f0_estimate
 
     b0, b1, v0, v1 = model.domain.box
     box = ParamBox(b0, b1, v0, v1, model.domain.a)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer
 from rich.console import Console
 
-from ..text import num
+from ..io.text import num
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="bowsynth: a bowed mass-spring synthesizer driven by a physics-informed DeepONet.")

@@ -106,7 +106,7 @@ def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: b
 
     from ..analysis.error_map import error_map
     from ..report import error_map as R
-    from ..text import jsonable
+    from ..io.text import jsonable
     from .app import err
 
     f0s, nb, nv, seconds = args

@@ -75,7 +75,7 @@ FRAME = 0.1  # s: the pitch track's frames
 
 def pitch_offset(x: np.ndarray, y: np.ndarray, rate: float) -> float:
     """The median over 100 ms frames of x's pitch against y's (cents, signed; NaN where no frame is pitched)."""
-    from ..analysis.metrics import cents, f0_estimate
+    from ..metrics import cents, f0_estimate
 
     n = int(FRAME * rate)
     c = [cents(f0_estimate(x[a:a + n], rate, tail=1.0), f0_estimate(y[a:a + n], rate, tail=1.0))
@@ -209,7 +209,7 @@ def probe(scorer: Scorer, fit: CurveFit) -> np.ndarray:
 def check(fit: CurveFit, target: Target, render) -> dict:
     """The fitted curves played by `render` (api.render) against the target, per 100 ms frame (frame_errors: median
     harmonic dB and |cents| over frames), both at unit RMS."""
-    from ..analysis.metrics import frame_errors
+    from ..metrics import frame_errors
     from ..io.audio import remove_dc
 
     r = render(fit.scene(target.n / target.sample_rate, target.sample_rate))

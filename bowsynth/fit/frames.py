@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from ..analysis.metrics import f0_estimate, harmonic_levels
+from ..metrics import f0_estimate, harmonic_levels
 from ..music.ratio_map import physics_ratio, vb_stop
-from .search import BETA_RANGE, GRID, VB_RANGE, Scorer, _vb_axis, f0_for
+from .search import BETA_RANGE, GRID, VB_RANGE, Scorer, vb_axis, f0_for
 from .target import Target
 
 FRAME = 0.1  # s
@@ -39,7 +39,7 @@ def timbre_table(scorer: Scorer, grid=GRID_FINE, a: float = 100.0) -> list[tuple
     out = []
     n_end = int(STEADY * scorer.target.sample_rate)
     for b in np.geomspace(*BETA_RANGE, grid[0]):
-        for v in stop + _vb_axis(a, grid[1]) ** 3:
+        for v in stop + vb_axis(a, grid[1]) ** 3:
             f0 = f0_for(scorer.pitch, float(b), float(v))
             if f0 is None or not 20.0 <= f0 < scorer.target.sample_rate / 2.5:
                 continue

@@ -149,7 +149,7 @@ def check(fit: Fit, target: Target, render) -> dict:
     """The fitted note played by `render` (api.render: the default engine, model and windows) against the target,
     as a listener hears it (metrics.listener_errors over the note's second half, its last 0.2 s left out):
     harmonics 2-10 (median |dB| of those the target sounds), pitch (cents), onset (ms), and the loss."""
-    from ..analysis.metrics import listener_errors
+    from ..metrics import listener_errors
     from ..io.audio import remove_dc
     from .surrogate import note_scene
 

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from ..analysis.metrics import cents, f0_estimate
+from ..metrics import cents, f0_estimate
 
 FFT_SIZES = (512, 1024, 2048)  # at 44.1 kHz (scaled with the rate): 12-46 ms, a few periods of the lowest notes
 EPS = 1.0  # the spectra's power floor (auraloss eps), for signals of unit RMS: -50 dB re a 1024-point fundamental

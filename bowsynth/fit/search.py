@@ -125,14 +125,14 @@ def coarse(scorer: Scorer, grid=GRID, a: float = 100.0) -> list[Candidate]:
     betas = np.geomspace(*BETA_RANGE, grid[0])
     out = []
     for b in betas:
-        for v in stop + _vb_axis(a, grid[1]) ** 3:
+        for v in stop + vb_axis(a, grid[1]) ** 3:
             c = scorer.score(float(b), float(v))
             if c is not None and math.isfinite(c.loss):
                 out.append(c)
     return sorted(out, key=lambda c: c.loss)
 
 
-def _vb_axis(a: float, n: int) -> np.ndarray:
+def vb_axis(a: float, n: int) -> np.ndarray:
     """The coarse grid's v_B axis as the cube root of v_B - vb_stop: fine near vb_stop, where the timbre changes
     fastest, and a few hundredths apart at the fastest bows."""
     return np.linspace(VB_LOW ** (1 / 3), (VB_RANGE[1] - vb_stop(a)) ** (1 / 3), n)
@@ -143,7 +143,7 @@ def zoom(scorer: Scorer, around: Candidate, grid=GRID, n: int = 5, a: float = 10
     in the candidate's windows, best first."""
     stop = vb_stop(a)
     db = math.log(BETA_RANGE[1] / BETA_RANGE[0]) / (grid[0] - 1)
-    axis = _vb_axis(a, grid[1])
+    axis = vb_axis(a, grid[1])
     dy = axis[1] - axis[0]
     y0 = max(around.vb - stop, 1e-9) ** (1 / 3)
     out = []

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..controls import Curve
 from .. import physics
-from ..engines.operator.basis import _operator
+from ..engines.operator.basis import numpy_operator
 from ..engines.operator.onset import rest_onset
 from ..engines.operator.rollout import rollout_states, scene_bows
 from ..engines.operator.windows import FAILURES, locked_window, window_bounds
@@ -68,10 +68,10 @@ class Note:
         self.model, self.f0, self.sample_rate, self.n, self.a = model, float(f0), int(sample_rate), int(n), float(a)
         self.times = None if times is None else np.asarray(times, float)
         self.dtau = physics.dtau(self.f0, self.sample_rate)
-        T = _operator(model).window
+        T = numpy_operator(model).window
         # locked to the sounding period (windows.locked_window), as a render locks a range model's held note
         self.window = None if sounding is None else locked_window(T, self.f0, sounding)
-        self.spw = _operator(model).samples_per_window(self.dtau, self.window)
+        self.spw = numpy_operator(model).samples_per_window(self.dtau, self.window)
 
     def scene(self, bow) -> Scene:
         bow = np.asarray(bow, float)

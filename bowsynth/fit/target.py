@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import soundfile as sf
 
-from ..analysis.metrics import f0_estimate
+from ..metrics import f0_estimate
 from ..errors import UsageError
 
 MIN_SECONDS = 0.25  # the onset and a few dozen periods of the lowest note

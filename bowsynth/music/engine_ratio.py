@@ -8,7 +8,7 @@ import json
 import math
 from pathlib import Path
 
-from ..analysis import metrics
+from .. import metrics
 from ..errors import DomainError
 from ..io.cache import DiskTable
 from .tuning import SilentNoteError, sounding_ratio

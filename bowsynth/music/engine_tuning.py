@@ -16,14 +16,14 @@ from ..scene import Scene
 from .model_ratio import lock_ratio, operator_ratio, own_ratio
 from .engine_ratio import engine_ratio, ratio_key
 from .ratio_map import map_ratio, physics_ratio
-from .tuning import SilentNoteError, _measure_ratio, sounding_ratio
+from .tuning import SilentNoteError, measure_ratio, sounding_ratio
 
 
 def fdm_measured_ratio(beta: float, vb: float, a: float, f0: float, rate: float) -> float:
     """The FDM's own sounding ratio at this bow with its step at `rate` (sample rate x oversampling): measured once,
     cached in the process and on disk like sounding_ratio. SilentNoteError where the scheme settles on no period."""
     k = physics.dtau(f0, rate)
-    return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: _measure_ratio(beta, vb, a, k=k).r)
+    return engine_ratio(f"fdm {k!r}", beta, vb, a, lambda: measure_ratio(beta, vb, a, k=k).r)
 
 
 def fdm_ratio(sample_rate: float, oversample: int = 1):
@@ -75,7 +75,7 @@ def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None):
     scenes' NMSE(p) over 1 s 4e-8 / 1e-6 / 9e-7 free). A range model plays the lock (lock_ratio: the map's period,
     where the model holds it) where the lock's harmonic shift, over 1 dB, is smaller than the free cycle's pitch error,
     over 1 cent; else free windows. Measured once per model and bow (notes of the operator at f0 100), cached."""
-    from ..analysis.metrics import cents
+    from ..metrics import cents
     from ..engines.operator.choose import as_model
     from ..engines.operator.windows import Lock
 
@@ -121,7 +121,7 @@ def _held_note(model, beta: float, vb: float, a: float, lock):
 def frame_wander(x, sample_rate: float, hz: float, frame: float, seconds: float = 1.0) -> float:
     """The median |cents| from `hz` of the pitch of each `frame`-second frame of x's last `seconds` (frames holding
     at least three periods; 0 where none does: no pitch a frame is heard)."""
-    from ..analysis.metrics import cents, f0_estimate
+    from ..metrics import cents, f0_estimate
 
     n = int(frame * sample_rate)
     tail = x[-max(int(seconds * sample_rate), n):]
@@ -136,7 +136,7 @@ def lock_harmonic_shift(model, beta: float, vb: float, a: float, lock, free) -> 
     """The most a lock moves a held note's harmonics 1-10 (dB) from the same note in free windows (`free`, its render
     by _held_note; None where it failed to play), each fitted at its own pitch over its last second. inf where either
     note fails to play."""
-    from ..analysis.metrics import listener_errors
+    from ..metrics import listener_errors
 
     if free is None:
         return math.inf

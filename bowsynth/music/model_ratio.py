@@ -26,7 +26,7 @@ def operator_ratio(model, locked: bool = False, more: int = 0):
     windows locked to the physics' period (lock_ratio), `more` windows a period beyond the fewest that fill it. A
     model's window chain depends on (beta, v_B) only, so one measurement per model and bow serves every pitch (cached
     on disk with the model's id)."""
-    from ..analysis.metrics import f0_estimate
+    from ..metrics import f0_estimate
     from ..engines.operator.choose import as_model
     from ..engines.operator.engine import render_operator
 
@@ -78,7 +78,7 @@ def lock_ratio(model, beta: float, vb: float, a: float) -> float | None:
     (a Lock, with the windows a period it holds it in: the fewest that fill the period, else one more), else the
     model's own (own_ratio); None where neither is known (the physics settles on no period: a bow at or below v_B =
     1 / sqrt(2a); or the model cannot hold the bow from rest for the measurement)."""
-    from ..analysis.metrics import cents
+    from ..metrics import cents
 
     try:
         truth = physics_ratio(beta, vb, a).r

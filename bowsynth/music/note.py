@@ -148,7 +148,7 @@ def _clip(control, end: float):
     return as_control(dedup)
 
 
-def _with_release(vb, hold: float, release: float):
+def with_release(vb, hold: float, release: float):
     """vb over [0, hold], then a linear fall to 0 over `release` seconds."""
     held = _clip(vb, hold)
     at_hold = float(held.at(hold)) if isinstance(held, Curve) else float(held)
@@ -161,7 +161,7 @@ def _with_release(vb, hold: float, release: float):
     return as_control(pts)
 
 
-def _scale(control, k: float):
+def scaled(control, k: float):
     if isinstance(control, Curve):
         return Curve(tuple((t, v * k) for t, v in control.points))
     return float(control) * k

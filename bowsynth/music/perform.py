@@ -34,7 +34,7 @@ def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
     """The notes no operator model can play (their sustain), each with the reason."""
     from ..engines.operator.chain import chain_plan
     from ..engines.operator.choose import available_models
-    from ..engines.operator.engine import _resolve
+    from ..engines.operator.engine import resolve_model
 
     models = None
     if model is None:
@@ -47,7 +47,7 @@ def uncovered(notes: list[Note], model=None) -> list[tuple[Note, str]]:
     for n in notes:
         sc = n.rollout_scene()
         try:
-            _resolve(sc, model, models)
+            resolve_model(sc, model, models)
         except DomainError:
             if model is None and chain_plan(sc, models) is not None:
                 continue  # models in turn play its bow (engines/operator/chain.py)

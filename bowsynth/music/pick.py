@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from ..analysis.metrics import cents
+from ..metrics import cents
 from ..engines.operator.choose import available_models, covering_model
 from ..errors import DomainError
 from ..scene import Scene

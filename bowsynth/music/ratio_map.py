@@ -57,11 +57,11 @@ def vb_of(y: np.ndarray, a: float = MAP_A) -> np.ndarray:
 
 
 def _solve(point):
-    from .tuning import _measure_ratio
+    from .tuning import measure_ratio
 
     beta, vb = point
     try:
-        r = _measure_ratio(beta, vb, MAP_A)
+        r = measure_ratio(beta, vb, MAP_A)
         return r.r, r.settle_periods, r.amplitude
     except SilentNoteError:
         return math.nan, math.nan, math.nan

@@ -14,7 +14,7 @@ from ..controls import Curve, as_control
 from ..errors import SceneError, UsageError
 from ..io.infile import regular_file
 from ..scene import Scene, load_preset
-from .note import MAX_RELEASE, RELEASE, Note, _scale, _with_release, stop_tail
+from .note import MAX_RELEASE, RELEASE, Note, scaled, with_release, stop_tail
 from .pitch_curve import pitch_points
 
 TOP_KEYS = {"defaults": "table of note defaults", "voice": "array of voice tables", "a4": "tuning, Hz",
@@ -149,7 +149,7 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
             def tuned(h):
                 ratio = None
                 if ratio_for is not None:
-                    probe_fb = _scale(beta, physics.omega(h)) if beta is not None else fb
+                    probe_fb = scaled(beta, physics.omega(h)) if beta is not None else fb
                     # a moving pitch rolls in free windows: the probe's pitch is a curve too (held at h)
                     ratio = ratio_for(Scene(f0=Curve(((0.0, h), (hold, h))), fb=probe_fb, vb=vb, a=a, duration=hold,
                                             sample_rate=rate))
@@ -163,7 +163,7 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
             held = dict(vb=P.held_value(vb, hold), a=a)
             ratio = None
             if ratio_for is not None:
-                probe_fb = _scale(beta, physics.omega(hz)) if beta is not None else fb
+                probe_fb = scaled(beta, physics.omega(hz)) if beta is not None else fb
                 ratio = ratio_for(Scene(f0=hz, fb=probe_fb, vb=vb, a=a, duration=hold, sample_rate=rate))
             if beta is not None:
                 f0 = P.tune(hz, None, beta=P.held_value(beta, hold), a4=a4, ratio=ratio, **held).f0
@@ -177,11 +177,11 @@ def note_from_fields(name: str, fields: dict, where: str, a4: float = 440.0, lab
                 raise ScoreError(f"{where}: a pitch curve plays with a constant beta (or fb)")
             fb = Curve(tuple((t, float(beta) * physics.omega(f)) for t, f in f0.points))
         elif beta is not None:
-            fb = _scale(beta, physics.omega(f0))
+            fb = scaled(beta, physics.omega(f0))
         if release > 0:
             fb_end = float(Scene(f0=f0, fb=fb, a=a).fb_at(hold + release))
             f0_end = float(Scene(f0=f0, fb=fb, a=a).f0_at(hold + release))
-            vb_full, duration = _with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0_end, a)
+            vb_full, duration = with_release(vb, hold, release), hold + release + stop_tail(fb_end, f0_end, a)
         else:
             vb_full, duration = vb, hold
         scene = Scene(f0=f0, fb=fb, vb=vb_full, a=a, duration=duration, sample_rate=rate, **rest)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import physics
-from ..analysis import metrics
+from .. import metrics
 from ..errors import DomainError, SceneError, UsageError
 from ..io.cache import DiskTable
 from .notes import A4_HZ, parse_pitch
@@ -145,7 +145,7 @@ def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
         except (KeyError, TypeError, ValueError, OverflowError):
             pass  # an entry edited by hand, or of the wrong type or range: measure again
     try:
-        ratio = _measure_ratio(beta, vb, a)
+        ratio = measure_ratio(beta, vb, a)
     except SilentNoteError as e:
         _ratios.put(key, {"silent": str(e)})
         raise
@@ -153,7 +153,7 @@ def sounding_ratio(beta: float, vb: float, a: float = 100.0) -> Ratio:
     return ratio
 
 
-def _measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> Ratio:
+def measure_ratio(beta: float, vb: float, a: float, k: float | None = None) -> Ratio:
     """The steady ratio of the scheme run at steps 2 pi / spp and pi / spp combined by Richardson extrapolation (the
     truth), or, with k, of the scheme at that step in tau alone (an engine's own: the audio-rate FDM's dispersion)."""
     spp = _steps_per_period(beta, a) if k is None else max(4, int(round(2 * math.pi / k)))

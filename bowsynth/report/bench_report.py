@@ -10,7 +10,7 @@ from ..analysis.bench import bench_batch, bench_fdm, bench_paper_anchors, bench_
 from ..analysis.out_of_sample import bench_out_of_sample, bench_parameter_points, bench_windows, parameter_summary
 from ..engines.fdm import TRUTH_OVERSAMPLE
 from ..scene import Scene
-from ..text import jsonable, num
+from ..io.text import jsonable, num
 
 
 def fdm_table(rows: list[dict]) -> str:

@@ -12,7 +12,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ..analysis.compare import ROWS, Comparison
-from ..analysis.metrics import onset_time
+from ..metrics import onset_time
 from ..engines.fdm import TRUTH_OVERSAMPLE
 from . import html as H
 from . import listen as L

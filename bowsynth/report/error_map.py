@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.error_map import summary
-from ..text import num
+from ..io.text import num
 
 # What a cell shows where the operator has no number: the truth is silent, or no model plays the bow
 SILENT_MARK, UNPLAYED_MARK = "·", "✗"

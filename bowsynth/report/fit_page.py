@@ -9,7 +9,7 @@ from . import html as H
 
 
 def _levels(x, rate: float) -> np.ndarray:
-    from ..analysis.metrics import harmonic_levels
+    from ..metrics import harmonic_levels
 
     half = len(x) // 2
     return harmonic_levels(np.asarray(x[half:], float), rate)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..text import num as text_num
+from ..io.text import num as text_num
 
 PEAK = 10 ** (-1 / 20)  # -1 dBFS, as the renders are written
 

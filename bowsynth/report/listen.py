@@ -1,7 +1,7 @@
 """What a listener hears, measured for the report (docs/measures.md): harmonic levels each at the signal's own pitch,
 a pitch track, the onset.
 
-The measurements themselves are bowsynth.analysis.metrics'; this module holds what only the report draws: levels re the
+The measurements themselves are bowsynth.metrics'; this module holds what only the report draws: levels re the
 truth's fundamental, the pitch track and the envelope.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..analysis.metrics import f0_estimate, harmonic_amplitudes
+from ..metrics import f0_estimate, harmonic_amplitudes
 
 N_HARMONICS = 10
 FLOOR_DB = -60.0  # harmonics this far below the truth's fundamental are noise for the mean |dB| (as metrics uses)

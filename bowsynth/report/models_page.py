@@ -35,7 +35,7 @@ def held_out_bows(domain, n: int) -> np.ndarray:
 def measure(model, scene) -> dict:
     """The model's render of `scene` against the x100 FDM, on p (as the validation the file carries): NMSE, pitch
     (cents, steady half), harmonics 1-10 each at its own pitch (mean |dB|); and u as a file would hold it, to play."""
-    from ..analysis.metrics import cents, f0_estimate, nmse
+    from ..metrics import cents, f0_estimate, nmse
     from ..engines.fdm import render_fdm
     from ..engines.operator.engine import render_operator
     from ..errors import DomainError

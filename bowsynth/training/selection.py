@@ -13,11 +13,11 @@ import warnings
 
 import numpy as np
 
-from ..analysis.metrics import SILENT, compare_signals, late_rms, listener_errors, nmse, note_sounds
+from ..metrics import SILENT, compare_signals, late_rms, listener_errors, nmse, note_sounds
 from ..engines.fdm import TRUTH_OVERSAMPLE, render_fdm
 from ..errors import BowsynthError, DomainError
 from ..scene import Scene
-from ..text import jsonable
+from ..io.text import jsonable
 from .data import window_starts
 
 SELECT_OFFSET_S = 0.3  # into the note (past the onset), then 0.37 of a window further: between two window starts

@@ -15,7 +15,7 @@ from ..engines.operator.modelfile import ModelMeta, OperatorModel
 from ..engines.operator.network import DeepONet, NetConfig
 from ..errors import UsageError
 from ..scene import Scene
-from ..text import jsonable
+from ..io.text import jsonable
 from . import checkpoint
 from .config import TrainConfig, check_net_options, resolve_device
 from .data import add_chains, build, build_range

@@ -12,7 +12,7 @@ import numpy as np
 from ... import physics
 from ... import compiled as core
 from . import voices as V
-from .basis import TRUNK_H, TRUNK_POINTS, _lined, _operator, trunk_grid, whole_lines
+from .basis import TRUNK_H, TRUNK_POINTS, lined, numpy_operator, trunk_grid, whole_lines
 from .npnet import PARAM_SPAN
 from .onset import uses_rest_flow
 from .windows import locked_window
@@ -42,7 +42,7 @@ class VoiceBank:
         self._allocate_slots()
 
     def _prepare_operator(self, m, lowest_f0: float) -> None:
-        op = self.op = _operator(m)
+        op = self.op = numpy_operator(m)
         d = m.domain
         # the longest window a slot may need, at the lowest pitch it may play
         self.n_max = int(math.ceil(op.window / physics.dtau(lowest_f0, self.sample_rate))) + 2
@@ -64,7 +64,7 @@ class VoiceBank:
         self.end = np.full(nv, -1, np.int64)
         self.why = np.zeros(nv, np.int64)
         if self.engine == "operator":
-            # rows of whole 64-byte lines, on a line (basis._lined; a slot's notes stay within n_max)
+            # rows of whole 64-byte lines, on a line (basis.lined; a slot's notes stay within n_max)
             k, n, npar = self.op.cfg.k, whole_lines(self.n_max), self.op.cfg.params
         else:  # the FDM alone: an operator of no size, which no slot plays (the core checks the shapes all the same)
             k, n, npar = 0, 3, 0
@@ -75,8 +75,8 @@ class VoiceBank:
         # the operator: state, samples per window, floor of it, the basis and end-state rows, the state scaling, the
         # bow inputs and gain, the window's index, first sample and length, its samples, where the FDM takes over,
         # the rest flow's row (voices.REST_COLS) and the sample the windows count from
-        self.ops = (np.zeros((nv, 2)), np.zeros(nv), np.zeros(nv, np.int64), _lined(np.zeros((nv, k + 3, n))),
-                    _lined(np.zeros((nv, k + 3, n))), np.zeros((nv, 2, 2, k)), np.zeros((nv, 2, 6)),
+        self.ops = (np.zeros((nv, 2)), np.zeros(nv), np.zeros(nv, np.int64), lined(np.zeros((nv, k + 3, n))),
+                    lined(np.zeros((nv, k + 3, n))), np.zeros((nv, 2, 2, k)), np.zeros((nv, 2, 6)),
                     np.zeros((nv, 2)), np.ones((nv, 2)), np.zeros((nv, npar)), np.ones(nv), np.zeros(nv, np.int64),
                     np.zeros(nv, np.int64), np.zeros(nv, np.int64), np.zeros((nv, n), np.float32),
                     np.zeros((nv, n), np.float32), np.full(nv, -1, np.int64), np.zeros((nv, V.REST_COLS)),

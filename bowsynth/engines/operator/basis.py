@@ -20,7 +20,7 @@ def whole_lines(n: int) -> int:
     return -(-n // LINE_FLOATS) * LINE_FLOATS
 
 
-def _lined(a) -> np.ndarray:
+def lined(a) -> np.ndarray:
     """a as a C-ordered float32 array that starts on a 64-byte line. The compiled products load 8 or 16 floats at
     a time along a weight row: an array 16 or 48 bytes past a line (where safetensors' buffers and numpy's copies
     fall) split every other load, or every one, across two lines (64 voices 2688-3287x by the process, 3602-3955x
@@ -41,7 +41,7 @@ class NumpyOperator:
         w = model.weights
         self.cfg = cfg = model.cfg
         self._w = w
-        f32 = _lined
+        f32 = lined
         g = lambda name: (f32(w[f"branch.{name}.weight"].T), f32(w[f"branch.{name}.bias"]))  # noqa: E731
         rest = [g(f"hidden.{i}") for i in range(1, cfg.depth)]
         width = cfg.width
@@ -139,14 +139,14 @@ class NumpyOperator:
         return spw, n_lo, rows(0), rows(1), endb, endlin
 
 
-def _operator(model: OperatorModel) -> NumpyOperator:
+def numpy_operator(model: OperatorModel) -> NumpyOperator:
     op = model.__dict__.get("_numpy_op")
     if op is None:  # weights don't change after loading: convert once per model
         op = model.__dict__["_numpy_op"] = NumpyOperator(model)
     return op
 
 
-def _bases(model: OperatorModel, keys):
+def window_bases(model: OperatorModel, keys):
     """The window bases (NumpyOperator.window_basis) of the distinct (sample spacing, window) pairs `keys` (the
     window in tau, or None for the trained T), stacked and padded to the longest window: spw (P,), n_lo (P,), Bq, Bp
     (P, k + 3, n_max), endb (P, 2, 2, k), endlin (P, 2, 6). Cached per model: the last stack, and each pair's basis."""
@@ -154,7 +154,7 @@ def _bases(model: OperatorModel, keys):
     last = model.__dict__.get("_stack")
     if last is not None and last[0] == key:
         return last[1]
-    op = _operator(model)
+    op = numpy_operator(model)
     cache = model.__dict__.setdefault("_basis_cache", {})
     new = [dw for dw in key if dw not in cache]
     if new:  # one trunk evaluation for every new pitch
@@ -164,11 +164,11 @@ def _bases(model: OperatorModel, keys):
     parts = [cache[d] for d in key]
     if min(p[1] for p in parts) < 1:
         raise DomainError(f"the model's window ({op.window:.3g} in tau) is shorter than one sample")
-    # rows of whole 64-byte lines, on a line (_lined): the windows' products load a row 8 or 16 floats at a time
+    # rows of whole 64-byte lines, on a line (lined): the windows' products load a row 8 or 16 floats at a time
     n_max = whole_lines(max(p[2].shape[1] for p in parts))
     k3 = parts[0][2].shape[0]
-    Bq = _lined(np.zeros((len(parts), k3, n_max), np.float32))
-    Bp = _lined(np.zeros((len(parts), k3, n_max), np.float32))
+    Bq = lined(np.zeros((len(parts), k3, n_max), np.float32))
+    Bp = lined(np.zeros((len(parts), k3, n_max), np.float32))
     for i, p in enumerate(parts):
         Bq[i, :, :p[2].shape[1]] = p[2]
         Bp[i, :, :p[3].shape[1]] = p[3]

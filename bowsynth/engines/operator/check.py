@@ -9,7 +9,7 @@ import numpy as np
 
 from ... import physics
 from . import npnet
-from .basis import _operator
+from .basis import numpy_operator
 from .modelfile import OperatorModel
 from .rollout import rollout_states
 
@@ -66,7 +66,7 @@ def physics_error(model: OperatorModel, q0: float, p0: float, beta: float | None
     d = model.domain
     beta = d.beta if beta is None else beta
     vb = d.vb if vb is None else vb
-    op = _operator(model)
+    op = numpy_operator(model)
     dtau = op.window / CHECK_STEPS
     n = windows * CHECK_STEPS
     q, p, fail = rollout_states(model, [[q0, p0]], n, dtau, check_domain=False, loop="numpy")
@@ -131,7 +131,7 @@ def claim_fits_best(model: OperatorModel, err: float) -> tuple[bool, float, floa
     sc = model.meta.scene or {}
     q0, p0 = float(sc.get("q0", 0.0)), float(sc.get("p0", 0.0))
     d = model.domain
-    long = max(CHECK_WINDOWS, math.ceil(LONG_CHECK_PERIODS * 2.0 * math.pi / _operator(model).window - 1e-9))
+    long = max(CHECK_WINDOWS, math.ceil(LONG_CHECK_PERIODS * 2.0 * math.pi / numpy_operator(model).window - 1e-9))
     for windows in (CHECK_WINDOWS, long):
         cyc = windows != CHECK_WINDOWS  # the long span judges the limit cycle (physics_error's cycle)
         if cyc:

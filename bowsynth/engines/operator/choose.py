@@ -15,7 +15,7 @@ from ... import physics
 from ...controls import Curve
 from ...errors import DomainError, ModelFileError
 from ...scene import Scene
-from .basis import _operator
+from .basis import numpy_operator
 from .domain import span_text
 from .modelfile import OperatorModel, grid_rests, is_finite, load_model
 from .rollout import scene_bows
@@ -137,12 +137,12 @@ def train_hint(scene: Scene) -> str:
 def first_bow_outside(model: OperatorModel, scene: Scene) -> tuple[float, str] | None:
     """Where the scene's bow first leaves the model's range, in the windows the operator would play it: (time in s,
     'F_B = ... at t = ...' naming the parameter and value), or None if it never does."""
-    spw = _operator(model).samples_per_window(scene.dtau)
-    out = _bow_exit(model, scene, spw, scene_bows(scene, spw))
+    spw = numpy_operator(model).samples_per_window(scene.dtau)
+    out = bow_exit(model, scene, spw, scene_bows(scene, spw))
     return None if out is None else (out[1] / scene.sample_rate, out[2])
 
 
-def _bow_exit(model: OperatorModel, scene: Scene, spw: float, bows: np.ndarray) -> tuple[int, int, str] | None:
+def bow_exit(model: OperatorModel, scene: Scene, spw: float, bows: np.ndarray) -> tuple[int, int, str] | None:
     """The first window whose bow (of `bows`, scene_bows) is outside the model's range: (window, its first sample,
     what left and when), or None."""
     d = model.domain

@@ -14,9 +14,9 @@ from ... import physics
 from ...errors import DomainError, ModelFileError, UsageError
 from ...render import LazyControls, Played, Render, RenderInfo
 from ...scene import Scene
-from .basis import _operator
+from .basis import numpy_operator
 from .check import CHECK_WINDOWS, MISLABEL_MARGIN, PHYSICS_MAX_ERROR, check_physics, claim_verdict
-from .choose import (_bow_exit, as_model, available_models, covering_model, find_model, first_bow_outside,
+from .choose import (bow_exit, as_model, available_models, covering_model, find_model, first_bow_outside,
                      partial_model, train_hint, unreadable_notes)
 from .grid import from_grid, needs_whole_windows, to_grid, to_output_in_place, whole_window_scene
 from .modelfile import OperatorModel
@@ -25,7 +25,7 @@ from .rollout import applied_controls, length_buckets, prepare, rollout_states, 
 from .windows import FAIL_BOW, FAIL_DOMAIN, FAIL_MUTE, FAILURES, locked_window, window_bounds
 
 
-def _resolve(scene: Scene, model, models: list[OperatorModel] | None = None, fallback: str = "none"):
+def resolve_model(scene: Scene, model, models: list[OperatorModel] | None = None, fallback: str = "none"):
     if model is None:
         try:
             return find_model(scene, models)
@@ -96,7 +96,7 @@ def _box_exit(m: OperatorModel, sc: Scene, q, p, window: float | None = None) ->
     j = np.flatnonzero(out)
     if not j.size:
         return None
-    starts, _ = window_bounds(_operator(m).samples_per_window(sc.dtau, window), sc.n_samples)
+    starts, _ = window_bounds(numpy_operator(m).samples_per_window(sc.dtau, window), sc.n_samples)
     return int(starts[np.searchsorted(starts, j[0], side="right") - 1])
 
 
@@ -165,7 +165,7 @@ def _applied(sc: Scene, grid, op, bows, leave, window=None) -> dict:
 def _applied_after_rest(sc: Scene, m: OperatorModel, h: int, rest, window=None) -> dict:
     """_applied for a voice whose first h samples the flow at rest played (with the bows of the note's windows) and
     the operator the rest (`rest`: its _applied, or None where the flow played the whole note)."""
-    spw = _operator(m).samples_per_window(sc.dtau, window)
+    spw = numpy_operator(m).samples_per_window(sc.dtau, window)
     ctrl = applied_controls(sc, spw, scene_bows(sc, spw))
     if rest is not None:
         after = rest()
@@ -178,14 +178,14 @@ def _voice_bows(m: OperatorModel, scenes: list[Scene], windows: list):
     """Per voice: the bows of its windows (padded to a common length) and where the bow first leaves the model's
     range ((sample, what) or None: only a --fallback fdm render gets here with one). windows: each voice's window
     in tau (None: the model's T)."""
-    op = _operator(m)
+    op = numpy_operator(m)
     rows, leave = [], []
     for sc, win in zip(scenes, windows):
         spw = op.samples_per_window(sc.dtau, win)
         bows = scene_bows(sc, spw)
         out = None
         if m.domain.is_range:
-            exit_ = _bow_exit(m, sc, spw, bows)
+            exit_ = bow_exit(m, sc, spw, bows)
             if exit_ is not None:
                 out = exit_[1:]
                 lo_b, hi_b, lo_v, hi_v = m.domain.box
@@ -212,7 +212,7 @@ def voice_window(m: OperatorModel, scene: Scene, sounding: float | None) -> floa
     it (windows.locked_window: a held bow's; a score's note until its bow stop); else None, the model's trained T."""
     if sounding is None or scene.pitch_varies or not sounding > 0:
         return None
-    T = _operator(m).window
+    T = numpy_operator(m).window
     w = locked_window(T, scene.f0, sounding)
     return None if w >= T else w
 
@@ -236,7 +236,7 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
     for i, sc in enumerate(scenes):
         if sc.pitch_varies:  # a pitch curve: per window its own sample spacing (the live engine's voice loop)
             from .curve import render_curve  # the bank and its arrays: only for a pitch curve
-            m = _resolve(sc, model, models, fallback)
+            m = resolve_model(sc, model, models, fallback)
             r = render_curve(sc, m)
             rest = models
             while model is None and r.method.fdm_fallback:  # it left the picked model's states: the next one plays
@@ -262,11 +262,11 @@ def render_operator_batch(scenes: list[Scene], model=None, fallback: str = "none
                 except DomainError:  # a model that cannot take the state it is handed: with --fallback fdm, the FDM
                     if fallback != "fdm":  # ends the note
                         raise
-        m = _resolve(sc, model, models, fallback)
+        m = resolve_model(sc, model, models, fallback)
         groups.setdefault(id(m), (m, []))[1].append(i)
     for m, idx in groups.values():
         checked = _physics_notes(m) + (unreadable_notes() if model is None else [])
-        op = _operator(m)
+        op = numpy_operator(m)
         t0 = time.perf_counter()
         # a note's first samples near its bow's rest point: the exact flow there (onset.py); the operator rolls out
         # the rest of the note from where it leaves (None: the whole note stayed there)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...scene import Scene
-from .basis import _bases, _operator
+from .basis import window_bases, numpy_operator
 from .modelfile import OperatorModel
 from .windows import FAIL_DOMAIN, FAIL_NONFINITE, max_windows, window_bounds, window_ends
 
@@ -153,14 +153,14 @@ def _window_bows(model: OperatorModel, B: int, W: int, params) -> np.ndarray:
 
 def _voice_bases(model: OperatorModel, B: int, dtau, window):
     """B voices' spacings and windows (broadcast), their distinct (spacing, window) pairs, and the pairs' bases
-    (basis._bases: cached per model, so a second call with the same voices costs a key's comparison)."""
+    (basis.window_bases: cached per model, so a second call with the same voices costs a key's comparison)."""
     dt = np.broadcast_to(np.asarray(dtau, dtype=float), (B,))
-    T = _operator(model).window
+    T = numpy_operator(model).window
     win = np.broadcast_to(np.asarray(T if window is None else window, dtype=float), (B,))
     if np.any(win > T * (1 + 1e-12)) or not np.all(win > 0):
         raise ValueError(f"a window must be > 0 and at most the model's {T:.6g} in tau")
     pairs = sorted(set(zip(dt.tolist(), win.tolist())))  # the distinct (spacing, window): one basis each
-    return dt, win, pairs, _bases(model, [(d, None if w == T else w) for d, w in pairs])
+    return dt, win, pairs, window_bases(model, [(d, None if w == T else w) for d, w in pairs])
 
 
 def prepare(model: OperatorModel, dtau, window=None) -> None:
@@ -194,7 +194,7 @@ def rollout_states(model: OperatorModel, x0: np.ndarray, n_samples: int, dtau, c
     vidx = np.array([at[pw] for pw in zip(dt.tolist(), win.tolist())], dtype=np.int64)
     spw, n_lo, Bq, Bp, endb, endlin = stack
     vidx = np.ascontiguousarray(vidx, dtype=np.int64)
-    op = _operator(model)
+    op = numpy_operator(model)
     q = np.empty((B, n_samples), np.float32)
     p = np.empty((B, n_samples), np.float32)
     fail = np.tile(np.array([-1, 0], np.int64), (B, 1))  # the loops write only the voices that fail

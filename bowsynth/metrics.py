@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .. import physics
+from . import physics
 
 
 def nmse(x, ref) -> float:
