@@ -39,15 +39,15 @@ demo: $(STAMP)
 test: $(STAMP) chromium jackd
 	$(PY) -m pytest -n auto
 
-# The shipped operators: each is trained by its recipe beside it (bowsynth/models/NAME.toml: the flags of
+# The shipped operators: each is trained by its recipe beside it (models/NAME.toml: the flags of
 # `bowsynth train`), on a 2-core CPU at most 15 minutes for a point model (40 for paper-fb1000-half and -knee, the
 # paper's stick-slip scene on half-period windows) and 45 for a range model. Only what is missing, unreadable or stale
 # against its recipe is trained (`train --update`); an interrupted run continues from its checkpoint, so `make models`
 # can be stopped and run again. A recipe with a `from` key refines another model (`train --from`) and is built after
-# that model's recipe (bowsynth.training.recipe.build_order); bowsynth/models/stages holds models a render never picks,
+# that model's recipe (bowsynth.training.recipe.build_order); models/stages holds models a render never picks,
 # kept to rebuild the ones refined from them. The catalogue, each model's box and validation: `bowsynth models`,
 # docs/models.md.
-RECIPES := $(wildcard bowsynth/models/stages/*.toml) $(wildcard bowsynth/models/*.toml)
+RECIPES := $(wildcard models/stages/*.toml) $(wildcard models/*.toml)
 models: $(STAMP)
 	order=$$($(PY) -m bowsynth.training.recipe $(RECIPES)) || exit 1; \
 	for r in $$order; do $(BOW) train --config $$r --update || exit 1; done
@@ -55,7 +55,7 @@ models: $(STAMP)
 	$(PY) -m bowsynth.music.model_ratio
 
 # The tables a render reads instead of running the reference: the physics' sounding ratio over the bow plane, solved
-# on a grid (bowsynth/models/tables/physics-ratio.npz; ~2 min on two cores; `check` measures it off its grid), and
+# on a grid (models/tables/physics-ratio.npz; ~2 min on two cores; `check` measures it off its grid), and
 # the shipped models' own ratios at every MIDI velocity's bow (own-ratios.json, ~2 s: `play` starts without them).
 tables: $(STAMP)
 	$(PY) -m bowsynth.music.ratio_map build

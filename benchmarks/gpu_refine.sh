@@ -18,7 +18,7 @@ fi
 $PY -c "import bowsynth.compiled as c; c.load(); import torch; print('core ok', torch.__version__, torch.cuda.is_available())"
 job() {  # name: its recipe gives the box, width and windows; refined from its shipped weights
   local name=$1
-  timeout 570 $PY -m bowsynth train --config bowsynth/models/$name.toml --from bowsynth/models/$name.safetensors \
+  timeout 570 $PY -m bowsynth train --config models/$name.toml --from models/$name.safetensors \
     --batch 4096 --seed 35 --device $DEV --minutes $MIN $STEPS --out $M/$name-g.safetensors -q > $M/$name-g.log 2>&1
   echo "$name rc=$?" >> $M/$name-g.log
 }

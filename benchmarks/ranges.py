@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python benchmarks/ranges.py [MODEL.safetensors ...] [--quick] [--json out.json]
 
-Default: the shipped range models (bowsynth/models/*range*.safetensors). For each model:
+Default: the shipped range models (models/*range*.safetensors). For each model:
 
 1. Held-out bows: the 4 x 4 grid of cell centres of its box (log beta; the training bows are a Latin hypercube drawn
    with another seed, so no grid point is a training point) at several pitches, 1 s from rest, operator against the

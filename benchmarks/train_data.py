@@ -49,7 +49,7 @@ def main() -> None:
     print("| recipe | trajectories x steps | numpy (s) | compiled (s) | same to the bit |")
     print("|---|---|---|---|---|")
     for name in args.recipes.split(","):
-        path = ROOT / "bowsynth" / "models" / f"{name}.toml"
+        path = ROOT / "models" / f"{name}.toml"
         t_core, d_core = prepare(path, "core")
         t_np, d_np = prepare(path, "numpy")
         same = np.array_equal(d_core.x, d_np.x)

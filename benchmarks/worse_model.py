@@ -1,7 +1,7 @@
 """A deliberately worse copy of a shipped model, to show that tests/test_accuracy.py catches a 10x regression.
 
     PYTHONPATH=. .venv/bin/python benchmarks/worse_model.py paper-fb100 0.0035 /tmp/worse/paper-fb100.safetensors
-    cp bowsynth/models/paper-fb10.safetensors bowsynth/models/paper-fb1000.safetensors /tmp/worse/
+    cp models/paper-fb10.safetensors models/paper-fb1000.safetensors /tmp/worse/
     BOWSYNTH_TEST_MODELS=/tmp/worse .venv/bin/python -m pytest tests/test_accuracy.py   # fails for paper-fb100
 
 Adds Gaussian noise of `sigma` times each tensor's mean magnitude to every weight (seed 0) and prints the copy's

@@ -14,6 +14,16 @@ _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from .errors import BowsynthError, DomainError, ModelFileError, SceneError, UsageError  # noqa: E402,F401
 
+
+def shipped(name: str):
+    """The folder `name` ('models', 'presets') that ships with bowsynth: inside the installed package, where a wheel
+    puts it, else at the top of the source checkout, where it is kept (an editable install reads it there)."""
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    inside = here / name
+    return inside if inside.is_dir() else here.parent / name
+
 # Everything else is imported on first use, so `import bowsynth` (and the CLI's start) loads no numpy, the
 # compiled core or torch (training, seconds) until a command needs them.
 _LAZY = {"Render": "render", "Scene": "scene", "load_preset": "scene", "make_scene": "music.request", "render_fdm": "api",

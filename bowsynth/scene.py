@@ -14,8 +14,9 @@ import numpy as np
 from . import controls, physics
 from .controls import Curve
 from .errors import SceneError, UsageError
+from . import shipped
 
-PRESET_DIR = Path(__file__).resolve().parent / "presets"
+PRESET_DIR = shipped("presets")
 
 MIN_RATE, MAX_RATE = 8_000, 384_000
 CONTROLS = ("fb", "vb", "f0")  # the scene fields that may follow a curve (f0: a pitch curve, Hz)
@@ -318,7 +319,7 @@ class Scene:
 
 
 def list_presets() -> list[str]:
-    """The shipped presets' names (bowsynth/presets/*.toml), sorted.
+    """The shipped presets' names (presets/*.toml), sorted.
 
     Examples
     --------

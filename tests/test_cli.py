@@ -185,7 +185,7 @@ def test_rest_linear_is_refused_where_it_cannot_apply(args, why, tmp_path, capsy
 def test_shipped_recipes_name_their_models_and_train_flags(tmp_path):
     from bowsynth.training.recipe import load_recipe
 
-    models = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
+    models = Path(__file__).resolve().parents[1] / "models"
     recipes = sorted(models.glob("*.toml"))
     assert {r.stem for r in recipes} == {m.stem for m in models.glob("*.safetensors")}
     # the stages a shipped refinement was made through (stick-halt), kept to rebuild it and never picked by a render
@@ -222,7 +222,7 @@ def test_make_models_builds_each_refinement_after_the_model_it_refines(tmp_path,
     monkeypatch.chdir(tmp_path.parent)
     assert [p.stem for p in build_order(rel)] == ["a", "b", "c", "d"]
     repo = Path(__file__).resolve().parents[1]
-    models = repo / "bowsynth" / "models"
+    models = repo / "models"
     shipped = sorted((models / "stages").glob("*.toml")) + sorted(models.glob("*.toml"))
     out = subprocess.run([sys.executable, "-m", "bowsynth.training.recipe",
                           *(str(p.relative_to(repo)) for p in shipped)], capture_output=True, text=True, check=True,
@@ -289,7 +289,7 @@ def test_models_names_a_shipped_unit_that_is_missing_or_stale_and_lists_the_rest
 
     shipped = tmp_path / "shipped"
     shipped.mkdir()
-    real = Path(__file__).resolve().parents[1] / "bowsynth" / "models"
+    real = Path(__file__).resolve().parents[1] / "models"
     for name in ("paper-fb100", "paper-fb10"):
         shutil.copy(real / f"{name}.safetensors", shipped)
         shutil.copy(real / f"{name}.toml", shipped)

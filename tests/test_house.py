@@ -80,3 +80,19 @@ def test_the_checker_finds_a_planted_line():
     # other senses of the words pass: a pytest fixture's scope, Python's round(), a figure rounded to 3 digits
     clean = '@pytest.fixture(scope="' + _S + '")\nn = int(round(t * sr))\n# rounded to 3 digits; the issue is the bow'
     assert history_lines(clean) == []
+
+
+def test_the_top_level_is_the_cards_layout():
+    """The package, the shipped models and presets, the tests and the project files sit at the top of the checkout,
+    and the program finds the models and presets there (a wheel carries them inside the package)."""
+    from bowsynth import shipped
+    from bowsynth.engines.operator.choose import SHIPPED_DIR
+    from bowsynth.scene import PRESET_DIR
+
+    for name in ("bowsynth", "models", "presets", "tests"):
+        assert (ROOT / name).is_dir(), name
+    for name in ("pyproject.toml", "README.md"):
+        assert (ROOT / name).is_file(), name
+    assert SHIPPED_DIR == shipped("models") == ROOT / "models" and PRESET_DIR == ROOT / "presets"
+    assert any(SHIPPED_DIR.glob("*.safetensors")) and (SHIPPED_DIR / "MANIFEST.json").is_file()
+    assert not (ROOT / "bowsynth" / "models").exists() and not (ROOT / "bowsynth" / "presets").exists()

@@ -246,10 +246,24 @@ def test_wheel_carries_presets_and_shipped_models(tmp_path):
                         str(tmp_path), str(root)], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     names = zipfile.ZipFile(next(tmp_path.glob("bowsynth-*.whl"))).namelist()
-    for p in [*(root / "bowsynth" / "presets").glob("*.toml"), *(root / "bowsynth" / "models").glob("*.safetensors"),
-              *(root / "bowsynth" / "models").glob("*.toml")]:
+    for p in [*(root / "presets").glob("*.toml"), *(root / "models").glob("*.safetensors"),
+              *(root / "models").glob("*.toml")]:
         assert f"bowsynth/{p.parent.name}/{p.name}" in names
     assert any(n.startswith("bowsynth/_core.") and n.endswith(".so") for n in names), names
+    # installed from the wheel and run from elsewhere (no site: the checkout's editable finder stays out), the
+    # program reads the presets and the models the wheel carries, not the checkout's
+    import sysconfig
+
+    target = tmp_path / "site"
+    r = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target),
+                        str(next(tmp_path.glob("bowsynth-*.whl")))], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    env = {**os.environ, "PYTHONPATH": f"{target}{os.pathsep}{sysconfig.get_paths()['purelib']}",
+           "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    r = subprocess.run([sys.executable, "-S", "-m", "bowsynth", "render", "--preset", "paper-fb100", "-d", "0.2",
+                        str(tmp_path / "w.wav")], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert f"({target / 'bowsynth' / 'models' / 'paper-fb100.safetensors'})" in r.stdout + r.stderr, r.stdout
 
 
 def test_a_signal_during_a_checkpoint_write_waits_for_it():

@@ -43,7 +43,7 @@ def train(
     score: Optional[Path] = typer.Option(None, "--score", help="Train a range model for the bows this score (.toml) or MIDI file (.mid) plays."),
     a4: Optional[float] = typer.Option(None, "--a4", help="With --score: the pitch of A4 in Hz (default 440)."),
     config: Optional[Path] = typer.Option(None, "--config", help="A training recipe (TOML: these flags' names as keys, "
-                                          "e.g. the shipped models' bowsynth/models/*.toml); flags given override it."),
+                                          "e.g. the shipped models' models/*.toml); flags given override it."),
     atlas: Optional[list[Path]] = typer.Option(None, "--atlas", help="Train an atlas's units: a directory of recipes (and its stages/) or recipe files, each as --config R --update, each after the unit it refines."),
     workers: int = typer.Option(1, "--workers", "-j", min=1, max=1024, help="With --atlas: Ray workers on this machine (1: one unit after another here)."),
     address: Optional[str] = typer.Option(None, "--address", help="With --atlas: a Ray cluster's address (default RAY_ADDRESS)."),

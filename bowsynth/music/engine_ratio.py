@@ -12,6 +12,7 @@ from .. import metrics
 from ..errors import DomainError
 from ..io.cache import DiskTable
 from .tuning import SilentNoteError, sounding_ratio
+from .. import shipped
 
 _ratios = DiskTable("engine-ratio", "1")
 
@@ -26,7 +27,7 @@ PLAUSIBLE_CENTS = 50.0
 # The shipped models' own ratios measured at build time at the bows the live engine plays (every MIDI velocity at
 # neutral controllers; model_ratio.build_shipped): read before the disk, held to the same checks. Keyed as the cache is
 # (a retrained model has another id, so none of its entries match).
-SHIPPED_RATIOS = Path(__file__).resolve().parents[1] / "models" / "tables" / "own-ratios.json"
+SHIPPED_RATIOS = shipped("models") / "tables" / "own-ratios.json"
 
 
 @functools.cache

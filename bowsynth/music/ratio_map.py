@@ -26,8 +26,9 @@ import numpy as np
 from .. import physics
 from ..errors import ModelFileError, SceneError
 from .tuning import Ratio, SilentNoteError
+from .. import shipped
 
-MAP_PATH = Path(__file__).resolve().parents[1] / "models" / "tables" / "physics-ratio.npz"
+MAP_PATH = shipped("models") / "tables" / "physics-ratio.npz"
 MAP_A = 100.0  # the friction shape the map (and every shipped model) is measured at
 BETA_SPAN = (0.005, 2.1)  # F_B / w: the playing space's 0-2 and a margin; below it r is 1 within 0.02 cents
 VB_TOP = 0.30  # v_B: the playing space's 0.28 and a margin

@@ -2,8 +2,8 @@
 waves, on Ray (io.cluster.Pool) or in this process; a unit whose worker dies runs again and continues from its
 checkpoint (`train --update`), so it loses at most one checkpoint interval.
 
-    bowsynth train --atlas bowsynth/models --workers 2        # every recipe there and in stages/
-    python -m bowsynth.training.atlas schedule bowsynth/models # units, their budgets, the wall on 1 / 8 / 64 workers
+    bowsynth train --atlas models --workers 2        # every recipe there and in stages/
+    python -m bowsynth.training.atlas schedule models # units, their budgets, the wall on 1 / 8 / 64 workers
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """A training recipe: the settings of one model's `bowsynth train` in a TOML file, so that the Makefile, the
 benchmarks and a user who wants the same model again read one source instead of flags copied between them.
 
-    # bowsynth/models/soft-range.toml
+    # models/soft-range.toml
     f0 = 100
     fb = "6.283:282.7"      # a range LO:HI, as --fb takes it
     vb = "0:0.3"
@@ -60,7 +60,7 @@ def parents(paths) -> dict[Path, Path | None]:
     src_of: dict[Path, Path | None] = {}
     for p in paths:
         # read by its absolute path: load_recipe puts the folder before a `from` whose file exists, and a relative
-        # folder (`make models` passes bowsynth/models/...) would be put before it twice below
+        # folder (`make models` passes models/...) would be put before it twice below
         a = p.resolve()
         r = load_recipe(a)
         by_out[Path(r.get("out", a.with_suffix(".safetensors"))).resolve()] = p

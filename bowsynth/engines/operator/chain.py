@@ -19,7 +19,7 @@ from .modelfile import OperatorModel
 # boxes are equally deep would otherwise hand over every few windows, and each hand-over starts new windows.
 MIN_SEGMENT = 0.05  # s
 # The bows are looked at this many times a free period (every 2.5 ms at f0 100). Boxes overlap by 0.01-0.05 in
-# F_B / w (bowsynth/models); the listener's crescendo (F_B / w 0.1 -> 1.2 in 1.5 s) moves 0.0018 a look, so it is
+# F_B / w (models); the listener's crescendo (F_B / w 0.1 -> 1.2 in 1.5 s) moves 0.0018 a look, so it is
 # looked at several times inside each overlap.
 LOOKS_PER_PERIOD = 4
 

@@ -20,8 +20,9 @@ from .domain import span_text
 from .modelfile import OperatorModel, grid_rests, is_finite, load_model
 from .rollout import scene_bows
 from .windows import window_bounds
+from ... import shipped
 
-SHIPPED_DIR = Path(__file__).resolve().parents[2] / "models"  # inside the package: a wheel carries them
+SHIPPED_DIR = shipped("models")
 
 
 def model_dirs() -> list[Path]:

@@ -10,8 +10,9 @@ from __future__ import annotations
 import functools
 import json
 from pathlib import Path
+from ... import shipped
 
-MANIFEST = Path(__file__).resolve().parents[2] / "models" / "MANIFEST.json"
+MANIFEST = shipped("models") / "MANIFEST.json"
 FORMAT = "bowsynth-manifest"
 
 
