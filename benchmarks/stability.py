@@ -2,7 +2,7 @@
 
     PYTHONPATH=. .venv/bin/python benchmarks/stability.py MODEL [MODEL ...] [--seeds 1,2,3] [--voices 64]
 
-The measurement behind `tests/test_stability.py`'s CONVERGENCE table, for any model file (a candidate before it ships):
+The measurement behind `tests/test_stability.py`'s limit-cycle test, for any model file (a candidate before it ships):
 voices started at random states of the model's domain at its own centre bow (the scene in its metadata), 2 s each,
 the domain check on. Printed per seed: how many voices left the domain, the largest relative amplitude deviation of
 the others from the FDM's limit cycle (x8, last 0.5 s) and their largest pitch error; then the pitch of the last 5 s

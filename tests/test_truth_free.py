@@ -179,7 +179,9 @@ def test_the_shipped_own_ratios_are_the_operators_measurements_of_the_shipped_mo
         monkeypatch.setattr(engine_ratio, "shipped_ratios", lambda: {})
         monkeypatch.setattr(engine_ratio, "_ENGINE_RATIOS", {})
         fresh = model_ratio.own_ratio(models[key], float(beta), float(vb), float(a))
-        assert abs(1200 * math.log2(fresh / ratios[k])) < 1e-6, k
+        # equal to float32 rounding: a model's cached bases and trunk grid, built earlier in the process by another
+        # render's path, may round the last bits differently (1e-9 relative seen in the full suite)
+        assert abs(1200 * math.log2(fresh / ratios[k])) < 1e-4, k
 
 
 def test_a_note_asked_at_a_pitch_off_the_map_is_tuned_by_the_reference_for_the_fdm_to_play(tmp_path):
