@@ -23,7 +23,7 @@ import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
 from bowsynth.metrics import nmse
 
-MODELS = Path(os.environ.get("BOWSYNTH_TEST_MODELS") or Path(bowsynth.__file__).parent / "models")
+MODELS = Path(os.environ.get("BOWSYNTH_TEST_MODELS") or bowsynth.shipped("models"))
 DURATION = 0.25
 LIMIT = 4.0  # x the measured value: run-to-run noise is ~1e-6 relative (float32 + BLAS order); 10x worse fails
 

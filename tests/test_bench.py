@@ -17,7 +17,7 @@ from bowsynth.report.bench_report import out_of_sample_tables
 
 @pytest.fixture(scope="module")
 def fb100():
-    return load_model(Path(bowsynth.__file__).parent / "models" / "paper-fb100.safetensors")
+    return load_model(bowsynth.shipped("models") / "paper-fb100.safetensors")
 
 
 def test_band_states_are_in_the_domain_and_away_from_rest(fb100):

@@ -17,10 +17,10 @@ from bowsynth.metrics import listener_errors
 from bowsynth.api import render
 from bowsynth.report.error_map import table
 
-SOFT = Path(bowsynth.__file__).parent / "models" / "soft-range.safetensors"
+SOFT = bowsynth.shipped("models") / "soft-range.safetensors"
 # stages/stick-slow-1, the stage the shipped stick-slow is refined from, whose own pitch is off: the case windows
 # locked to the physics are for
-SLOW_1 = str(Path(bowsynth.__file__).parent / "models" / "stages" / "stick-slow-1.safetensors")
+SLOW_1 = str(bowsynth.shipped("models") / "stages" / "stick-slow-1.safetensors")
 
 
 def test_grid_spans_the_playing_space_log_in_force_linear_in_speed():

@@ -104,7 +104,7 @@ def test_a_rollout_whose_samples_leave_the_trained_box_is_stopped_though_its_win
     from bowsynth.errors import DomainError
 
     monkeypatch.setattr(engine, "needs_whole_windows", lambda domain, beta_max=None: False)
-    m = load_model(Path(bowsynth.__file__).parent / "models" / "paper-fb1000.safetensors")
+    m = load_model(bowsynth.shipped("models") / "paper-fb1000.safetensors")
     d = m.domain
 
     def scene(f0):

@@ -19,7 +19,7 @@ from bowsynth.engines.operator import grid
 from bowsynth.engines.operator.basis import numpy_operator
 from bowsynth.errors import DomainError
 
-MODELS = Path(bowsynth.__file__).parent / "models"
+MODELS = bowsynth.shipped("models")
 
 
 def shipped(name):

@@ -22,7 +22,7 @@ from test_kernels import torch_rollout
 
 # stages/stick-slow-1, the stage the shipped stick-slow is refined from, whose own pitch is off: the case windows
 # locked to the physics are for
-SLOW_1 = str(Path(bowsynth.__file__).parent / "models" / "stages" / "stick-slow-1.safetensors")
+SLOW_1 = str(bowsynth.shipped("models") / "stages" / "stick-slow-1.safetensors")
 
 
 @pytest.mark.parametrize("ratio", [1.0, 0.999, 0.93, 0.5, 0.4999, 0.33, 1.7])
@@ -282,7 +282,7 @@ def test_unsaved_models_keep_their_measurements_apart(monkeypatch, tmp_path):
     from bowsynth.music import model_ratio
 
     monkeypatch.setenv("BOWSYNTH_CACHE", str(tmp_path))
-    shipped = load_model(Path(bowsynth.__file__).parent / "models" / "paper-fb100.safetensors")
+    shipped = load_model(bowsynth.shipped("models") / "paper-fb100.safetensors")
     meta = dataclasses.replace(shipped.meta, id="", digest="")
     first = OperatorModel(None, meta, weights=shipped.weights)
     nudged = {k: v * np.float32(1.001) if v.ndim == 2 else v for k, v in shipped.weights.items()}

@@ -320,7 +320,7 @@ def test_voices_of_very_different_lengths_roll_in_groups_and_each_is_its_own_ren
 
     import bowsynth
 
-    model = load_model(Path(bowsynth.__file__).parent / "models" / "paper-fb100.safetensors")
+    model = load_model(bowsynth.shipped("models") / "paper-fb100.safetensors")
     scenes = [Scene(f0=f0, fb=f0, duration=d) for f0, d in ((100.0, 0.05), (220.0, 0.4), (150.0, 0.052))]
     together = render_operator(scenes, model=model)
     for sc, r in zip(scenes, together):

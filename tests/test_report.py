@@ -369,7 +369,7 @@ def test_hostile_metadata_in_every_field_is_shown_as_text_never_run(tmp_path, ca
     from bowsynth.engines.operator.modelfile import digest, load_model
     from bowsynth.report.models_page import _meta_card, _validation_table
 
-    src = Path(bowsynth.__file__).parent / "models" / "soft-range.safetensors"
+    src = bowsynth.shipped("models") / "soft-range.safetensors"
     with safe_open(str(src), framework="numpy") as f:
         meta = json.loads(f.metadata()["bowsynth"])
         tensors = {k: f.get_tensor(k) for k in f.keys()}
