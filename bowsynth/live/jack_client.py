@@ -3,19 +3,22 @@
 Ports: `<name>:midi_in` (MIDI in) and `<name>:out` (audio out). The engine (`stream.Stream`) is prepared in full
 before the client activates; the process callback only hands the period's MIDI events to `Stream.process` and copies
 its block into the port. The main thread prints a status line and waits for SIGINT / SIGTERM (the CLI's handlers
-raise them here: exit 130 / 143) or for the server to go away (one line, exit 1).
+raise them here: exit 130 / 143) or for the server to go away (one line, exit 1). However it ends, the process
+callback ends libjack's process thread itself before the client is closed (`_Ending`: libjack's own way of stopping
+a thread is an asynchronous cancel, fatal to a thread inside Python).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import time
 
 import numpy as np
 
-from ..errors import BowsynthError, UsageError
+from ..errors import BowsynthError, UsageError, held
 
 class ServerGone(BowsynthError):
     """The JACK server shut down (or dropped the client) while playing."""
@@ -45,11 +48,13 @@ def percentiles_ms(times: np.ndarray) -> tuple[float, float, float]:
     return tuple(float(v) * 1e3 for v in (np.percentile(times, 50), np.percentile(times, 99), times.max()))
 
 
-def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: int = 16, engine: str = "operator",
+def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: int = 64, engine: str = "operator",
          model=None, a4: float = 440.0, amp: float | None = None, bend_range: float = 2.0, status=None,
          status_every: float = 1.0, windows: str | None = None) -> int:
     """Run the instrument until a signal (KeyboardInterrupt / Terminated propagate, after the summary) or until the
     server goes away (ServerGone). status: a function taking one line (the status line, then the summary)."""
+    import jack
+
     from ..music.engine_tuning import LIVE_WINDOWS, check_windows
     from .stream import AMP, Stream
 
@@ -58,9 +63,10 @@ def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: 
         raise UsageError(f"--voices must be a whole number >= 1, got {voices!r}")
     say = status or (lambda line: print(line, file=sys.stderr, flush=True))
     client = open_client(name, server)
-    gone = threading.Event()
-    why_gone: list = []
+    end = _Ending()
     xruns = [0]
+    stream = t0 = None
+    tty = sys.stderr.isatty() and status is None
     try:
         rate, period = client.samplerate, client.blocksize
         first = ("" if windows == "free" or engine != "operator" else
@@ -75,58 +81,142 @@ def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: 
 
         @client.set_process_callback
         def process(frames):
-            buf = out.get_array()
-            events = [(off, bytes(data)) for off, data in midi_in.incoming_midi_events()]
-            if frames <= chunk:
-                buf[:] = stream.process(frames, events)
-                return
-            done = 0  # a period longer than the prepared block (the server's buffer size grew): in pieces
-            while done < frames:
-                n = min(chunk, frames - done)
-                part = [(off - done, d) for off, d in events if done <= off < done + n]
-                buf[done:done + n] = stream.process(n, part)
-                done += n
+            if end.tid is None:
+                end.tid = threading.get_native_id()
+            end.busy = True
+            try:
+                if end.stop:
+                    # returning failure ends the client from its own thread, outside Python (_Ending)
+                    out.get_array().fill(0.0)
+                    if not end.seen:
+                        end.seen_at, end.seen = time.monotonic(), True
+                    raise jack.CallbackExit
+                buf = out.get_array()
+                events = [(off, bytes(data)) for off, data in midi_in.incoming_midi_events()]
+                if frames <= chunk:
+                    buf[:] = stream.process(frames, events)
+                    return
+                done = 0  # a period longer than the prepared block (the server's buffer size grew): in pieces
+                while done < frames:
+                    n = min(chunk, frames - done)
+                    part = [(off - done, d) for off, d in events if done <= off < done + n]
+                    buf[done:done + n] = stream.process(n, part)
+                    done += n
+            except jack.CallbackExit:
+                raise
+            except BaseException as e:  # a bug: the main thread reports it, the client ends as on a stop
+                end.failed.append(e)
+                end.stop = True
+                end.wake.set()
+                out.get_array().fill(0.0)
+                raise jack.CallbackExit from None
+            finally:
+                end.busy = False
 
         def on_xrun(delay):
+            end.notifying += 1
             xruns[0] += 1
+            end.notifying -= 1
 
         def on_shutdown(status, reason):
-            why_gone.append(reason)
-            gone.set()
+            end.notifying += 1
+            end.why_gone.append(reason)
+            end.wake.set()
+            end.notifying -= 1
 
         client.set_xrun_callback(on_xrun)
         client.set_shutdown_callback(on_shutdown)
-        client.activate()
-        try:
-            for port in connect:
-                _connect(client, out, port)
-        except BaseException:
-            client.deactivate()
-            raise
+        with held():  # a signal as activate() returns still finds the client known to be active
+            client.activate()
+            end.active = True
+        for port in connect:
+            _connect(client, out, port)
         say(f"bowsynth: playing as {client.name} ({client.name}:midi_in -> {client.name}:out"
             + (f" -> {', '.join(connect)}" if connect else "") + "); Ctrl-C to stop")
         t0 = time.monotonic()
-        tty = sys.stderr.isatty()
-        try:
-            while not gone.wait(status_every):
-                line = _status(stream, xruns[0], period, rate)
-                if tty and status is None:
-                    print("\r" + line, end="", file=sys.stderr, flush=True)
-                else:
-                    say(line)
-        finally:
-            if tty and status is None:
-                print(file=sys.stderr)
-            say(_summary(stream, xruns[0], period, rate, time.monotonic() - t0))
-        raise ServerGone(f"the JACK server went away while playing ({(why_gone or ['no reason given'])[0].strip()})"
+        while not end.wake.wait(status_every):
+            line = _status(stream, xruns[0], period, rate)
+            if tty:
+                print("\r" + line, end="", file=sys.stderr, flush=True)
+            else:
+                say(line)
+        if end.failed:
+            raise RuntimeError(f"the process callback failed: {end.failed[0]!r}") from end.failed[0]
+        raise ServerGone(f"the JACK server went away while playing ({(end.why_gone or ['no reason given'])[0].strip()})"
                          f"; start it again and rerun bowsynth play")
     finally:
-        if not gone.is_set():
-            try:
-                client.deactivate()
-            except Exception:
-                pass
-            client.close()
+        # a signal here waits until the client is closed and the summary said (errors.held): a second Ctrl-C cannot
+        # cut the ending half-way and leave libjack's threads running Python while the interpreter exits
+        with held():
+            end.close(client)
+            if t0 is not None:
+                if tty:
+                    print(file=sys.stderr)
+                say(_summary(stream, xruns[0], period, rate, time.monotonic() - t0))
+
+
+STOP_WAIT = 2.0  # s: the longest the ending waits for the process thread to leave (a server that runs no cycle)
+QUIET_WAIT = 0.02  # s: after the notification callbacks are unset, for one already under way to return
+
+
+class _Ending:
+    """What the process callback, the notification callbacks and the main thread share, and the ending itself.
+
+    libjack ends a client's threads with pthread_cancel, asynchronously (JackPosixThread::Kill: jack_deactivate
+    cancels the process thread, jack_client_close the notification thread). A thread cancelled while it runs Python
+    (the process callback, an xrun callback) unwinds through the interpreter's and the compiled core's frames: the
+    process then aborts ("terminate called without an active exception"), segfaults, or hangs on a lock the thread
+    held. So nothing is cancelled while it runs Python: the main thread sets `stop`; at its next cycle the process
+    callback returns failure (jack.CallbackExit), and libjack's process thread deactivates the client and exits on its
+    own, in libjack's code (JackClient::End); the main thread waits for that thread to be gone (Linux: its task in
+    /proc; elsewhere a fixed wait), unsets the notification callbacks (allowed once the client is inactive), lets one
+    under way return, and only then deactivates (a no-op by then) and closes."""
+
+    def __init__(self):
+        self.stop = False  # read by the process callback every cycle
+        self.active = False
+        self.tid = None  # the process thread's native id, from its first callback
+        self.wake = threading.Event()  # the main loop ends: the server went away, or the callback failed
+        self.why_gone: list = []
+        self.failed: list = []
+        self.notifying = 0  # notification callbacks running Python now
+        self.seen, self.seen_at = False, 0.0  # a process callback saw `stop` (when, by the monotonic clock)
+        self.busy = False  # the process callback runs
+
+    def _left(self) -> bool:
+        """Has the process thread left libjack's cycle for good (after a callback that saw `stop`)?"""
+        if self.tid is None:
+            return False
+        if os.path.isdir("/proc/self/task"):  # Linux: the thread's task is gone once it exited
+            return not os.path.exists(f"/proc/self/task/{self.tid}")
+        return self.seen and time.monotonic() - self.seen_at > 0.1
+
+    def close(self, client) -> None:
+        import jack
+
+        self.stop = True
+        if self.active:
+            # the process thread leaves after its next cycle; when no cycle comes (a server gone or stalled) it
+            # waits inside libjack once its callback has returned, where the cancel is what every client gets
+            t0 = time.monotonic()
+            while not self._left() and time.monotonic() - t0 < STOP_WAIT:
+                if self.why_gone and not self.busy:
+                    time.sleep(QUIET_WAIT)
+                    break
+                time.sleep(0.002)
+        try:
+            client.deactivate()  # at once when the process thread deactivated the client itself
+            # inactive now: the notification thread runs no more Python once these are unset
+            lib, ffi = jack._lib, jack._ffi
+            lib.jack_set_xrun_callback(client._ptr, ffi.NULL, ffi.NULL)
+            lib.jack_on_info_shutdown(client._ptr, ffi.NULL, ffi.NULL)
+        except Exception:
+            pass
+        t0 = time.monotonic()
+        time.sleep(QUIET_WAIT)
+        while self.notifying and time.monotonic() - t0 < STOP_WAIT:
+            time.sleep(0.002)
+        client.close()
 
 
 def _connect(client, out, port: str) -> None:

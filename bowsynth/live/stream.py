@@ -88,9 +88,10 @@ class Stream(VoiceBank):
       window) is played whole by the FDM, as `score --fallback fdm` does;
     - with every voice busy a new note takes the voice nearest its end (releasing first, then the oldest): `stolen`;
     - note-ons beyond what the block's time allows (`busy_fraction` of the period spent) wait for the next block and
-      start at its first frame, in order (`deferred`, `max_defer` frames late); past PENDING waiting they are
-      dropped and counted, so a flood of 10,000 notes a second keeps the engine on time; malformed MIDI bytes are
-      dropped, counted.
+      start at its first frame, in order (`deferred`, `max_defer` frames late); one that waited at most a block is
+      caught up there (`_catch_up`: the note struck at its own frame, less the samples before the block), one that
+      waited longer starts from rest; past PENDING waiting they are dropped and counted, so a flood of 10,000 notes
+      a second keeps the engine on time; malformed MIDI bytes are dropped, counted.
 
     Examples
     --------
@@ -186,6 +187,10 @@ class Stream(VoiceBank):
         # start at the next block's first frame, oldest first; a full queue drops them
         self.pending = np.zeros((PENDING, 4), np.int64)
         self.n_pending = self.head = 0
+        # a deferred note's catch-up (_catch_up): its missed samples rendered here and discarded, the other slots'
+        # modes kept aside meanwhile
+        self.catch_buf = np.zeros(bl)
+        self.catch_modes = np.zeros(nv, self.mode.dtype)
         self.counts = dict(notes=0, dropped_bytes=0, dropped_busy=0, deferred=0, max_defer=0, stolen=0, fdm_notes=0,
                            fallbacks=0, silent=0, out_of_range=0, ignored=0, zero_length=0)
 
@@ -332,15 +337,35 @@ class Stream(VoiceBank):
 
     def _start_pending(self) -> None:
         """The waiting note-ons (a ring: no array is moved), oldest first, at this block's first frame, while the
-        time budget lasts."""
+        time budget lasts. A note due at most one block ago starts as the note it would have been from its own
+        frame (_catch_up): from here on its samples are the offline note's; one that waited longer starts here."""
         q = self.pending
         while self.n_pending and time.perf_counter() <= self._busy_until:
             ch, note, vel, due = q[self.head]
             self.head = (self.head + 1) % PENDING
             self.n_pending -= 1
             if vel > 0:
-                self.counts["max_defer"] = max(self.counts["max_defer"], self.frame - int(due))
-                self._start_note(0, int(ch), int(note), int(vel))
+                late = self.frame - int(due)
+                self.counts["max_defer"] = max(self.counts["max_defer"], late)
+                slot = self._start_note(0, int(ch), int(note), int(vel))
+                if slot >= 0 and 0 < late <= self.block:
+                    self._catch_up(slot, late)
+
+    def _catch_up(self, slot: int, late: int) -> None:
+        """Render the first `late` samples of the note just started in `slot` alone, and discard them: the note then
+        goes on from its sample `late` at this block's first frame, as if struck `late` frames ago (the samples it
+        missed are not heard; the rest are the offline note's). The other slots are set free meanwhile (the voice
+        loop skips a free slot without touching it) and given back their modes after."""
+        mode, keep = self.mode, self.catch_modes
+        np.copyto(keep, mode)
+        mode.fill(V.FREE)
+        mode[slot] = keep[slot]
+        self.catch_buf[:late] = 0.0
+        self.render(self.catch_buf, 0, late, self.amp)
+        now = mode[slot]
+        np.copyto(mode, keep)
+        mode[slot] = now
+        self.start[slot] -= late
 
     def _note_on(self, off: int, ch: int, note: int, vel: int) -> None:
         if self.n_pending or time.perf_counter() > self._busy_until:  # later, in order (a chord's top notes)
@@ -355,10 +380,11 @@ class Stream(VoiceBank):
             return
         self._start_note(off, ch, note, vel)
 
-    def _start_note(self, off: int, ch: int, note: int, vel: int) -> None:
+    def _start_note(self, off: int, ch: int, note: int, vel: int) -> int:
+        """Start a note at frame `off` of the block: its slot, or -1 where none sounds."""
         if not 12 <= note <= 119:  # the file reader refuses them (C0..B8)
             self.counts["out_of_range"] += 1
-            return
+            return -1
         key = ch * 128 + note
         if self.sounding[key] >= 0:  # a retrigger: the sounding one ends here (as the file reader does)
             self._note_off(self.sounding[key])
@@ -370,7 +396,7 @@ class Stream(VoiceBank):
         f0 = t.f0[vel, note] if neutral else midi_to_hz(note, self.a4) / t.grid_ratio(beta, vb)
         if not f0 == f0 or vb <= 0 or beta <= 0:  # NaN: a silent bow
             self.counts["silent"] += 1
-            return
+            return -1
         slot = self._free_slot()
         self.start_slot(slot, f0, beta, vb, self.a)
         self.start[slot], self.key[slot], self.vb_hold[slot], self.chan[slot] = self.frame + off, key, vb, ch
@@ -395,9 +421,10 @@ class Stream(VoiceBank):
                 lock = self.v_lock[vel] if neutral and pm[slot] == V.HELD else math.nan
                 if self.start_operator(slot, f0, Lock(f0 * lock, self.v_more[vel]) if lock > 0 else None):
                     self.start_rest(slot, beta, vb, self.a, f0)
-                    return
+                    return slot
             self.counts["fdm_notes"] += 1
         self.start_fdm(slot)
+        return slot
 
     def _pitch_moved(self, ch: int) -> None:
         """The channel's bend or vibrato depth changed: each of its notes (held or releasing) ramps to it from its
