@@ -5,6 +5,7 @@ or spends four times its notes.
 
     .venv/bin/python benchmarks/fit.py --n 6 --seed 8301
     .venv/bin/python benchmarks/fit.py --gestures      # a crescendo, a bow-speed change, a stop, fitted as curves
+    .venv/bin/python benchmarks/fit.py --n 5 --seed 8301 --fdm   # and the fit through the FDM beside it
 
 Per target: the bow's error (F_B / w, v_B, %) and whether the fit called each part identifiable, the fitted note as
 render plays it against the target (harmonics median dB, pitch cents, onset ms), the fit's seconds, and the descent's
@@ -24,9 +25,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bowsynth import api  # noqa: E402
+from bowsynth import BowsynthError, api  # noqa: E402
 from bowsynth.fit import held  # noqa: E402
-from bowsynth.fit.search import BETA_RANGE, VB_UNIT, Candidate, Scorer, descend  # noqa: E402
+from bowsynth.fit.search import BETA_RANGE, VB_UNIT, Candidate, Scorer, descend, f0_for  # noqa: E402
 from bowsynth.fit.surrogate import note_scene  # noqa: E402
 from bowsynth.fit.target import read_target  # noqa: E402
 from bowsynth.io.audio import write_wav  # noqa: E402
@@ -44,6 +45,45 @@ def draw(rng) -> tuple[float, float, float]:
         except Exception:  # noqa: BLE001 - a bow that does not sound: draw again
             continue
         return f0, beta, vb
+
+
+def fdm_fit(t, start, oversample: int = 4, max_evals: int = 160) -> tuple[float, float, float, int, float]:
+    """The fit through the FDM (the baseline where feasible): CMA-ES over (log F_B / w, v_B) from `start` (the
+    operator fit's bow), each candidate rendered by the FDM at `oversample` x the target's rate with f0 from the
+    target's pitch and the shipped map, scored by the same loss. (F_B / w, v_B, loss, renders, seconds)."""
+    import cma
+
+    from bowsynth.fit.loss import SoundLoss
+
+    loss = SoundLoss(t.x, t.sample_rate)
+    seconds = t.n / t.sample_rate
+
+    def value(x) -> float:
+        beta, vb = float(np.clip(math.exp(x[0]), *BETA_RANGE)), float(x[1]) * VB_UNIT
+        f0 = f0_for(loss.pitch, beta, vb)
+        if f0 is None:  # a bow that does not sound: the worst score
+            return 10.0
+        try:
+            r = api.render_fdm(note_scene(f0, beta, vb, seconds, t.sample_rate), oversample=oversample)
+        except BowsynthError:  # a request the FDM refuses: the worst score
+            return 10.0
+        return loss.value(np.asarray(r.q, float))
+
+    t0 = time.monotonic()
+    x0 = [math.log(start.beta), start.vb / VB_UNIT]
+    best_x, best = x0, value(x0)
+    es = cma.CMAEvolutionStrategy(x0, 0.1, {"verbose": -9, "seed": 1, "maxfevals": max_evals})
+    n = 1
+    while not es.stop() and n < max_evals:
+        xs = es.ask()
+        fs = [value(x) for x in xs]
+        n += len(xs)
+        es.tell(xs, fs)
+        i = int(np.argmin(fs))
+        if fs[i] < best:
+            best, best_x = fs[i], xs[i]
+    return (float(np.clip(math.exp(best_x[0]), *BETA_RANGE)), float(best_x[1]) * VB_UNIT, best, n,
+            time.monotonic() - t0)
 
 
 def cma_from(scorer: Scorer, start: Candidate, target_loss: float, max_evals: int) -> tuple[float, float, int]:
@@ -108,6 +148,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=6)
     ap.add_argument("--seed", type=int, default=8301)
     ap.add_argument("--gestures", action="store_true")
+    ap.add_argument("--fdm", action="store_true", help="also fit through the FDM (x4), from the operator fit's bow")
     args = ap.parse_args()
     if args.gestures:
         gestures()
@@ -115,8 +156,9 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     tmp = Path(tempfile.mkdtemp(prefix="bowsynth-fit-bench-"))
     print("| f0 | F_B / w | v_B | F_B / w err % (id) | v_B err % (id) | harmonics dB | pitch cents | onset ms | fit s |"
-          " descent s / loss | CMA-ES s / loss (notes) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          " descent s / loss | CMA-ES s / loss (notes) |" + (" FDM fit: F_B / w err %, v_B err %, loss (operator's), "
+                                                             "renders, s |" if args.fdm else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.fdm else ""))
     for _ in range(args.n):
         f0, beta, vb = draw(rng)
         path = tmp / f"t-{f0:.1f}-{beta:.3f}-{vb:.3f}.wav"
@@ -138,7 +180,12 @@ def main() -> None:
               f"({'yes' if f.identifiable('beta') else 'no'}) | {100 * (b.vb / vb - 1):+.2f} "
               f"({'yes' if f.identifiable('vb') else 'no'}) | {ch['harmonics_db']:.2f} | {ch['pitch_cents']:+.3f} | "
               f"{ch['onset_ms']:+.1f} | {fit_s:.1f} | {d_s:.1f} / {d.loss:.4f} | {c_s:.1f} / {c_loss:.4f} ({c_n}) |",
-              flush=True)
+              end="", flush=True)
+        if args.fdm:
+            fb, fv, fl, fn, fs = fdm_fit(t, b)
+            print(f" {100 * (fb / beta - 1):+.2f}, {100 * (fv / vb - 1):+.2f}, {fl:.4f} ({b.loss:.4f}), {fn}, {fs:.0f} |",
+                  end="")
+        print(flush=True)
 
 
 if __name__ == "__main__":
