@@ -424,8 +424,10 @@ def test_a_32_key_chord_after_a_melody_plays_as_score_renders_it_at_the_default_
 
 def burst_events(n: int = 6000, per_period: int = 60):
     """n MIDI messages, per_period a period: note-ons of the top three octaves (C6 .. B8) on all 16 channels, then
-    their note-offs. At the most voices every voice sounds, and a callback takes several periods (0.06-0.1 s of the
-    11.6 ms on a 2-core machine): a signal finds it running, inside the interpreter or the compiled core."""
+    their note-offs. At the most voices the callback's budget holds 15 (at B8) to 100 (at C6) of these notes and
+    drops the rest (without it, all 384 sounded and a callback took 0.06-0.1 s of the 11.6 ms on a 2-core machine);
+    each callback then takes about half the period, so a signal often finds it running, inside the interpreter or the
+    compiled core."""
     keys = [(i % 16, 84 + (i // 16) % 36) for i in range(n // 2)]
     msgs = [on(k, 64, ch) for ch, k in keys] + [off(k, ch) for ch, k in keys]
     dt = PERIOD / RATE / per_period
@@ -435,7 +437,8 @@ def burst_events(n: int = 6000, per_period: int = 60):
 @pytest.mark.parametrize("sig,code,word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")],
                          ids=["SIGINT", "SIGTERM"])
 def test_a_signal_during_a_burst_at_the_most_voices_ends_cleanly(jackd, player, sig, code, word):
-    """At the most voices, a burst of 6,000 MIDI messages through the server, the signal at a random moment of it
+    """At the most voices, a burst of 6,000 MIDI messages through the server (most of its notes dropped by the
+    callback's budget, the rest filling it), the signal at a random moment of it
     and again 0-50 ms later (a second Ctrl-C): the exit code, the summary, and the client gone from a server that
     still runs. libjack cancels its threads asynchronously when a client is deactivated or closed: a process thread
     cancelled inside the callback aborts the player ("terminate called without an active exception") or crashes it
@@ -512,8 +515,9 @@ def test_the_server_going_away_is_one_line_and_exit_1(jackd, player):
                                        (["--name", ""], "--name"), (["--name", "x" * 300], "--name"),
                                        (["--name", "a:b"], "--name")])
 def test_play_refuses_what_no_callback_could_hold_before_it_starts(args, what):
-    """A gain that is not a finite level or only clips, more voices than a block's callback holds, and a name JACK
-    cannot take: one line, exit 2, before any server is asked (none runs here)."""
+    """A gain that is not a finite level or only clips, more voice slots than the pool holds (what sounds is bounded
+    by the callback's budget), and a name JACK cannot take: one line, exit 2, before any server is asked (none runs
+    here)."""
     r = subprocess.run([sys.executable, "-m", "bowsynth", "play", "--server", f"none-{os.getpid()}", *args],
                        capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=120)
     assert r.returncode == 2, r.stdout + r.stderr

@@ -4,11 +4,15 @@ catch-up creates no array in the callback."""
 
 from __future__ import annotations
 
+import math
 import tracemalloc
 
 import numpy as np
 
+from bowsynth import physics
+from bowsynth.engines.operator import voices as V
 from bowsynth.live import Stream
+from bowsynth.live.budget import BUDGET, VoiceCosts
 from test_stream import MODEL, offline
 
 RATE, BLOCK = 44100, 512
@@ -76,3 +80,95 @@ def test_the_catch_up_creates_no_array(tmp_path):
         tracemalloc.stop()
     assert s.counts["deferred"] == 32 and s.counts["notes"] == 32
     assert max(peaks) < 8192, peaks
+
+
+# A voice's cost fixed for the tests below (the machine's own is measured when a Stream is prepared): what they
+# admit depends on these numbers only. Close to a 2-core machine's: MIDI 40 reserves its FDM release tail (0.05 ms a
+# 512-frame block), MIDI 100 0.14 ms, MIDI 112 0.27 ms.
+COSTS = VoiceCosts(sample=10e-9, window=4e-6, vibrato_sample=0.2e-6, vibrato_window=3e-6, step=0.1e-6)
+TOP = [(ch, note) for note in range(88, 120) for ch in (0, 1)]  # 64 note-ons, MIDI 88 .. 119, two channels
+
+
+def _sounding_load(s: Stream) -> float:
+    """The sounding voices' reservations, summed afresh."""
+    return float(sum(s.cost[v] for v in range(s.n_voices) if s.mode[v] != V.FREE))
+
+
+def test_a_burst_at_the_top_of_the_keyboard_is_held_to_the_budget_and_a_low_chord_is_not():
+    """A 32-key chord at MIDI 40-71 sounds whole (its reservations: a quarter of the budget); then 64 note-ons at
+    MIDI 88-119, far more than the budget holds at the top (each rolls 17-100 windows a 512-frame block): the notes the
+    budget admits, in order, sound, the others are not started and counted (`dropped`, in play's summary), no voice
+    is stolen (64 slots are free), and the sounding voices' predicted cost stays within the budget while they play
+    and release. Blocks of 4096 frames: the refusals create no array (a block-sized one would be 16 kB or more)."""
+    B = 4096
+    s = Stream(block=B, voices=96, model=MODEL, costs=COSTS, busy_fraction=1e9)
+    assert s.costs == COSTS and s.budget == BUDGET == 0.5
+    share = {n: s.predicted_share(n) for n in range(40, 120)}
+    # the cost model: per sample, per window (one a period: samples per window T / dtau), FDM steps for the tail
+    spw = s.op.samples_per_window(physics.dtau(s.tuning.f0[64, 100], RATE))
+    assert math.isclose(share[100], RATE * (COSTS.sample + COSTS.window / spw))
+    assert share[40] == RATE * COSTS.step  # a low note: its release tail (one FDM step a sample) costs the most
+    assert sorted(share[n] for n in range(88, 120)) == [share[n] for n in range(88, 120)]  # higher costs more
+
+    s.process(B, [(0, bytes((0x90, n, 64))) for n in CHORD])
+    assert s.counts["notes"] == 32 and s.counts["dropped"] == 0 and s.voices_sounding() == 32
+    low = sum(share[n] for n in CHORD)
+    assert math.isclose(s.load, low) and low < 0.3 * s.budget
+
+    # which of the burst the budget admits, in order (a refused note leaves room for a cheaper one after it)
+    load, admitted = low, []
+    for ch, n in TOP:
+        if load + share[n] <= s.budget:
+            load += share[n]
+            admitted.append((ch, n))
+    assert 0 < len(admitted) <= len(TOP) - 16
+    burst = [(i, bytes((0x90 | ch, n, 64))) for i, (ch, n) in enumerate(TOP)]
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        s.process(B, burst)
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    assert peak < 8192, peak
+    c = s.counts
+    assert c["notes"] == 32 + len(admitted) and c["dropped"] == len(TOP) - len(admitted) and c["stolen"] == 0
+    assert sorted(int(k) for k in s.key if k >= 0) == sorted([*CHORD] + [ch * 128 + n for ch, n in admitted])
+    assert math.isclose(s.load, load) and s.load <= s.budget
+    from bowsynth.live.jack_client import _summary
+
+    assert f"dropped {len(TOP) - len(admitted)}" in _summary(s, 0, B, RATE, 1.0)
+    # held, then released (each reservation covers its FDM tail): within the budget, block after block
+    for evs in [[]] * 3 + [[(0, bytes((0xB0 | ch, 123, 0))) for ch in (0, 1)]] + [[]] * 6:
+        s.process(B, evs)
+        assert math.isclose(s.load, _sounding_load(s), abs_tol=1e-12) and s.load <= s.budget
+    assert s.voices_sounding() == 0 and c["dropped"] == len(TOP) - len(admitted)
+
+
+def test_a_note_beyond_the_budget_takes_a_releasing_voice_and_a_vibrato_raises_the_load():
+    """A budget of 10.5 notes at MIDI 112: of 16 struck, 10 sound. One released, a new note that does not fit takes
+    its voice (its reservation frees enough: `stolen`) rather than being dropped. A vibrato moved in on a channel
+    that sounds rebuilds its note's window basis every window: the load grows past the budget (a controller is not
+    refused) and a note-on, even a cheap low one, is dropped until it falls."""
+    s = Stream(block=BLOCK, voices=64, model=MODEL, costs=COSTS, busy_fraction=1e9)
+    one = s.predicted_share(112)
+    s.budget = 10.5 * one
+    s.process(BLOCK, [(ch, bytes((0x90 | ch, 112, 64))) for ch in range(16)])
+    assert s.counts["notes"] == 10 and s.counts["dropped"] == 6 and math.isclose(s.load, 10 * one)
+    s.process(BLOCK, [(0, bytes((0x80, 112, 0)))])
+    slot = int(np.flatnonzero((s.key < 0) & (s.mode != V.FREE))[0])  # releasing
+    assert math.isclose(s.load, 10 * one)  # the tail keeps its reservation
+    s.process(BLOCK, [(0, bytes((0x9A, 112, 64)))])  # channel 10: dropped before
+    assert s.counts["stolen"] == 1 and s.counts["dropped"] == 6 and s.sounding[10 * 128 + 112] == slot
+    assert math.isclose(s.load, 10 * one) and s.load <= s.budget
+    assert s.budget - s.load > s.predicted_share(40, channel=11)  # a low note would fit now
+    s.process(BLOCK, [(0, bytes((0xB1, 1, 127))), (1, bytes((0x9B, 40, 64)))])  # a vibrato on channel 1, then it
+    assert s.load > s.budget and s.counts["dropped"] == 7 and s.sounding[11 * 128 + 40] < 0
+    assert math.isclose(s.load, 9 * one + s.predicted_share(112, channel=1))
+    s.process(BLOCK, [(0, bytes((0xB1, 123, 0)))])  # channel 1 released: its reservation goes with its tail
+    for _ in range(20):
+        s.process(BLOCK, [])
+    assert math.isclose(s.load, 9 * one)
+    s.process(BLOCK, [(1, bytes((0x9B, 40, 64)))])
+    assert s.sounding[11 * 128 + 40] >= 0 and s.counts["dropped"] == 7

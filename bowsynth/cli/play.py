@@ -11,9 +11,10 @@ import typer
 from ..errors import UsageError
 from .app import LiveWindowsOpt, app
 
-# The most voices a 512-frame block holds: the callback of 256 sounding operator voices takes 6.4 ms (median) of the
-# block's 11.6 ms at 44.1 kHz (benchmarks/live.py callback), so ~1.5x that fills two thirds of it; more would drop
-# blocks under any other load.
+# The most slots: a bound on the pool (each slot holds its buffers, ~2.5 MB with the shipped models: 1 GB at 384), not
+# on what the callback can play. What sounds at once is bounded by the callback's budget (live.budget.BUDGET: half of
+# each period, from each voice's cost measured at start): on a 2-core machine ~115 voices low on the keyboard (each
+# reserves its FDM release tail), 44 at MIDI 100, 28 at MIDI 108 (docs/live.md, "Real time").
 MAX_VOICES = 384
 # Polyphony by default: a chord of up to 64 keys (with the tails of the notes before it) plays as `score` renders it
 # (at 16, a 32-key chord steals 16 of its own notes). A free slot costs the callback nothing (0.03 ms a block for 384
@@ -30,9 +31,13 @@ def play(
                                                                 "the default server."),
     connect: Optional[list[str]] = typer.Option(None, "--connect", help="Connect NAME:out to this audio input port "
                                                                         "on start (repeatable), e.g. system:playback_1."),
-    voices: int = typer.Option(DEFAULT_VOICES, "--voices", help="Polyphony: notes sounding at once, release tails "
-                                                                "included; a note beyond them takes the voice "
-                                                                "nearest its end (counted: stolen)."),
+    voices: int = typer.Option(DEFAULT_VOICES, "--voices", help="Voice slots (1..384): notes sounding at once, "
+                                                                "release tails included; a note beyond them takes "
+                                                                "the voice nearest its end (counted: stolen). The "
+                                                                "real bound is the callback's budget, half of each "
+                                                                "period from each voice's measured cost (high notes "
+                                                                "cost more): a note-on beyond it is dropped "
+                                                                "(counted: dropped)."),
     method: str = typer.Option("operator", "--method", "-m", help="Engine: operator (trained PI-DeepONet; notes it "
                                                                   "does not cover play the FDM) or fdm."),
     model: Optional[Path] = typer.Option(None, "--model", help="Operator model: a file or a model's name, as in "
@@ -48,16 +53,17 @@ def play(
     """Play live: a JACK client taking MIDI on NAME:midi_in and sounding on NAME:out, until Ctrl-C or SIGTERM.
 
     Notes, velocities, CC2 (bow pressure) and CC11 (expression) map to the bow exactly as in `score` of a MIDI file,
-    and each note is the note `score` would render, placed at its event's frame. Prints a status line (voices,
-    callback time against the period, xruns) and a summary at exit. See docs/live.md."""
+    and each note is the note `score` would render, placed at its event's frame. Prints what the callback's budget
+    holds, a status line (voices, predicted load against the budget, callback time against the period, xruns) and
+    a summary at exit. See docs/live.md."""
     from ..engines import Engine, parse_choice
     from ..live.jack_client import play as run
     from ..music.notes import A4_HZ
 
     method = parse_choice(Engine, method, "--method").value
     if not 1 <= voices <= MAX_VOICES:
-        raise UsageError(f"--voices must be 1..{MAX_VOICES} (a 512-frame block's callback holds about that many "
-                         f"sounding voices), got {voices}")
+        raise UsageError(f"--voices must be 1..{MAX_VOICES} (the pool's slots; what sounds at once is bounded by the "
+                         f"callback's budget, at most half of each period), got {voices}")
     if not name or len(name.encode()) > NAME_MAX or ":" in name or not name.isprintable():
         raise UsageError(f"--name must be 1..{NAME_MAX} printable bytes without ':' (a JACK client name), got "
                          f"{name[:40]!r}{'...' if len(name) > 40 else ''}")

@@ -75,6 +75,7 @@ def play(name: str = "bowsynth", server: str | None = None, connect=(), voices: 
         say(f"bowsynth: preparing {voices} voice(s), {engine} at {rate} Hz, {period}-frame periods{first} ...")
         stream = Stream(sample_rate=rate, block=max(period, 256), voices=voices, engine=engine, model=model, a4=a4,
                         amp=AMP if amp is None else amp, bend_range=bend_range, windows=windows)
+        say(_budget_line(stream, period, rate))
         midi_in = client.midi_inports.register("midi_in")
         out = client.outports.register("out")
         chunk = stream.block
@@ -232,12 +233,28 @@ def _connect(client, out, port: str) -> None:
         raise BowsynthError(f"--connect {port}: JACK refused the connection ({e})") from None
 
 
+BUDGET_NOTES = ((40, "E2"), (72, "C5"), (100, "E7"), (108, "C8"))  # what the start line says the budget holds
+
+
+def _budget_line(stream, period: int, rate: int) -> str:
+    """What bounds the callback: the budget, the measured cost model, and how many voices it holds at a few
+    pitches (a voice reserves the most of its sustain and its FDM release tail; Stream.predicted_share)."""
+    held = []
+    for note, name in BUDGET_NOTES:
+        share = stream.predicted_share(note)
+        if share > 0 and math.isfinite(stream.budget):
+            held.append(f"{min(int(stream.budget // share), stream.n_voices)} at {name}")
+    return (f"bowsynth: callback budget {stream.budget:.0%} of each {1e3 * period / rate:.2f} ms period; a voice "
+            f"costs {stream.costs} (measured): of {stream.n_voices} voice(s) it holds {', '.join(held) or 'all'} "
+            f"(velocity 64); a note-on beyond it is dropped (counted)")
+
+
 def _status(stream, xruns: int, period: int, rate: int) -> str:
     p50, p99, mx = percentiles_ms(stream.callback_times())
     c = stream.counts
-    return (f"voices {stream.voices_sounding():3d}/{stream.n_voices}  callback p50 {p50:.2f} p99 {p99:.2f} max "
-            f"{mx:.2f} ms of {1e3 * period / rate:.2f}  xruns {xruns}  notes {c['notes']}  dropped "
-            f"{c['dropped_busy'] + c['dropped_bytes']}")
+    return (f"voices {stream.voices_sounding():3d}/{stream.n_voices}  load {stream.load:4.0%} of {stream.budget:.0%}  "
+            f"callback p50 {p50:.2f} p99 {p99:.2f} max {mx:.2f} ms of {1e3 * period / rate:.2f}  xruns {xruns}  "
+            f"notes {c['notes']}  dropped {c['dropped'] + c['dropped_busy'] + c['dropped_bytes']}")
 
 
 def _summary(stream, xruns: int, period: int, rate: int, seconds: float) -> str:

@@ -16,6 +16,7 @@ from ..errors import UsageError
 from ..music import midi as M
 from ..music.note import RELEASE, stop_tail
 from ..music.notes import check_a4, midi_to_hz
+from .budget import BUDGET, Budgeted, VoiceCosts
 from .tables import Tuning
 
 DC_HZ = 5.0  # the causal DC blocker's corner: a bowed note's static offset is not sound (io.audio.remove_dc: 5 Hz)
@@ -24,7 +25,7 @@ TIMES = 1 << 16  # callback durations kept for the percentiles (the last ~6 minu
 PENDING = 64  # note-ons waiting for time (a 64-key chord; a flood beyond it is dropped and counted)
 
 
-class Stream(VoiceBank):
+class Stream(Budgeted, VoiceBank):
     """MIDI events in, blocks of audio out: the notes `bowsynth score` makes of a MIDI file, played live.
 
     A note is what `score` makes of a MIDI note (`music.score.load_midi_score`): its bow from the velocity and the
@@ -49,7 +50,7 @@ class Stream(VoiceBank):
     block : int
         The most frames one `process` call renders.
     voices : int
-        Notes that sound at once.
+        Slots: notes that may sound at once, release tails included (the callback's budget may hold fewer).
     engine : {'operator', 'fdm'}
         Who plays the sustains.
     model : OperatorModel, path or str, optional
@@ -62,6 +63,12 @@ class Stream(VoiceBank):
         The output is amp x the sum of the notes' q = w u (m/s).
     busy_fraction : float
         The share of a block's period that note-ons may take before the rest wait for the next block.
+    budget : float
+        The share of real time (of each block's period) that the sounding voices' predicted cost may take (BUDGET,
+        0.5); a note-on beyond it is dropped (`dropped`); math.inf: no bound.
+    costs : VoiceCosts, optional
+        The cost model's constants (s); None: measured here, through `process`, once the stream is prepared
+        (`_measure_costs`, ~0.1-0.2 s). Given: no measurement (a test's fixed costs, or a machine's measured ones).
     dc_hz : float
         The DC blocker's corner (Hz).
     bend_range : float
@@ -73,7 +80,7 @@ class Stream(VoiceBank):
     Raises
     ------
     UsageError
-        A bad voice count, engine, block, bend range or windows.
+        A bad voice count, engine, block, bend range, windows or budget.
 
     Notes
     -----
@@ -87,6 +94,12 @@ class Stream(VoiceBank):
     - a note the model does not cover (its bow outside the model's box, its pitch too high for one sample per
       window) is played whole by the FDM, as `score --fallback fdm` does;
     - with every voice busy a new note takes the voice nearest its end (releasing first, then the oldest): `stolen`;
+    - the callback is bounded by a budget, not by the slots: each sounding voice reserves its predicted share of real
+      time (`predicted_share`, from `costs`: a high note rolls more windows a second, so it costs more), the most
+      of its sustain and its FDM release tail (which may end it earlier), with its channel's bend and vibrato; a
+      note-on that would take their sum (`load`) past `budget` takes a releasing voice whose reservation frees
+      enough (`stolen`), else it is not started (`dropped`). A bend or vibrato moved while notes sound adds to the
+      load of those notes (it is not refused): later note-ons wait for it to fall;
     - note-ons beyond what the block's time allows (`busy_fraction` of the period spent) wait for the next block and
       start at its first frame, in order (`deferred`, `max_defer` frames late); one that waited at most a block is
       caught up there (`_catch_up`: the note struck at its own frame, less the samples before the block), one that
@@ -106,7 +119,7 @@ class Stream(VoiceBank):
     def __init__(self, sample_rate: int = 44100, block: int = 512, voices: int = 16, engine: str = "operator",
                  model=None, a4: float = 440.0, release: float | None = None, amp: float = AMP,
                  busy_fraction: float = 0.5, dc_hz: float = DC_HZ, bend_range: float = M.BEND_RANGE,
-                 windows: str | None = None):
+                 windows: str | None = None, budget: float = BUDGET, costs: VoiceCosts | None = None):
         if isinstance(voices, bool) or not isinstance(voices, int) or voices < 1:
             raise UsageError(f"--voices must be a whole number >= 1, got {voices!r}")
         if engine not in ("operator", "fdm"):
@@ -115,6 +128,8 @@ class Stream(VoiceBank):
             raise UsageError(f"block must be >= 1 frame, got {block}")
         if not (math.isfinite(bend_range) and 0 <= bend_range <= 24):
             raise UsageError(f"--bend-range must be 0..24 semitones, got {bend_range:g}")
+        if not budget > 0:
+            raise UsageError(f"the callback's budget must be a share of real time > 0, got {budget!r}")
         from ..music.engine_tuning import LIVE_WINDOWS, check_windows
 
         # free: the trained windows; locked: a note held at its pitch in windows locked to it, as `score` renders it
@@ -162,7 +177,12 @@ class Stream(VoiceBank):
                 self.v_lock[:] = [np.nan if r is None else r for r in lock]
                 self.v_more[:] = [lock_more(r) for r in lock]
         self._allocate_midi(dc_hz)
+        # while the stream warms and measures itself every note is admitted, at no cost
+        self.costs, self.budget = VoiceCosts(0.0, 0.0, 0.0, 0.0, 0.0), math.inf
         self._warm()
+        self.costs = self._measure_costs() if costs is None else VoiceCosts(*map(float, costs))
+        self.budget = float(budget)
+        self.reset()
 
     def _allocate_midi(self, dc_hz: float) -> None:
         nv, bl = self.n_voices, self.block
@@ -191,8 +211,16 @@ class Stream(VoiceBank):
         # modes kept aside meanwhile
         self.catch_buf = np.zeros(bl)
         self.catch_modes = np.zeros(nv, self.mode.dtype)
-        self.counts = dict(notes=0, dropped_bytes=0, dropped_busy=0, deferred=0, max_defer=0, stolen=0, fdm_notes=0,
-                           fallbacks=0, silent=0, out_of_range=0, ignored=0, zero_length=0)
+        # the budget (predicted_share): per slot, whether the operator plays it, its windows per sample at its
+        # struck pitch, its FDM's share of real time, and what it reserves now (its channel's bend and vibrato in)
+        self.c_op = np.zeros(nv, np.bool_)
+        self.c_wps, self.c_fdm, self.cost = np.zeros(nv), np.zeros(nv), np.zeros(nv)
+        self.load = 0.0  # the sounding voices' reservations: a share of real time
+        self._on = np.zeros(nv)  # scratch of the load's sum and of the search for a releasing voice to take
+        self._left = np.zeros(nv, np.int64)
+        self._skip, self._skip2 = np.zeros(nv, np.bool_), np.zeros(nv, np.bool_)
+        self.counts = dict(notes=0, dropped_bytes=0, dropped_busy=0, deferred=0, max_defer=0, stolen=0, dropped=0,
+                           fdm_notes=0, fallbacks=0, silent=0, out_of_range=0, ignored=0, zero_length=0)
 
     def _warm(self) -> None:
         """Run every path once, then reset: the first note after activation costs what every later note costs (the
@@ -232,6 +260,8 @@ class Stream(VoiceBank):
         self.cc[:, M.CC_EXPRESSION] = M.NEUTRAL[M.CC_EXPRESSION]
         self.frame = 0
         self.n_times = 0
+        self.cost[:] = 0.0
+        self.load = 0.0
         for k in self.counts:
             self.counts[k] = 0
 
@@ -276,6 +306,9 @@ class Stream(VoiceBank):
             self._event(off, data)
         if at < n:
             self._render(at, n - at)
+        # the voices this block ended (their tails done) give their reservations back
+        np.not_equal(self.mode, V.FREE, out=self._on)
+        self.load = float(np.dot(self._on, self.cost))
         V.dc_block(mix, n, self.dc_r, self.dc_state, self.out)
         self.frame += n
         self.times[self.n_times % TIMES] = time.perf_counter() - t0
@@ -397,7 +430,18 @@ class Stream(VoiceBank):
         if not f0 == f0 or vb <= 0 or beta <= 0:  # NaN: a silent bow
             self.counts["silent"] += 1
             return -1
-        slot = self._free_slot()
+        plays = self.engine == "operator" and bool(self.covered[vel] if neutral else self._plays(beta, vb))
+        # locked (a neutral note held at its pitch from its note-on): the model's own period, as `score` locks it; a
+        # note bent later keeps its windows, where offline its pitch curve plays free ones
+        lock = self.v_lock[vel] if plays and neutral and self.bend[ch] == 0 and self.depth[ch] == 0 else math.nan
+        sounding = Lock(f0 * lock, self.v_more[vel]) if lock > 0 else None
+        op, wps, fdm = self._shares(f0, beta, plays, sounding)
+        cost = self._reserve(op, wps, fdm, ch)
+        slot = self._admit(cost)
+        if slot < 0:
+            return -1
+        self.c_op[slot], self.c_wps[slot], self.c_fdm[slot], self.cost[slot] = op, wps, fdm, cost
+        self.load += cost
         self.start_slot(slot, f0, beta, vb, self.a)
         self.start[slot], self.key[slot], self.vb_hold[slot], self.chan[slot] = self.frame + off, key, vb, ch
         pm, pp = self.pit[0], self.pit[1]
@@ -409,17 +453,14 @@ class Stream(VoiceBank):
         self.sounding[key] = slot
         self.counts["notes"] += 1
         if self.engine == "operator":
-            if self.covered[vel] if neutral else self._plays(beta, vb):
+            if plays:
                 pin, gain, center, half = self.ops[9], self.ops[10], self.ops[7], self.ops[8]
                 if neutral:
                     pin[slot], gain[slot], center[slot], half[slot] = (self.v_pin[vel], self.v_gain[vel],
                                                                         self.v_center[vel], self.v_half[vel])
                 else:
                     self.bow_inputs(slot, beta, vb)
-                # locked (a neutral note held at its pitch from its note-on): the model's own period, as `score`
-                # locks it; a note bent later keeps its windows, where offline its pitch curve plays free ones
-                lock = self.v_lock[vel] if neutral and pm[slot] == V.HELD else math.nan
-                if self.start_operator(slot, f0, Lock(f0 * lock, self.v_more[vel]) if lock > 0 else None):
+                if self.start_operator(slot, f0, sounding):
                     self.start_rest(slot, beta, vb, self.a, f0)
                     return slot
             self.counts["fdm_notes"] += 1
@@ -439,6 +480,10 @@ class Stream(VoiceBank):
             pp[slot, V.P_B0], pp[slot, V.P_B1], pp[slot, V.P_BT] = b, self.bend[ch], s
             pp[slot, V.P_D0], pp[slot, V.P_D1], pp[slot, V.P_DT] = d, self.depth[ch], s
             pm[slot] = V.LIVE
+            # its windows' rate follows the bend, a vibrato rebuilds its basis every window: its reservation too
+            cost = self._reserve(self.c_op[slot], self.c_wps[slot], self.c_fdm[slot], ch)
+            self.load += cost - self.cost[slot]
+            self.cost[slot] = cost
 
     def _plays(self, beta: float, vb: float) -> bool:
         """Does the model play this bow (Domain.box_contains for one bow, in scalars)? A point model plays only
@@ -450,18 +495,6 @@ class Stream(VoiceBank):
         b0, b1, v0, v1 = d.box
         return (b0 <= beta <= b1 or (d.plays_below and 0.0 <= beta <= b0)) and v0 <= vb <= v1
 
-    def _free_slot(self) -> int:
-        slot = V.pick_slot(self.mode, self.end, self.pos, self.start)
-        if self.mode[slot] == V.FREE:
-            return slot
-        # stolen: the releasing voice nearest its end, else the oldest held one
-        self.counts["stolen"] += 1
-        if self.key[slot] >= 0:
-            self.sounding[self.key[slot]] = -1
-        self.key[slot] = -1
-        self.mode[slot] = V.FREE
-        return slot
-
     def _note_off(self, slot: int) -> None:
         """The bow stop from the slot's next sample (VoiceBank.release); a note of zero length is dropped, as the
         file reader drops it."""
@@ -471,6 +504,7 @@ class Stream(VoiceBank):
         self.key[slot] = -1
         if self.pos[slot] == 0:
             self.mode[slot] = V.FREE
+            self.load -= self.cost[slot]
             self.counts["zero_length"] += 1
             return
         fst = self.fdm[0]
