@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 from pathlib import Path
 from ... import shipped
 
@@ -27,9 +28,18 @@ def _listed() -> dict:
     return models if isinstance(models, dict) else {}
 
 
+@functools.lru_cache(maxsize=64)
+def _real_dir(directory: str) -> str:
+    """A folder's real path, once per folder a process reads (a lookup reads every model file of it)."""
+    return os.path.realpath(directory)
+
+
 def in_manifest(path: Path, size: int, claimed) -> bool:
     """Whether `path` is a file of the shipped directory listed in the manifest with this size and claimed digest."""
-    if not isinstance(claimed, str) or Path(path).resolve().parent != MANIFEST.parent:
+    path = os.fspath(path)
+    if not isinstance(claimed, str) or os.path.islink(path):
         return False
-    entry = _listed().get(Path(path).name)
+    if _real_dir(os.path.dirname(os.path.abspath(path))) != str(MANIFEST.parent):
+        return False
+    entry = _listed().get(os.path.basename(path))
     return isinstance(entry, dict) and entry.get("size") == size and entry.get("digest") == claimed
