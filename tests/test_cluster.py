@@ -236,3 +236,16 @@ def test_bad_specs_one_line(tmp_path, body, words):
     assert p.returncode == 2, p.stderr
     assert words in one_line(p)
     assert not (tmp_path / "c" / "metadata.jsonl").exists()
+
+
+def test_the_atlas_eta_follows_the_pace_of_the_units_done():
+    """Units done at half their budgets: the units left take half theirs, spread over the workers, and never less
+    than the longest one left; nothing to say before a unit finishes, nothing left at the end."""
+    from bowsynth.training.atlas import eta_seconds
+
+    done = [{"seconds": 300.0, "minutes": 10.0}, {"seconds": 0.0, "minutes": None}]  # the second: skipped
+    assert eta_seconds(done, [10.0, 10.0, 20.0], workers=1) == pytest.approx(0.5 * 60 * 40)
+    assert eta_seconds(done, [10.0, 10.0, 20.0], workers=2) == pytest.approx(0.5 * 60 * 20)
+    assert eta_seconds(done, [10.0, 10.0, 20.0], workers=8) == pytest.approx(0.5 * 60 * 20)  # the 20-minute unit
+    assert eta_seconds([], [10.0], workers=2) is None
+    assert eta_seconds(done, [], workers=2) == 0.0

@@ -192,8 +192,9 @@ def _atlas(spec, workers: int, address) -> int:
 
     units = atlas_recipes(spec)
     with err.status(f"atlas: 0/{len(units)} units") as status:
-        def progress(done, total, running):
-            status.update(f"atlas: {done}/{total} units done, {running} running")
+        def progress(done, total, running, eta=None):
+            left = "" if eta is None else f", about {eta / 60:.0f} min left at the pace so far"
+            status.update(f"atlas: {done}/{total} units done, {running} running{left}")
         results = run_atlas(units, workers=workers, address=address, progress=progress)
     failed = 0
     for r in results:

@@ -65,14 +65,29 @@ def _unit(recipe: str) -> dict:
     return {"recipe": recipe, "rc": p.returncode, "seconds": time.monotonic() - t0, "said": lines[-1] if lines else ""}
 
 
+def eta_seconds(done: list[dict], left_minutes: list[float], workers: int) -> float | None:
+    """The wall still to wait, in seconds: the units left's budgets (their recipes' `minutes`), at the pace the units
+    done kept against theirs (a unit up to date takes seconds of its budget), spread over the workers (no fewer
+    rounds than the longest unit left); None before a unit with a budget has finished."""
+    if not left_minutes:
+        return 0.0
+    spent = sum(r["seconds"] for r in done if r.get("minutes"))
+    budget = sum(60.0 * r["minutes"] for r in done if r.get("minutes"))
+    if not budget:
+        return None
+    pace = spent / budget
+    return pace * 60.0 * max(sum(left_minutes) / max(1, min(workers, len(left_minutes))), max(left_minutes))
+
+
 def run_atlas(paths, workers: int = 1, address: str | None = None, progress=None) -> list[dict]:
-    """Train the units wave by wave; progress(done, total, running) after each. A failed unit's refinements are not
-    started (reported as skipped)."""
+    """Train the units wave by wave; progress(done, total, running, eta) after each (eta: eta_seconds, or None). A
+    failed unit's refinements are not started (reported as skipped)."""
     from ..io.cluster import Pool
 
     ws = waves(paths)
     up = parents([p for w in ws for p in w])
     total = sum(len(w) for w in ws)
+    minutes = {p: float(load_recipe(p).get("minutes", 5.0)) for w in ws for p in w}
     results: dict[Path, dict] = {}
     with Pool(workers, address) as pool:
         for wave in ws:
@@ -82,9 +97,11 @@ def run_atlas(paths, workers: int = 1, address: str | None = None, progress=None
                     results[p] = {"recipe": str(p), "rc": None, "seconds": 0.0,
                                   "said": f"skipped: {up[p]} did not train"}
             for i, res in pool.map(_unit, [str(p) for p in run]):
-                results[run[i]] = res
+                results[run[i]] = dict(res, minutes=minutes[run[i]])
                 if progress is not None:
-                    progress(len(results), total, min(workers, len(run) - sum(1 for p in run if p in results)))
+                    left = [minutes[p] for w in ws for p in w if p not in results]
+                    progress(len(results), total, min(workers, len(run) - sum(1 for p in run if p in results)),
+                             eta_seconds(list(results.values()), left, workers))
         note = pool.note
     out = [results[p] for w in ws for p in w]
     if note:
