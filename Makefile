@@ -64,7 +64,7 @@ tables: $(STAMP)
 
 # docs/api/: the API reference, built by pdoc from the numpydoc docstrings of these modules (not committed;
 # tests/test_docs.py runs their examples and builds the same page from this list)
-DOC_MODULES := bowsynth.api bowsynth.scene bowsynth.render bowsynth.music.score bowsynth.music.note bowsynth.live.stream bowsynth.live.budget
+DOC_MODULES := bowsynth.api bowsynth.scene bowsynth.render bowsynth.music.score bowsynth.music.note bowsynth.live.stream bowsynth.live.budget bowsynth.music.request
 docs: $(STAMP)
 	$(PY) -m pdoc --docformat numpy -o docs/api $(DOC_MODULES)
 

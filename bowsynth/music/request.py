@@ -11,14 +11,52 @@ from ..scene import Scene, load_preset
 
 def make_scene(preset: str | None = None, pitch=None, a4: float | None = None, beta=None, ratio=None,
                **overrides) -> Scene:
-    """A Scene from an optional preset, with the non-None overrides applied on top.
+    """A Scene from an optional preset, a pitch or an f0, and a bow force as F_B or as F_B / w.
 
-    pitch (Hz or a note name such as "A4", tuned to a4, default 440 Hz) replaces f0 by the f0 that sounds at that
-    pitch with the scene's bow (see `bowsynth.music.tuning`); a preset's f0 gives way to it, an explicit f0 conflicts.
-    beta (F_B / w, a number or a curve) replaces fb by beta 2 pi f0: the same timbre at every pitch. A preset may
-    itself say pitch = "A3" and beta = ... instead of f0 and fb. ratio: the sounding ratio of the engine that will
-    play the note (`pitch.tune`; `api.tuning_for` gives it), else the physics' from the shipped map
-    (`ratio_map.map_ratio`: no reference runs)."""
+    Parameters
+    ----------
+    preset : str, optional
+        A shipped preset's name (`bowsynth presets`); its fields are the starting point. A preset may itself say
+        pitch = "A3" and beta = ... instead of f0 and fb.
+    pitch : float or str, optional
+        The note to sound, in Hz or as a name such as "A4" (tuned to `a4`): f0 becomes the f0 that sounds at that
+        pitch with the scene's bow (see `bowsynth.music.tuning`). A preset's f0 gives way to it; an explicit f0
+        conflicts.
+    a4 : float, optional
+        The tuning of note names (default 440 Hz); only with `pitch`.
+    beta : float or curve, optional
+        F_B / w, replacing fb by beta 2 pi f0: the same timbre at every pitch. An explicit fb conflicts.
+    ratio : callable, optional
+        The sounding ratio of the engine that will play the note (`api.tuning_for` gives it), else the physics' from
+        the shipped map (`ratio_map.map_ratio`: no reference runs).
+    **overrides
+        Scene fields (f0, fb, vb, a, duration, sample_rate, ...); None values are ignored.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    UsageError
+        pitch and f0 both given, fb and beta both given, or a4 without pitch.
+
+    Examples
+    --------
+    >>> from bowsynth import make_scene
+    >>> make_scene("paper-fb100", duration=0.2).fb
+    100.0
+    >>> s = make_scene(pitch="A4", fb=300, duration=0.5)   # friction lowers the pitch: f0 lies above 440 Hz
+    >>> 440 < s.f0 < 470
+    True
+    >>> s = make_scene(pitch=220.0, beta=0.3, vb=0.2)
+    >>> round(s.fb / (2 * 3.141592653589793 * s.f0), 3)
+    0.3
+    >>> make_scene(pitch="A4", f0=300)
+    Traceback (most recent call last):
+    ...
+    bowsynth.errors.UsageError: give the note as pitch or as f0, not both
+    """
     fields = load_preset(preset) if preset else {}
     if overrides.get("f0") is not None and pitch is not None:
         raise UsageError("give the note as pitch or as f0, not both")
