@@ -249,3 +249,18 @@ def test_the_atlas_eta_follows_the_pace_of_the_units_done():
     assert eta_seconds(done, [10.0, 10.0, 20.0], workers=8) == pytest.approx(0.5 * 60 * 20)  # the 20-minute unit
     assert eta_seconds([], [10.0], workers=2) is None
     assert eta_seconds(done, [], workers=2) == 0.0
+
+
+def test_a_bench_map_on_the_cluster_is_the_map_of_one_process(cluster, tmp_path):
+    """`bench map`'s cells as tasks on the two-node cluster come back in the grid's order, each the cell one process
+    measures (the render's own time apart)."""
+    import json
+
+    args = ("bench", "map", "--grid", "2x2", "--f0", "220", "--seconds", "0.3", "--json")
+    alone = bow(*args, cwd=tmp_path)
+    spread = bow(*args, "--workers", "2", "--address", cluster.address, cwd=tmp_path)
+    assert alone.returncode == 0 and spread.returncode == 0, alone.stderr + spread.stderr
+    a, b = json.loads(alone.stdout)["cells"], json.loads(spread.stdout)["cells"]
+    strip = [{k: v for k, v in c.items() if k != "op_seconds"} for c in a]
+    assert len(a) == 4 and strip == [{k: v for k, v in c.items() if k != "op_seconds"} for c in b]
+    assert {c["status"] for c in a} <= {"played", "silent", "not played"} and any(c["status"] == "played" for c in a)

@@ -70,20 +70,33 @@ def map_cell(f0: float, beta: float, vb: float, seconds: float = 2.0, model=None
     return cell
 
 
+def _cell(args: tuple) -> dict:
+    """A task: one cell (map_cell's arguments as a tuple, so that a pool can ship it)."""
+    return map_cell(*args)
+
+
 def error_map(f0s=(110.0, 440.0), n_beta: int = 10, n_vb: int = 8, seconds: float = 2.0, model=None,
-              progress=None, windows: str | None = None) -> dict:
+              progress=None, windows: str | None = None, workers: int = 1, address: str | None = None) -> dict:
     """Every cell of the grid at every pitch in f0s (see map_cell; windows None: a render's default). progress(done,
-    total), if given, after each."""
+    total), if given, after each. workers / address: the cells as independent tasks (`io.cluster.Pool`: Ray, or
+    processes here); the cells come back in the grid's order whatever order they finish in. A model given as an
+    object goes to the tasks as its file."""
+    from ..io.cluster import Pool
+
     windows = check_windows(windows)
     betas, vbs = grid(n_beta, n_vb)
-    total, cells = len(f0s) * len(betas) * len(vbs), []
+    if model is not None and not isinstance(model, (str, Path)) and not (workers == 1 and address is None):
+        model = str(model.path)
+    todo = [(float(f0), beta, vb, seconds, model, windows) for f0 in f0s for vb in vbs for beta in betas]
+    cells: list = [None] * len(todo)
     t0 = time.perf_counter()
-    for f0 in f0s:
-        for vb in vbs:
-            for beta in betas:
-                cells.append(map_cell(float(f0), beta, vb, seconds, model, windows))
-                if progress:
-                    progress(len(cells), total)
+    done = 0
+    with Pool(workers, address) as pool:
+        for i, cell in pool.map(_cell, todo):
+            cells[i] = cell
+            done += 1
+            if progress:
+                progress(done, len(todo))
     return {"f0": [float(f) for f in f0s], "beta": betas, "vb": vbs, "seconds": seconds, "windows": windows,
             "cells": cells, "wall_s": time.perf_counter() - t0}
 

@@ -28,6 +28,8 @@ def bench(
                                           help="map and equal: the operator's windows, as render's (free, locked, "
                                                "physics or auto); default auto, what a render plays (free: the "
                                                "trained windows)."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, max=1024, help="map: the cells as tasks on Ray workers of this machine (1: one after another here)."),
+    address: Optional[str] = typer.Option(None, "--address", help="map: a Ray cluster's address (default RAY_ADDRESS)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
@@ -56,7 +58,7 @@ def bench(
         out.print(json.dumps(rows, indent=2) if json_out else B.fdm_table(rows), soft_wrap=True)
         return
     if what == "map":
-        _bench_map(map_args, out_prefix, json_out, force, model, windows)
+        _bench_map(map_args, out_prefix, json_out, force, model, windows, workers, address)
         return
     if what == "equal":
         res = B.run_equal(quick=quick, out_prefix=out_prefix, windows=windows)
@@ -101,7 +103,8 @@ def _map_args(f0: str, grid: str, seconds: float) -> tuple:
     return f0s, nb, nv, seconds
 
 
-def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: bool, model, windows: str) -> None:
+def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: bool, model, windows: str,
+               workers: int = 1, address: Optional[str] = None) -> None:
     import json
 
     from ..analysis.error_map import error_map
@@ -115,7 +118,8 @@ def _bench_map(args: tuple, out_prefix: Optional[Path], json_out: bool, force: b
         if done == total or done % max(1, total // 10) == 0:
             err.print(f"bench map: {done}/{total} cells")
 
-    res = error_map(f0s, nb, nv, seconds, model=model, progress=progress, windows=windows)
+    res = error_map(f0s, nb, nv, seconds, model=model, progress=progress, windows=windows, workers=workers,
+                    address=address)
     md, js = R.table(res), json.dumps(jsonable(res), indent=2)
     _write(out_prefix, md, js, force)
     if out_prefix is not None:
