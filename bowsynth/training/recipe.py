@@ -105,6 +105,11 @@ if __name__ == "__main__":
     from ..errors import BowsynthError
 
     try:
-        print("\n".join(str(p) for p in build_order(sys.argv[1:])))
+        print("\n".join(str(p) for p in build_order(sys.argv[1:])), flush=True)
     except BowsynthError as e:  # `make models` runs this: one line, not a traceback
         sys.exit(f"error: {e}")
+    except BrokenPipeError:  # read by `head` or the like, which stopped reading: nothing more to say
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.exit(0)
