@@ -207,7 +207,9 @@ class _Ending:
                 time.sleep(0.002)
         try:
             client.deactivate()  # at once when the process thread deactivated the client itself
-            # inactive now: the notification thread runs no more Python once these are unset
+            # inactive now: the notification thread runs no more Python once these are unset. JACK-Client has no call
+            # that unsets a callback, so its cffi handles are used (private: where they are missing, the close below
+            # is as it would be without them)
             lib, ffi = jack._lib, jack._ffi
             lib.jack_set_xrun_callback(client._ptr, ffi.NULL, ffi.NULL)
             lib.jack_on_info_shutdown(client._ptr, ffi.NULL, ffi.NULL)
