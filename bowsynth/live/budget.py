@@ -11,9 +11,8 @@ import numpy as np
 
 from .. import physics
 from ..engines.operator import voices as V
-from ..engines.operator.windows import Lock, locked_window
+from ..engines.operator.windows import locked_window
 from ..music import midi as M
-from ..music.notes import midi_to_hz
 
 # The share of real time the sounding voices' predicted cost may take: half of each period, the other half left for
 # the callback's Python, the server, the other clients and whatever else the machine runs. A note-on that would take
@@ -143,18 +142,11 @@ class Budgeted:
         """
         if not 12 <= note <= 119:
             return math.nan
-        t, ch, vel = self.tuning, channel, velocity
-        c2, c11 = self.cc[ch, M.CC_PRESSURE], self.cc[ch, M.CC_EXPRESSION]
-        neutral = c2 == M.NEUTRAL[M.CC_PRESSURE] and c11 == M.NEUTRAL[M.CC_EXPRESSION]
-        beta = t.v_beta[vel] if neutral else M.bow_beta(vel, c2)
-        vb = t.v_vb[vel] if neutral else M.bow_vb(vel, c11)
-        f0 = t.f0[vel, note] if neutral else midi_to_hz(note, self.a4) / t.grid_ratio(beta, vb)
-        if not f0 == f0 or vb <= 0 or beta <= 0:
+        bow = self._note_bow(channel, note, velocity)
+        if bow is None:
             return math.nan
-        plays = self.engine == "operator" and bool(self.covered[vel] if neutral else self._plays(beta, vb))
-        lock = self.v_lock[vel] if plays and neutral and self.bend[ch] == 0 and self.depth[ch] == 0 else math.nan
-        return self._reserve(*self._shares(f0, beta, plays, Lock(f0 * lock, self.v_more[vel]) if lock > 0 else None),
-                             ch)
+        beta, _, f0, _, plays, sounding = bow
+        return self._reserve(*self._shares(f0, beta, plays, sounding), channel)
 
     def _admit(self, cost: float) -> int:
         """The slot for a note that reserves `cost`, or -1 (counted: `dropped`). A free slot, else the voice to steal

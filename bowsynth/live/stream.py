@@ -421,20 +421,11 @@ class Stream(Budgeted, VoiceBank):
         key = ch * 128 + note
         if self.sounding[key] >= 0:  # a retrigger: the sounding one ends here (as the file reader does)
             self._note_off(self.sounding[key])
-        t = self.tuning
-        c2, c11 = self.cc[ch, M.CC_PRESSURE], self.cc[ch, M.CC_EXPRESSION]
-        neutral = c2 == M.NEUTRAL[M.CC_PRESSURE] and c11 == M.NEUTRAL[M.CC_EXPRESSION]
-        beta = t.v_beta[vel] if neutral else M.bow_beta(vel, c2)
-        vb = t.v_vb[vel] if neutral else M.bow_vb(vel, c11)
-        f0 = t.f0[vel, note] if neutral else midi_to_hz(note, self.a4) / t.grid_ratio(beta, vb)
-        if not f0 == f0 or vb <= 0 or beta <= 0:  # NaN: a silent bow
+        bow = self._note_bow(ch, note, vel)
+        if bow is None:
             self.counts["silent"] += 1
             return -1
-        plays = self.engine == "operator" and bool(self.covered[vel] if neutral else self._plays(beta, vb))
-        # locked (a neutral note held at its pitch from its note-on): the model's own period, as `score` locks it; a
-        # note bent later keeps its windows, where offline its pitch curve plays free ones
-        lock = self.v_lock[vel] if plays and neutral and self.bend[ch] == 0 and self.depth[ch] == 0 else math.nan
-        sounding = Lock(f0 * lock, self.v_more[vel]) if lock > 0 else None
+        beta, vb, f0, neutral, plays, sounding = bow
         op, wps, fdm = self._shares(f0, beta, plays, sounding)
         cost = self._reserve(op, wps, fdm, ch)
         slot = self._admit(cost)
@@ -466,6 +457,23 @@ class Stream(Budgeted, VoiceBank):
             self.counts["fdm_notes"] += 1
         self.start_fdm(slot)
         return slot
+
+    def _note_bow(self, ch: int, note: int, vel: int):
+        """A note-on's bow and pitch as the channel's controllers set them now: (beta, v_B, f0, at neutral
+        controllers, whether the operator plays it, the Lock its windows take or None), or None for a silent bow."""
+        t = self.tuning
+        c2, c11 = self.cc[ch, M.CC_PRESSURE], self.cc[ch, M.CC_EXPRESSION]
+        neutral = c2 == M.NEUTRAL[M.CC_PRESSURE] and c11 == M.NEUTRAL[M.CC_EXPRESSION]
+        beta = t.v_beta[vel] if neutral else M.bow_beta(vel, c2)
+        vb = t.v_vb[vel] if neutral else M.bow_vb(vel, c11)
+        f0 = t.f0[vel, note] if neutral else midi_to_hz(note, self.a4) / t.grid_ratio(beta, vb)
+        if not f0 == f0 or vb <= 0 or beta <= 0:  # NaN: a silent bow
+            return None
+        plays = self.engine == "operator" and bool(self.covered[vel] if neutral else self._plays(beta, vb))
+        # locked (a neutral note held at its pitch from its note-on): the model's own period, as `score` locks it; a
+        # note bent later keeps its windows, where offline its pitch curve plays free ones
+        lock = self.v_lock[vel] if plays and neutral and self.bend[ch] == 0 and self.depth[ch] == 0 else math.nan
+        return beta, vb, f0, neutral, plays, (Lock(f0 * lock, self.v_more[vel]) if lock > 0 else None)
 
     def _pitch_moved(self, ch: int) -> None:
         """The channel's bend or vibrato depth changed: each of its notes (held or releasing) ramps to it from its
