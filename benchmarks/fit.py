@@ -26,7 +26,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bowsynth import BowsynthError, api  # noqa: E402
-from bowsynth.fit import held  # noqa: E402
 from bowsynth.fit.search import BETA_RANGE, VB_UNIT, Candidate, Scorer, descend, f0_for  # noqa: E402
 from bowsynth.fit.surrogate import note_scene  # noqa: E402
 from bowsynth.fit.target import read_target  # noqa: E402
@@ -47,19 +46,40 @@ def draw(rng) -> tuple[float, float, float]:
         return f0, beta, vb
 
 
+def bow_of(x) -> tuple[float, float]:
+    """A point of the search, (log F_B / w, v_B / VB_UNIT), as the bow (F_B / w, v_B)."""
+    return float(np.clip(math.exp(x[0]), *BETA_RANGE)), float(x[1]) * VB_UNIT
+
+
+def cma_search(value, x0, best: float, max_evals: int, target: float = -math.inf) -> tuple[list, float, int]:
+    """CMA-ES (the `cma` package, step 0.1, seed 1) of value(x) from x0, whose loss is `best`: (the best point, its
+    loss, the points scored) once the loss reaches `target` or max_evals points are scored."""
+    import cma
+
+    es = cma.CMAEvolutionStrategy(list(x0), 0.1, {"verbose": -9, "seed": 1, "maxfevals": max_evals})
+    best_x, n = list(x0), 0
+    while not es.stop() and best > target and n < max_evals:
+        xs = es.ask()
+        fs = [value(x) for x in xs]
+        n += len(xs)
+        es.tell(xs, fs)
+        i = int(np.argmin(fs))
+        if fs[i] < best:
+            best, best_x = fs[i], xs[i]
+    return best_x, best, n
+
+
 def fdm_fit(t, start, oversample: int = 4, max_evals: int = 160) -> tuple[float, float, float, int, float]:
     """The fit through the FDM (the baseline where feasible): CMA-ES over (log F_B / w, v_B) from `start` (the
     operator fit's bow), each candidate rendered by the FDM at `oversample` x the target's rate with f0 from the
     target's pitch and the shipped map, scored by the same loss. (F_B / w, v_B, loss, renders, seconds)."""
-    import cma
-
     from bowsynth.fit.loss import SoundLoss
 
     loss = SoundLoss(t.x, t.sample_rate)
     seconds = t.n / t.sample_rate
 
     def value(x) -> float:
-        beta, vb = float(np.clip(math.exp(x[0]), *BETA_RANGE)), float(x[1]) * VB_UNIT
+        beta, vb = bow_of(x)
         f0 = f0_for(loss.pitch, beta, vb)
         if f0 is None:  # a bow that does not sound: the worst score
             return 10.0
@@ -71,38 +91,18 @@ def fdm_fit(t, start, oversample: int = 4, max_evals: int = 160) -> tuple[float,
 
     t0 = time.monotonic()
     x0 = [math.log(start.beta), start.vb / VB_UNIT]
-    best_x, best = x0, value(x0)
-    es = cma.CMAEvolutionStrategy(x0, 0.1, {"verbose": -9, "seed": 1, "maxfevals": max_evals})
-    n = 1
-    while not es.stop() and n < max_evals:
-        xs = es.ask()
-        fs = [value(x) for x in xs]
-        n += len(xs)
-        es.tell(xs, fs)
-        i = int(np.argmin(fs))
-        if fs[i] < best:
-            best, best_x = fs[i], xs[i]
-    return (float(np.clip(math.exp(best_x[0]), *BETA_RANGE)), float(best_x[1]) * VB_UNIT, best, n,
-            time.monotonic() - t0)
+    best_x, best, n = cma_search(value, x0, value(x0), max_evals - 1)  # the start is the first render
+    return (*bow_of(best_x), best, n + 1, time.monotonic() - t0)
 
 
 def cma_from(scorer: Scorer, start: Candidate, target_loss: float, max_evals: int) -> tuple[float, float, int]:
     """CMA-ES in u from `start`: (seconds, best loss, notes) until the loss reaches target_loss or max_evals."""
-    import cma
+    def value(x) -> float:
+        c = scorer.score(*bow_of(x), locked=start.locked)
+        return c.loss if c is not None else 10.0
 
     t0 = time.monotonic()
-    es = cma.CMAEvolutionStrategy(list(start.u), 0.1, {"verbose": -9, "seed": 1, "maxfevals": max_evals})
-    best, n = start.loss, 0
-    while not es.stop() and best > target_loss and n < max_evals:
-        xs = es.ask()
-        fs = []
-        for x in xs:
-            b = float(np.clip(math.exp(x[0]), *BETA_RANGE))
-            c = scorer.score(b, float(x[1]) * VB_UNIT, locked=start.locked)
-            fs.append(c.loss if c is not None else 10.0)
-            n += 1
-        es.tell(xs, fs)
-        best = min(best, min(fs))
+    _, best, n = cma_search(value, start.u, start.loss, max_evals, target=target_loss)
     return time.monotonic() - t0, best, n
 
 
