@@ -21,7 +21,7 @@ import numpy as np
 from .. import physics
 from ..errors import Terminated
 from .search import COARSE_SECONDS, STARTS, Candidate, Scorer, coarse, descend, distinct_starts, zoom
-from .target import FitMiss, Target
+from .target import FitMiss, Target, dc_edge
 
 SLACK = 1.0  # a bow within (1 + SLACK) x the best loss, plus NOISE, may be the one that made the sound
 # how much the loss moves between bows 1 % apart where the sound does not change (measured around held notes at 220
@@ -158,8 +158,7 @@ def check(fit: Fit, target: Target, render) -> dict:
     r = render(sc)
     q, y = np.asarray(r.q, float), target.x
     x = remove_dc(q, target.sample_rate)  # the whole note: the filter run backwards starts up in its last 0.2 s
-    edge = int(0.2 * target.sample_rate) if len(y) > 0.8 * target.sample_rate else 0
-    n = min(len(x), len(y)) - edge
+    n = min(len(x), len(y)) - dc_edge(len(y), target.sample_rate)
     e = listener_errors(x[:n], y[:n], target.sample_rate,
                         steady_seconds=(n - len(y) // 2) / target.sample_rate)
     return {"harmonics_db": e["harm_db_median"], "pitch_cents": e["cents"], "onset_ms": e["onset_err_ms"],

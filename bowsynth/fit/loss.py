@@ -15,13 +15,13 @@ import math
 import numpy as np
 
 from ..metrics import cents, f0_estimate
+from .target import dc_edge
 
 FFT_SIZES = (512, 1024, 2048)  # at 44.1 kHz (scaled with the rate): 12-46 ms, a few periods of the lowest notes
 EPS = 1.0  # the spectra's power floor (auraloss eps), for signals of unit RMS: -50 dB re a 1024-point fundamental
 FRAME_SECONDS = 0.01  # the onset term's loudness frames
 FLOOR_DB = -60.0  # the envelope's floor, below the note's final level
 ONSET_WEIGHT = 1.0  # per 20 dB of mean envelope difference
-PITCH_EDGE = 0.2  # s
 PITCH_CENTS = 10.0  # the pitch term: (cents / PITCH_CENTS)^2
 
 
@@ -49,9 +49,7 @@ class SoundLoss:
 
         self.sample_rate = float(sample_rate)
         self.n = len(target)
-        # the pitch over all but the last PITCH_EDGE s, where a DC filter run backwards (a render's file) starts up
-        edge = int(PITCH_EDGE * sample_rate) if self.n > 4 * PITCH_EDGE * sample_rate else 0
-        self.pitch_n = self.n - edge
+        self.pitch_n = self.n - dc_edge(self.n, sample_rate)  # the pitch where the DC filter has settled
         self.pitch = f0_estimate(target[:self.pitch_n], sample_rate)
         sizes = _sizes(sample_rate)
         self.stft = auraloss.freq.MultiResolutionSTFTLoss(

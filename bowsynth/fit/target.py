@@ -32,6 +32,15 @@ class FitMiss(FitError):
     exit_code = 1
 
 
+DC_EDGE = 0.2  # s: a DC filter run backwards (a render's file, remove_dc) starts up in a signal's last 0.2 s
+
+
+def dc_edge(n: int, sample_rate: float) -> int:
+    """The samples at the end of a signal of n that the fit does not listen to for its pitch or check: the last
+    DC_EDGE s; none in a signal shorter than 4 DC_EDGE."""
+    return int(DC_EDGE * sample_rate) if n > 4 * DC_EDGE * sample_rate else 0
+
+
 @dataclass
 class Target:
     """A target's samples (float64, the first FIT_SECONDS), rate, pitch (Hz) and the signal it holds ('u' the mass's
@@ -91,7 +100,7 @@ def read_target(path) -> Target:
             raise FitError(f"{p} clips ({int(at.sum())} samples at full scale): its peaks are cut off, so its spectrum "
                            f"is not the instrument's; fit a recording that does not clip")
     x = x[:int(round(min(seconds, FIT_SECONDS) * rate))]
-    edge = int(0.2 * rate) if len(x) > 0.8 * rate else 0  # a DC filter run backwards starts up in a file's last 0.2 s
+    edge = dc_edge(len(x), rate)
     pitch = f0_estimate(x[:len(x) - edge], rate)
     if not (math.isfinite(pitch) and MIN_PITCH <= pitch <= min(MAX_PITCH, rate / 8)):
         raise FitMiss(f"{p} has no steady pitch in its first {len(x) / rate:.3g} s: not a held note of this instrument")
