@@ -106,3 +106,29 @@ def claimed_cents(m) -> float:
 
 def pitch_limit(m) -> float:
     return CLAIM_MARGIN * claimed_cents(m) + CLAIM_FLOOR_CENTS
+
+
+# Tests take the shipped models they are about from the catalogue by what those are (a point model, the model picked
+# at a bow, a box that plays below it, the model a pick was refined from), never by file name, so that retraining the
+# catalogue, which renames models, leaves them meaningful.
+def shipped_models() -> list:
+    """The shipped catalogue as the package reads it (its readable files, failed validations included)."""
+    from bowsynth.engines.operator.choose import SHIPPED_DIR, available_models
+
+    return [m for m in available_models() if m.path is not None and m.path.parent.resolve() == SHIPPED_DIR.resolve()]
+
+
+def shipped_pick(scene):
+    """The shipped model the renderer picks for the scene (choose.find_model over the shipped catalogue)."""
+    from bowsynth.engines.operator.choose import find_model
+
+    return find_model(scene, shipped_models())
+
+
+def soft_bow_model(models=None):
+    """The model of the whole soft bow: of the validated range models that play below their box (an attack from
+    F_B 0), the one with the widest box of bows (the shipped ones unless `models` are given)."""
+    soft = [m for m in (shipped_models() if models is None else models)
+            if m.failure is None and m.domain.is_range and m.domain.plays_below]
+    assert soft, "no validated range model plays below its box"
+    return max(soft, key=lambda m: m.domain.bow_extent)

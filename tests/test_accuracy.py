@@ -10,9 +10,11 @@ other pitches with the same F_B / w where a window is not a whole number of samp
 
 Measure (prints the tables RANGE_MEASURED and MEASURED hold; the shared 2-core CPU, about 30 s):
     PYTHONPATH=. python tests/test_accuracy.py
-Point the tests at other model files (same names) with BOWSYNTH_TEST_MODELS=DIR.
+Point the tests at other model files with BOWSYNTH_TEST_MODELS=DIR: the paper's models by their scenes' names, the
+others found by what they are (the soft bow's range model, the point models with the rest-linearised flow).
 """
 
+import functools
 import math
 import os
 from pathlib import Path
@@ -23,39 +25,47 @@ import bowsynth
 from bowsynth import Scene, load_model, make_scene, render_fdm, render_operator
 from bowsynth.metrics import nmse
 
+from conftest import soft_bow_model
+
 MODELS = Path(os.environ.get("BOWSYNTH_TEST_MODELS") or bowsynth.shipped("models"))
 DURATION = 0.25
 LIMIT = 4.0  # x the measured value: run-to-run noise is ~1e-6 relative (float32 + BLAS order); 10x worse fails
 
 # NMSE(p), 0.25 s, measured with the command above on the shipped models (commit of this file)
 MEASURED = {
-    ('paper-fb10', 'in sample, from rest'): 4.42e-07,
-    ('paper-fb10', 'onset at 2.5 T, +3 %'): 2.16e-05,
-    ('paper-fb10', 'limit cycle at 20.25 T, -3 %'): 1.21e-08,
-    ('paper-fb10', 'limit cycle at 30.75 T, +2 %'): 1.65e-08,
-    ('paper-fb10', 'f0 130, from rest'): 2.29e-07,
-    ('paper-fb10', 'f0 200, from rest'): 7.42e-08,
-    ('paper-fb10', 'f0 130, limit cycle state'): 2.17e-08,
-    ('paper-fb10', '48 kHz, from rest'): 4.42e-07,
-    ('paper-fb10', '96 kHz, limit cycle state'): 1.21e-08,
-    ('paper-fb100', 'in sample, from rest'): 2.59e-06,
-    ('paper-fb100', 'onset at 2.5 T, +3 %'): 2.21e-07,
-    ('paper-fb100', 'limit cycle at 20.25 T, -3 %'): 1.62e-07,
-    ('paper-fb100', 'limit cycle at 30.75 T, +2 %'): 1.94e-07,
-    ('paper-fb100', 'f0 130, from rest'): 2.34e-06,
-    ('paper-fb100', 'f0 200, from rest'): 8.39e-07,
-    ('paper-fb100', 'f0 130, limit cycle state'): 2.02e-07,
-    ('paper-fb100', '48 kHz, from rest'): 2.59e-06,
-    ('paper-fb100', '96 kHz, limit cycle state'): 1.62e-07,
-    ('paper-fb1000', 'in sample, from rest'): 3.26e-04,
-    ('paper-fb1000', 'onset at 2.5 T, +3 %'): 4.11e-04,
-    ('paper-fb1000', 'limit cycle at 20.25 T, -3 %'): 2.32e-04,
-    ('paper-fb1000', 'limit cycle at 30.75 T, +2 %'): 2.75e-04,
-    ('paper-fb1000', 'f0 130, from rest'): 2.59e-04,
-    ('paper-fb1000', 'f0 200, from rest'): 2.40e-04,
-    ('paper-fb1000', 'f0 130, limit cycle state'): 2.36e-04,
-    ('paper-fb1000', '48 kHz, from rest'): 3.26e-04,
-    ('paper-fb1000', '96 kHz, limit cycle state'): 2.32e-04,
+    'paper-fb10': {
+        'in sample, from rest': 4.42e-07,
+        'onset at 2.5 T, +3 %': 2.16e-05,
+        'limit cycle at 20.25 T, -3 %': 1.21e-08,
+        'limit cycle at 30.75 T, +2 %': 1.65e-08,
+        'f0 130, from rest': 2.29e-07,
+        'f0 200, from rest': 7.42e-08,
+        'f0 130, limit cycle state': 2.17e-08,
+        '48 kHz, from rest': 4.42e-07,
+        '96 kHz, limit cycle state': 1.21e-08,
+    },
+    'paper-fb100': {
+        'in sample, from rest': 2.59e-06,
+        'onset at 2.5 T, +3 %': 2.21e-07,
+        'limit cycle at 20.25 T, -3 %': 1.62e-07,
+        'limit cycle at 30.75 T, +2 %': 1.94e-07,
+        'f0 130, from rest': 2.34e-06,
+        'f0 200, from rest': 8.39e-07,
+        'f0 130, limit cycle state': 2.02e-07,
+        '48 kHz, from rest': 2.59e-06,
+        '96 kHz, limit cycle state': 1.62e-07,
+    },
+    'paper-fb1000': {
+        'in sample, from rest': 3.26e-04,
+        'onset at 2.5 T, +3 %': 4.11e-04,
+        'limit cycle at 20.25 T, -3 %': 2.32e-04,
+        'limit cycle at 30.75 T, +2 %': 2.75e-04,
+        'f0 130, from rest': 2.59e-04,
+        'f0 200, from rest': 2.40e-04,
+        'f0 130, limit cycle state': 2.36e-04,
+        '48 kHz, from rest': 3.26e-04,
+        '96 kHz, limit cycle state': 2.32e-04,
+    },
 }
 
 
@@ -90,7 +100,14 @@ def error(model, sc: Scene) -> float:
     return nmse(render_operator(sc, model=model).p, ref.p)
 
 
-PRESETS = ("paper-fb10", "paper-fb100", "paper-fb1000")
+PRESETS = tuple(MEASURED)  # the paper's three scenes, each played by the model trained on it (named after it)
+
+
+@functools.cache
+def catalogue() -> tuple:
+    """The model files in MODELS (the shipped ones unless BOWSYNTH_TEST_MODELS names others)."""
+    files = sorted(p for p in MODELS.glob("*.safetensors") if not p.name.endswith(".ckpt.safetensors"))
+    return tuple(load_model(p) for p in files)
 
 
 @pytest.fixture(scope="module", params=PRESETS)
@@ -104,37 +121,48 @@ def test_shipped_model_accuracy_in_and_out_of_sample(shipped):
     for name, sc in cases(preset).items():
         assert model.covers(sc), f"{preset}: {name} is outside the model's domain"
         e = error(model, sc)
-        limit = LIMIT * MEASURED[preset, name]
-        if not e <= limit:
-            bad.append(f"{name}: NMSE(p) {e:.3g} > {limit:.3g} ({LIMIT:g} x the measured {MEASURED[preset, name]:.3g})")
+        want = MEASURED[preset][name]
+        if not e <= LIMIT * want:
+            bad.append(f"{name}: NMSE(p) {e:.3g} > {LIMIT * want:.3g} ({LIMIT:g} x the measured {want:.3g})")
     assert not bad, f"{preset} ({MODELS}):\n" + "\n".join(bad)
 
 
-# scratch-g2 speaks slowly (v_B 0.3: from rest the note grows for ~0.2 s), so 0.25 s would score the onset alone:
-# 1 s from rest at its own pitch and two others, against FDM x100 (measured: the onset lands 2-6 ms early, pitch
-# within 0.06 cents; the same scene without the rest-linearised flow scored 0.57, its onset 52 ms late)
-SLOW_ONSET_MEASURED = {"own pitch": 2.33e-2, "f0 100": 2.28e-2, "f0 300": 2.83e-2}
+# The point models with the rest-linearised flow (NetConfig.rest_linear) are those of slow onsets: the shipped one's
+# note (F_B / w 0.815, v_B 0.3) grows from rest for ~0.2 s, so 0.25 s would score the onset alone. Each plays its
+# validation's span from rest at its own pitch and two others against FDM x100, held to LIMIT x the NMSE its
+# validation claims for its note (measured on the shipped one: within 1.25 x its claim at all three, the onset 2-6
+# ms early, the pitch within 0.06 cents; the same scene without the rest-linearised flow scored 0.57, its onset 52 ms
+# late).
+SLOW_ONSET_CASES = ("own pitch", "f0 100", "f0 300")
 
 
-@pytest.mark.parametrize("case", list(SLOW_ONSET_MEASURED))
+def slow_onset_models() -> list:
+    return [m for m in catalogue() if not m.domain.is_range and m.cfg.rest_linear]
+
+
+@pytest.mark.parametrize("case", SLOW_ONSET_CASES)
 def test_slow_onset_model_from_rest(case):
-    model = load_model(MODELS / "scratch-g2.safetensors")
-    sc = make_scene("scratch-g2", duration=1.0)
-    if case != "own pitch":
-        f0 = float(case.split()[1])
-        sc = sc.replace(f0=f0, fb=sc.beta * 2 * math.pi * f0)
-    assert model.covers(sc)
-    assert error(model, sc) <= LIMIT * SLOW_ONSET_MEASURED[case]
+    models = slow_onset_models()
+    assert models
+    for model in models:
+        v = model.meta.validation
+        sc = Scene(**{**model.meta.scene, "duration": v["seconds"]})
+        if case != "own pitch":
+            f0 = float(case.split()[1])
+            sc = sc.replace(f0=f0, fb=sc.beta * 2 * math.pi * f0)
+        assert model.covers(sc)
+        assert error(model, sc) <= LIMIT * v["nmse"], model.path.stem
 
 
-# The soft range model (one net over F_B / w 0.01-0.45 x v_B 0-0.3, bow stops and attacks included, trained with the
-# derivative term): bows of the held-out grid of benchmarks/ranges.py (cell centres in log F_B / w; no training bow is
-# one) and a crescendo through the box, 1 s from rest at f0 100 against FDM x100 (the crescendo's reference follows
-# the curve per step; the operator holds each window's bow at its middle). NMSE from rest is ill-conditioned in the
-# bow (docs/measures.md), so the held bows are pinned by what a listener hears too (RANGE_HEARD: the worst of harmonics
-# 1-10 in dB and the pitch in cents, over the last 0.5 s): an NMSE of 1e-4 to 6e-3 here can hide harmonics 30 dB off.
-# This model (width 128) is within 0.34 dB and 0.3 cents, at NMSE 1e-4 to 1e-2 (python tests/test_accuracy.py prints
-# both).
+# The soft bow's range model (conftest.soft_bow_model: one net over F_B / w 0.01-0.45 x v_B 0-0.3, bow stops and
+# attacks included, trained with the derivative term): bows of the held-out grid of benchmarks/ranges.py (cell centres
+# in log F_B / w; no training bow is one) and a crescendo through the box, 1 s from rest at f0 100 against FDM x100
+# (the crescendo's reference follows the curve per step; the operator holds each window's bow at its middle). NMSE
+# from rest is ill-conditioned in the bow (docs/measures.md), so the held bows are pinned by what a listener hears too
+# (RANGE_HEARD: the worst of harmonics 1-10 in dB and the pitch in cents, over the last 0.5 s): an NMSE of 1e-4 to
+# 6e-3 here can hide harmonics 30 dB off. The shipped one (width 128) is within 0.34 dB and 0.3 cents, at NMSE 1e-4
+# to 1e-2 (python tests/test_accuracy.py prints both). Its validation's claims are its grid's worst (0.95 dB, 0.9
+# cents), too loose to pin these bows: the tables hold its measurements.
 RANGE_MEASURED = {(0.0226, 0.1437): 1.23e-4, (0.0514, 0.1437): 1.10e-3, (0.1168, 0.1437): 1.95e-3,
                   (0.1168, 0.2062): 7.66e-3, "crescendo 0.05 -> 0.35": 9.56e-3}
 RANGE_HEARD = {(0.0226, 0.1437): (0.026, 0.017), (0.0514, 0.1437): (0.148, 0.127), (0.1168, 0.1437): (0.334, 0.297),
@@ -150,7 +178,7 @@ def range_case(case) -> Scene:
 
 @pytest.mark.parametrize("case", list(RANGE_MEASURED), ids=str)
 def test_soft_range_model_held_out_bows(case):
-    model = load_model(MODELS / "soft-range.safetensors")
+    model = soft_bow_model(catalogue())
     sc = range_case(case)
     assert model.covers(sc)
     assert error(model, sc) <= LIMIT * RANGE_MEASURED[case]
@@ -166,18 +194,20 @@ def heard(model, sc: Scene) -> tuple[float, float]:
 
 @pytest.mark.parametrize("case", list(RANGE_HEARD), ids=str)
 def test_soft_range_model_held_out_bows_as_heard(case):
-    harm, cents = heard(load_model(MODELS / "soft-range.safetensors"), range_case(case))
+    harm, cents = heard(soft_bow_model(catalogue()), range_case(case))
     want_harm, want_cents = RANGE_HEARD[case]
     assert harm <= 1.5 * want_harm + 0.1 and cents <= 1.5 * want_cents + 0.05, (harm, cents)
 
 
 if __name__ == "__main__":
-    m = load_model(MODELS / "soft-range.safetensors")
+    m = soft_bow_model(catalogue())
     for case in RANGE_MEASURED:
         print(f"    {case!r}: {error(m, range_case(case)):.2e},")
     for case in RANGE_HEARD:
         print(f"    {case!r}: {tuple(round(v, 3) for v in heard(m, range_case(case)))},")
     for preset in PRESETS:
         m = load_model(MODELS / f"{preset}.safetensors")
+        print(f"    {preset!r}: {{")
         for name, sc in cases(preset).items():
-            print(f"    ({preset!r}, {name!r}): {error(m, sc):.2e},")
+            print(f"        {name!r}: {error(m, sc):.2e},")
+        print("    },")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import run_main, tiny_config
+from conftest import centre_record, run_main, shipped_models, tiny_config
 
 from bowsynth import Scene
 from bowsynth.engines.operator.basis import numpy_operator
@@ -331,8 +331,8 @@ def test_a_refinement_is_current_while_its_base_is_the_model_it_was_refined_from
     rec = tmp_path / "r.toml"
     rec.write_text('f0 = 100\nfb = "94:126"\nfrom = "base.safetensors"\n')
     assert load_recipe(rec)["from"] == str(tmp_path / "base.safetensors")
-    rec.write_text('f0 = 100\nfb = "94:126"\nfrom = "stick-high"\n')
-    assert load_recipe(rec)["from"] == "stick-high"
+    rec.write_text('f0 = 100\nfb = "94:126"\nfrom = "some-range"\n')
+    assert load_recipe(rec)["from"] == "some-range"
 
 
 def test_refining_for_one_bow_makes_a_box_of_zero_width(range_model, capsys, monkeypatch, tmp_path):
@@ -405,69 +405,82 @@ def test_live_leaves_a_stick_slip_models_notes_to_the_fdm(range_model, scaled_ra
 
 
 def test_validation_plays_the_windows_a_render_plays():
-    # paper-fb1000-knee at its own bow, 1 s from rest against the x100 FDM: a render plays a point model in free
-    # windows (its own period, 0.23 cents flat), as its validation does; locked to the physics' period it is exact.
-    # The validation record (what picks a model, or not) is the render's
-    from bowsynth.engines.operator.choose import as_model
+    # the shipped point model whose validation heard the largest pitch error (in free windows: the shipped one's own
+    # period, 0.23 cents flat), at its own bow, 1 s from rest against the x100 FDM: a render plays a point model in
+    # free windows, as its validation does; locked to the physics' period it is exact. The validation record (what
+    # picks a model, or not) is the render's
     from bowsynth.training.selection import validate
 
-    m = as_model("paper-fb1000-knee")
+    points = [m for m in shipped_models() if not m.domain.is_range]
+    m = max(points, key=lambda m: abs(centre_record(m).get("heard_cents") or 0.0))
+    claim = centre_record(m)["heard_cents"]
+    assert abs(claim) > 0.15
     sc = Scene(**m.meta.scene)
     auto, phys = validate(m, sc), validate(m, sc, windows="physics")
     assert auto["windows"] == "free" and abs(auto["heard_cents"]) > 0.15
+    assert auto["heard_cents"] == pytest.approx(claim, abs=0.01)
     assert phys["windows"].endswith("a period") and abs(phys["heard_cents"]) < 0.1
 
 
+def sounding_cover(sc):
+    """The validated shipped model that plays the scene where the truth rests, were no model validated to rest there
+    (choose.rests_throughout): the pick among the others."""
+    from bowsynth.engines.operator.choose import covering_model, rests_throughout
+
+    return covering_model(sc, [m for m in shipped_models() if not rests_throughout(m)])
+
+
 def test_validation_tells_a_model_that_rests_where_the_truth_rests_from_one_that_hums(monkeypatch):
-    # held bows below vb_stop from rest, where the truth rests: stick-halt rests at F_B / w 1.5, v_B 0.03; at 1.7,
-    # 0.065 its state settles 0.024 off the rest point, where left alone it hums (p RMS ~1e-3 over the last half,
-    # measured). A render rings it down (onset.ring_down, from its closest approach),
-    # and so does the validation, which plays what a render plays; without the ring-down the hum is what a grid bow
-    # like it records, and fails a validation (modelfile.validation_failure: 'silent_sounding')
+    # held bows below vb_stop from rest, where the truth rests, played by the model that would play them were none
+    # validated to rest there (sounding_cover: a box of stick-slip bows and bow stops): it rests at F_B / w 1.5, v_B
+    # 0.03; at 1.7, 0.065 its state settles 0.024 off the rest point, where left alone it hums (p RMS ~1e-3 over the
+    # last half, measured). A render rings it down (onset.ring_down, from its closest approach), and so does the
+    # validation, which plays what a render plays; without the ring-down the hum is what a grid bow like it records,
+    # and fails a validation (modelfile.validation_failure: 'silent_sounding')
     from bowsynth.engines.operator import engine
-    from bowsynth.engines.operator.choose import as_model
     from bowsynth.training.selection import validate
 
-    m = as_model("stick-halt")
-    rests, rung = (validate(m, Scene(f0=100.0, fb=b * 2 * math.pi * 100.0, vb=v)) for b, v in ((1.5, 0.03),
-                                                                                               (1.7, 0.065)))
+    bows = [Scene(f0=100.0, fb=b * 2 * math.pi * 100.0, vb=v) for b, v in ((1.5, 0.03), (1.7, 0.065))]
+    m = sounding_cover(bows[0])
+    assert m is not None and sounding_cover(bows[1]) is m
+    rests, rung = (validate(m, sc) for sc in bows)
     assert rests["truth_sounds"] is False and rests["op_sounds"] is False
     assert rung["truth_sounds"] is False and rung["op_sounds"] is False
     monkeypatch.setattr(engine, "ring_down", lambda sc, q, p: None)
-    hums = validate(m, Scene(f0=100.0, fb=1.7 * 2 * math.pi * 100.0, vb=0.065))
+    hums = validate(m, bows[1])
     assert hums["truth_sounds"] is False and hums["op_sounds"] is True
 
 
 def test_a_held_bow_that_damps_the_mass_is_played_by_a_model_validated_to_rest(monkeypatch):
     # F_B / w 1.45, v_B 0.07 (just below vb_stop = 0.0707), 110 Hz, 2 s from rest: the truth rests. It lies deep in
-    # stick-halt's box, which plays it as a note (p RMS 0.22 without the ring-down, which catches it on its way past
-    # the rest point), and at the top edge of halt-floor's, validated to rest at every grid
-    # bow: that one plays it (choose.rests_throughout), and rests
+    # the box of the model that would play it otherwise (sounding_cover), which plays it as a note (p RMS 0.22 without
+    # the ring-down, which catches it on its way past the rest point), and at the top edge of a box validated to rest
+    # at every grid bow: that one plays it (choose.rests_throughout), and rests
     from bowsynth.engines.operator import engine
     from bowsynth.metrics import note_sounds
     from bowsynth.engines.fdm import render_fdm
-    from bowsynth.engines.operator.choose import as_model, find_model, rests_throughout
+    from bowsynth.engines.operator.choose import find_model, rests_throughout
 
     f0 = 110.0
     sc = Scene(f0=f0, fb=1.45 * 2 * math.pi * f0, vb=0.07, duration=2.0)
     assert not note_sounds(render_fdm(sc, oversample=20).p)
-    m = find_model(sc)
-    assert m.path.stem == "halt-floor" and rests_throughout(m) and not rests_throughout(as_model("stick-halt"))
+    m, hums = find_model(sc), sounding_cover(sc)
+    assert rests_throughout(m) and not rests_throughout(hums)
     assert not note_sounds(render_operator(sc).p)
-    assert not note_sounds(render_operator(sc, model="stick-halt").p)
+    assert not note_sounds(render_operator(sc, model=hums).p)
     with monkeypatch.context() as mp:
         mp.setattr(engine, "ring_down", lambda sc, q, p: None)
-        assert note_sounds(render_operator(sc, model="stick-halt").p)
+        assert note_sounds(render_operator(sc, model=hums).p)
         assert not note_sounds(render_operator(sc).p)
     # above vb_stop the rule does not apply: a sounding bow there is the deepest box's, as before
-    assert find_model(sc.replace(vb=0.09)).path.stem != "halt-floor"
+    assert find_model(sc.replace(vb=0.09)).path != m.path
 
 
 def test_a_slow_heavy_bow_between_the_creep_tiles_plays_its_note_not_another():
-    """F_B / w 1.524, v_B 0.0789 at 133 Hz: a slow heavy bow (sounding ~3 octaves below f0) between stick-creep's forces
-    and floor-long's, which otherwise only stick-halt covers. stick-halt plays its own cycle 12 cents flat in free
-    windows; locked to the physics' period it plays the note (an estimator that counts every crossing reads 1250 cents
-    there); creep-mid, picked first, plays it within a tenth of a cent."""
+    """F_B / w 1.524, v_B 0.0789 at 133 Hz: a slow heavy bow (sounding ~3 octaves below f0) between the forces of the
+    creep tiles, which otherwise only the wide box of stick-slip bows and bow stops covers. That one plays its own
+    cycle 12 cents flat in free windows; locked to the physics' period it plays the note (an estimator that counts
+    every crossing reads 1250 cents there); the tile picked first plays it within a tenth of a cent."""
     from bowsynth.metrics import listener_errors
     from bowsynth.api import render
     from bowsynth.engines.operator.choose import covering_model
@@ -475,11 +488,16 @@ def test_a_slow_heavy_bow_between_the_creep_tiles_plays_its_note_not_another():
     f0, beta, vb = 133.0, 1.524, 0.0789
     sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
     truth = render(sc, engine="fdm", oversample=100)
-    assert covering_model(sc).path.stem == "creep-mid"
-    e = listener_errors(render(sc).p, truth.p, sc.sample_rate)
+    shipped = shipped_models()
+    pick = covering_model(sc, shipped)
+    wide = covering_model(sc, [m for m in shipped if m is not pick])
+    assert wide is not None
+    r = render(sc)
+    assert r.info.model_path == str(pick.path)
+    e = listener_errors(r.p, truth.p, sc.sample_rate)
     assert abs(e["cents"]) < 0.1 and e["harm_db_max"] < 0.5
-    free = listener_errors(render(sc, model="stick-halt", windows="free").p, truth.p, sc.sample_rate)
-    locked = listener_errors(render(sc, model="stick-halt", windows="physics").p, truth.p, sc.sample_rate)
+    free = listener_errors(render(sc, model=wide, windows="free").p, truth.p, sc.sample_rate)
+    locked = listener_errors(render(sc, model=wide, windows="physics").p, truth.p, sc.sample_rate)
     assert abs(free["cents"]) > 5 and abs(locked["cents"]) < 0.1
 
 
@@ -531,16 +549,19 @@ def test_light_fast_stick_slip_between_the_soft_and_stick_slip_tiles_plays_withi
 @pytest.mark.parametrize("f0,beta,vb", [(79.3, 1.201, 0.2631), (100.0, 1.2, 0.268)])
 def test_fast_heavy_stick_slip_speaks_on_the_truths_cycle_with_fast_onset(f0, beta, vb):
     """Fast bows at F_B / w 1.2, where the truth's note speaks on its second or third cycle and the cycle it speaks on
-    steps with v_B: stick-fast's steps lie 0.3-0.7 % of v_B lower, so at these bows it speaks a cycle late, 8-12 ms
-    (10.2 ms at the first, from a whole-space draw, against a 5 ms limit). fast-onset, stick-fast refined there, is the pick
-    and speaks within the limit, on pitch."""
+    steps with v_B: the fast stick-slip box's steps lie 0.3-0.7 % of v_B lower, so at these bows it speaks a cycle
+    late, 8-12 ms (10.2 ms at the first, from a whole-space draw, against a 5 ms limit). The tile refined from it
+    there is the pick and speaks within the limit, on pitch."""
     from bowsynth.metrics import listener_errors, onset_limit_ms
     from bowsynth.api import render
 
     sc, truth, r, e = held_note(f0, beta, vb)
     assert abs(e["onset_err_ms"]) <= onset_limit_ms(e["onset_ref_ms"]), e
     assert abs(e["cents"]) < 1 and e["harm_db_max"] < 0.5, e
-    old = listener_errors(render(sc, model="stick-fast").p, truth.p, sc.sample_rate)
+    pick = load_model(r.info.model_path)
+    parent = next(m for m in shipped_models() if m.id == pick.meta.training["refined_from"])
+    assert parent.covers(sc) and parent.failure is None
+    old = listener_errors(render(sc, model=parent).p, truth.p, sc.sample_rate)
     assert old["onset_err_ms"] > onset_limit_ms(old["onset_ref_ms"])  # a cycle late
 
 
