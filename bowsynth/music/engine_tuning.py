@@ -40,24 +40,29 @@ def fdm_ratio(sample_rate: float, oversample: int = 1):
     return ratio
 
 
-def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float | None = None) -> float | None:
+def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float | None = None,
+              frames: bool = True) -> float | None:
     """The sounding ratio a held note's windows lock to in these windows: 'locked' the model's own (own_ratio; a
     clock at the physics' period would pull the note there: see lock_ratio), 'physics' lock_ratio's (the physics'
-    period where the model holds it, else its own), 'auto' auto_lock's for a note at f0 (None: for every pitch); None
-    where they lock to nothing (free windows, or no period known)."""
+    period where the model holds it, else its own), 'auto' auto_lock's for a note at f0 (None: for every pitch;
+    `frames`: a note heard frame by frame); None where they lock to nothing (free windows, or no period known)."""
     if windows == "auto":
-        return auto_lock(model, beta, vb, a, f0)
+        return auto_lock(model, beta, vb, a, f0, frames)
     how = {"locked": own_ratio, "physics": lock_ratio}.get(windows)
     return None if how is None else how(model, beta, vb, a)
 
 
 # --windows auto: free windows keep a model's harmonics (they are the windows it was trained in), a lock to the
 # physics' period keeps its pitch. Each is judged by the operator against itself and the shipped map, never against the
-# reference: free windows by how far the model's own free cycle lies from the map's period, over the long run and in
-# the median 100 ms frame of a held note (a cycle that wanders frame to frame is heard so: a gesture is scored per
-# frame), the lock by how far it moves the note's harmonics from the free note's (a lock puts the network's error on
-# them). Each error over its worst-case target (1 cent, 1 dB); the smaller plays. Free windows within FREE_CENTS of the
-# map's period play without the lock's measurement.
+# reference: free windows by how far the model's own free cycle lies from the map's period over the long run, and for
+# a note heard frame by frame (an attack or a bow stop, scored per 100 ms frame as a gesture is) in its median frame
+# too (a cycle that wanders frame to frame is heard so there), the lock by how far it moves the note's harmonics from
+# the free note's (a lock puts the network's error on them). Each error over its worst-case target (1 cent, 1 dB); the
+# smaller plays. Free windows within FREE_CENTS of the map's period play without the lock's measurement.
+# A held note is heard whole (its pitch over its steady part): there a cycle that wanders frame to frame about the
+# right period keeps its pitch, and locking it moves its harmonics (at 384 Hz, F_B / w 0.52, v_B 0.085, free windows
+# wander 1.2 cents a frame and play 0.78 dB / 0.04 cents from the x100 FDM, the lock 2.06 dB / 0.003 cents;
+# benchmarks/auto_rule.py).
 FREE_CENTS = 0.2
 TARGET_CENTS, TARGET_DB = 1.0, 1.0
 NOTE_SECONDS = 2.0  # the held note each measures: from rest until the map's settling time and this much more
@@ -66,10 +71,11 @@ _choices = DiskTable("auto-windows", f"truth-free-4/{FRAME_F0!r}/{FREE_CENTS!r}/
                                      f"{NOTE_SECONDS!r}")
 
 
-def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None):
+def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None, frames: bool = True):
     """--windows auto, a render's default: None (free windows) or the Lock a held note's windows take, for a note at
     f0 (its frames: 100 ms at f0 hold as many periods as frames of 0.1 f0 / 100 s of a note at f0 100; None: as at
-    FRAME_F0, the live engine's one choice for every pitch).
+    FRAME_F0, the live engine's one choice for every pitch). frames: the note is heard frame by frame (an attack or a
+    bow stop), so its free cycle's median frame counts; a held note (False) is heard whole.
 
     A point model plays free windows (the cycle it was trained and validated on at its one bow: the paper's three
     scenes' NMSE(p) over 1 s 4e-8 / 1e-6 / 9e-7 free). A range model plays the lock (lock_ratio: the map's period,
@@ -86,17 +92,22 @@ def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None):
     if not isinstance(lock, Lock):
         return None
     frame = round(0.1 * (FRAME_F0 if f0 is None else f0) / 100.0, 3)  # at f0 100: a 100 ms frame at the note's f0
-    key = f"{ratio_key(m.key, beta, vb, a)} {frame!r}"
+    key = f"{ratio_key(m.key, beta, vb, a)} {frame!r}" if frames else f"{ratio_key(m.key, beta, vb, a)} whole"
     hit = _choices.get(key)
     if isinstance(hit, dict) and isinstance(hit.get("lock"), bool):
         return lock if hit["lock"] else None
     own = own_ratio(m, beta, vb, a)
     free_score = abs(cents(own, float(lock))) / TARGET_CENTS if own else math.inf
-    sc, free = _held_note(m, beta, vb, a, None)
-    if free is not None:
-        free_score = max(free_score, frame_wander(free.q, sc.sample_rate, sc.f0 * float(lock), frame) / TARGET_CENTS)
+    free = None  # the free note, rendered where a measurement reads it
+    if frames:
+        sc, free = _held_note(m, beta, vb, a, None)
+        if free is not None:
+            free_score = max(free_score, frame_wander(free.q, sc.sample_rate, sc.f0 * float(lock), frame)
+                             / TARGET_CENTS)
     use = False
     if free_score > FREE_CENTS / TARGET_CENTS:
+        if free is None and not frames:
+            free = _held_note(m, beta, vb, a, None)[1]
         use = lock_harmonic_shift(m, beta, vb, a, lock, free) / TARGET_DB < free_score
     _choices.put(key, {"lock": bool(use)})
     return lock if use else None
@@ -170,7 +181,7 @@ def ratio_for_engine(scene: Scene, engine: str = "operator", model=None, oversam
 
     def ratio(beta, vb, a, f0):
         try:
-            r = held_lock(m, windows, beta, vb, a, f0 if by_pitch else None) if held else None
+            r = held_lock(m, windows, beta, vb, a, f0 if by_pitch else None, scene.varying) if held else None
             if r is None and not (held and windows == "physics"):  # free windows, or auto's free ones: its own
                 r = operator_ratio(m)(beta, vb, a, f0)
         except DomainError:  # the model cannot play the bow the solve tries: its ratio is unknown there
@@ -214,7 +225,7 @@ def operator_sounding(scene: Scene, model=None, models=None, held: Scene | None 
         m, _ = _playing_model(held, None, models)  # held bow's model locks its own stretches (chain.render_chain)
     if m is None:
         return None
-    r = held_lock(m, windows, held.beta, held.vb, held.a, held.f0)
+    r = held_lock(m, windows, held.beta, held.vb, held.a, held.f0, scene.varying)
     return lock_at(r, held.f0)
 
 
