@@ -128,6 +128,8 @@ CASES = [
     ("... the same file in ./models: skipped, named, the shipped model plays", "render --fb 100 -d 0.1 x.wav",
      "damaged"),
     ("model file claiming 1.1x its bow force (digest recomputed)", "render --fb 110 --model liar.safetensors x.wav"),
+    ("model file claiming twice its range of states (digest recomputed)",
+     "render --fb 100 --model states.safetensors x.wav"),
     ("model path: a symlink to /dev/zero", "render --fb 100 --model zero.safetensors x.wav"),
     ("model path: a directory", "render --fb 100 --model adir.safetensors x.wav"),
     ("model path: a symlink loop", "render --fb 100 --model loop.safetensors x.wav"),
@@ -193,8 +195,8 @@ def main():
 
         save_file({"w": torch.zeros(1)}, str(d / "v9.safetensors"),
                   metadata={"bowsynth": json.dumps({"format": "bowsynth-operator", "format_version": 9})})
-        _round2_files(d, exe)
-        _round3_files(d, exe)
+        _path_files(d, exe)
+        _model_and_score_files(d, exe)
         env = {"COLUMNS": "400", "PATH": "/usr/bin:/bin", "HOME": str(d), "TMPDIR": str(d / "tmp"),
                "PYTHONPATH": os.environ.get("PYTHONPATH", "")}
         print("| bad input | command | exit code | what bowsynth says |")
@@ -265,7 +267,7 @@ def _drain(fifo: Path) -> threading.Thread:
     return t
 
 
-def _round2_files(d: Path, exe) -> None:
+def _path_files(d: Path, exe) -> None:
     (d / "tmp").mkdir()
     (d / "t").mkdir()
     (d / "adir").mkdir()
@@ -311,7 +313,7 @@ def _forge(d: Path, name: str, edit_tensors=None, edit_meta=None) -> None:
     save_file(tensors, str(d / name), metadata={"bowsynth": json.dumps(meta)})
 
 
-def _round3_files(d: Path, exe) -> None:
+def _model_and_score_files(d: Path, exe) -> None:
     import json
 
     import mido
@@ -323,6 +325,11 @@ def _round3_files(d: Path, exe) -> None:
         m["domain"]["beta"] *= 1.1
         m["scene"]["fb"] *= 1.1
     _forge(d, "liar.safetensors", edit_meta=more_force)
+
+    def more_states(m):
+        m["domain"]["q_lo"] *= 2.0
+        m["domain"]["q_hi"] *= 2.0
+    _forge(d, "states.safetensors", edit_meta=more_states)
     (d / "damaged" / "models").mkdir(parents=True)
     (d / "damaged" / "models" / "mask0.safetensors").write_bytes((d / "mask0.safetensors").read_bytes())
     (d / "zero.safetensors").symlink_to("/dev/zero")

@@ -17,7 +17,9 @@ BINARY = {".safetensors", ".npz", ".npy", ".png", ".jpg", ".wav", ".flac", ".ogg
 _S = "sess" + "ion"
 _GAP = r"[ \t]*(?:\n[ \t#*>]*)?"
 HISTORY = re.compile("|".join([rf"\b{_S}s?{_GAP}\d+", rf"\b{_S}-\d+", r"\bro" + rf"und{_GAP}\d\b",
-                               r"\bis" + rf"sue{_GAP}\d+", "scr" + "atch/", "GUI" + r"DE(?:\.md| section)"]),
+                               r"\bis" + rf"sue{_GAP}\d+", "scr" + "atch/", "GUI" + r"DE(?:\.md| section)",
+                               # in a name: _ro-und2_files, a s-e-s-s-i-o-n_12 table
+                               rf"(?<![a-z])(?:{_S}|ro" + "und|is" + r"sue)_?\d+(?!\d)"]),
                      re.IGNORECASE)
 
 
@@ -75,8 +77,9 @@ def test_the_checker_finds_a_planted_line():
     planted = "\n".join(["x = 1  # a plain comment", "# measured in " + _S + " 37, then fixed",
                          '"""as shipped in ' + _S + "s 19-34, from " + "scr" + 'atch/s35/run.py"""',
                          "# the " + _S + "-19 model", "# ro" + "und 2: files in", "# is" + "sue 11: scores",
-                         "# why (" + _S, "# 37): the creep", "see shared/" + "GUI" + "DE.md 9"])
-    assert [i for i, _ in history_lines(planted)] == [2, 3, 4, 5, 6, 7, 9]
+                         "# why (" + _S, "# 37): the creep", "see shared/" + "GUI" + "DE.md 9",
+                         "def _ro" + "und3_files(d):", "x = " + _S + "_12_table"])
+    assert [i for i, _ in history_lines(planted)] == [2, 3, 4, 5, 6, 7, 9, 10, 11]
     # other senses of the words pass: a pytest fixture's scope, Python's round(), a figure rounded to 3 digits
     clean = '@pytest.fixture(scope="' + _S + '")\nn = int(round(t * sr))\n# rounded to 3 digits; the issue is the bow'
     assert history_lines(clean) == []

@@ -2,6 +2,7 @@
 validated model picked, the lookup cached per process."""
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -659,7 +660,7 @@ def test_a_tile_that_catches_the_stick_early_is_judged_by_its_limit_cycle(tmp_pa
     catches the stick phase a quarter period early from rest: its first windows are off the physics, and sample by
     sample over 16 periods a bow 5 % slower fits it better than its claim, which would call an honest file a lie. Its
     limit cycle, shifted, fits the claim and no neighbour, so the corner plays; the same weights labelled as a weaker
-    tile (F_B / w 20 % lower, its box moved with it) are still refused."""
+    tile (F_B / w 20 % lower, its box moved with it) are refused."""
     from bowsynth.engines.operator.basis import numpy_operator
     from bowsynth.engines.operator.check import LONG_CHECK_PERIODS, NEIGHBOURS, PHYSICS_MAX_ERROR, claim_fits_best, \
         physics_error
@@ -681,7 +682,8 @@ def test_a_tile_that_catches_the_stick_early_is_judged_by_its_limit_cycle(tmp_pa
         dom["beta"], dom["box"][0], dom["box"][1] = 0.8 * dom["beta"], 0.8 * dom["box"][0], 0.8 * dom["box"][1]
         meta["scene"]["fb"] *= 0.8
     lie = rewrite(path, tmp_path / "lie.safetensors", weaker)
-    with pytest.raises(ModelFileError, match="does not do what it claims"):
+    # refused by the physics or, where the moved box leaves the bows its inputs were scaled to, at load
+    with pytest.raises(ModelFileError, match="does not do what it claims|claims more than its weights"):
         render_operator(Scene(f0=110.0, fb=1.6 * 2 * np.pi * 110.0, vb=0.28, duration=0.3), model=lie)
 
 
@@ -901,3 +903,41 @@ def test_the_manifest_lists_every_shipped_model_as_it_is():
         assert listed[p.name]["size"] == p.stat().st_size
         assert manifest.in_manifest(p, p.stat().st_size, load_model(p).meta.digest)
 
+
+
+def test_a_box_or_state_range_past_what_the_weights_were_trained_for_is_refused(tmp_path):
+    """A forger widens a range model's box (or any model's range of states) and recomputes the digest: the network's
+    input scalings (pcenter / pscale, center / halfrange) say which bows and states it was trained on, and the file is
+    refused in one line naming the claim. A narrower box, as a refinement claims, still loads and plays."""
+    src = soft_bow_model().path
+
+    def widen_box(meta):
+        b = meta["domain"]["box"]
+        meta["domain"]["box"] = [b[0], b[1] * 3.0, b[2], b[3]]
+
+    def narrow_box(meta):
+        b = meta["domain"]["box"]
+        meta["domain"]["box"] = [b[0], b[0] + (b[1] - b[0]) / 2, b[2], b[3]]
+
+    def widen_states(meta):
+        meta["domain"]["q_lo"] *= 2.0
+        meta["domain"]["q_hi"] *= 2.0
+
+    for forge, what in ((widen_box, "its box"), (widen_states, "its range of q")):
+        with pytest.raises(ModelFileError, match=f"claims more than its weights were trained for: {what}") as e:
+            load_model(rewrite(src, tmp_path / f"{forge.__name__}.safetensors", forge))
+        assert "\n" not in str(e.value)
+    with pytest.raises(ModelFileError, match="its range of p"):
+        load_model(rewrite(FB100, tmp_path / "point.safetensors",
+                           lambda meta: meta["domain"].update(p_hi=meta["domain"]["p_hi"] + 5.0)))
+    m = load_model(rewrite(src, tmp_path / "narrow.safetensors", narrow_box))
+    b = m.domain.box
+    sc = Scene(f0=100.0, fb=(b[0] + b[1]) / 2 * 2 * math.pi * 100.0, vb=(b[2] + b[3]) / 2, duration=0.2)
+    assert np.std(render_operator(sc, model=m).p) > 0
+
+
+def test_every_shipped_model_claims_only_what_its_weights_were_trained_for():
+    from bowsynth.engines.operator.claims import claims_error
+
+    for m in shipped_models():
+        assert claims_error(m.domain, m.cfg, m.weights) is None, m.path.name

@@ -21,6 +21,7 @@ from ... import __version__, physics
 from ...errors import ModelFileError
 from ...io.infile import regular_file
 from ...scene import Scene
+from .claims import claims_error
 from .domain import PLAYS_BELOW_STIFFNESS, Domain
 from .manifest import in_manifest
 from .npnet import NetConfig, weight_shapes
@@ -305,16 +306,21 @@ def load_model(path) -> OperatorModel:
                 raise ValueError(f"{k} is {shapes[k][1]} {shapes[k][0]}, expected F32 {tuple(shape)}")
         if not math.isclose(float(tensors["window"]), dom.window, rel_tol=1e-6):
             raise ValueError(f"the window tensor ({float(tensors['window']):g}) is not the domain's ({dom.window:g})")
-        for k in ("halfrange", "corr_scale"):
+        for k in ("halfrange", "corr_scale") + (("pscale",) if cfg.params and not listed else ()):
             if not np.all(tensors[k] > 0):
                 raise ValueError(f"{k} must be positive, got {tensors[k]}")
+        for k, v in tensors.items():
+            if not np.all(np.isfinite(v)):
+                raise ModelFileError(f"{path} holds non-finite weights ({k})")
+        # a listed file's claims are the build's, bound to its weights by the manifest's digest (checked when they
+        # are read); any other file's are held to the scalings its weights were trained with
+        why = None if listed else claims_error(dom, cfg, tensors)
+        if why:
+            raise ModelFileError(f"{path} claims more than its weights were trained for: {why}")
     except ModelFileError:
         raise
     except Exception as e:
         raise ModelFileError(f"{path} has damaged bowsynth metadata or weights ({type(e).__name__}: {e})") from None
-    for k, v in tensors.items():
-        if not np.all(np.isfinite(v)):
-            raise ModelFileError(f"{path} holds non-finite weights ({k})")
     if listed:
         return OperatorModel(None, meta, path, identity=ident, unhashed=d)
     return OperatorModel(None, meta, path, weights=tensors)
