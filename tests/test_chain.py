@@ -11,13 +11,14 @@ import sys
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
+from conftest import shipped_models, shipped_pick
 from hypothesis import strategies as st
 
 from bowsynth import Scene, render_fdm, render_operator
 from bowsynth.metrics import frame_errors, listener_errors
 from bowsynth.controls import Curve, between
 from bowsynth.engines.operator.chain import EDGE, LOOKS_PER_PERIOD, MIN_SEGMENT, _depths, chain_plan
-from bowsynth.engines.operator.choose import available_models
+from bowsynth.engines.operator.choose import available_models, covering_model
 from bowsynth.errors import DomainError
 
 W = 2 * math.pi * 100
@@ -89,12 +90,24 @@ def test_a_crescendo_into_stick_slip_plays_through_the_tiles_like_the_truth():
 
 def test_a_model_named_plays_alone_and_a_batch_voice_says_which():
     sc = crescendo(seconds=1.2)
+    named = chain_plan(sc, available_models())[-1][1].path.stem  # a model that plays the end of the bow, not all of it
     with pytest.raises(DomainError):
-        render_operator(sc, model="stick-mid")  # asked for by name: no chain behind the user's back
+        render_operator(sc, model=named)  # asked for by name: no chain behind the user's back
     held = Scene(f0=100, fb=0.2 * W, vb=0.2, duration=0.5)
     a, b = render_operator([held, sc])
     assert a.info.chain is None and b.info.chain
     assert b.info.notes[0].startswith("note: voice 2: no one model covers")
+
+
+def said_in_turn(text: str, names: list[str]) -> bool:
+    """Whether the names appear in the text in this order."""
+    at = 0
+    for name in names:
+        at = text.find(name, at)
+        if at < 0:
+            return False
+        at += len(name)
+    return True
 
 
 def test_the_cli_says_which_models_played(tmp_path):
@@ -103,7 +116,10 @@ def test_the_cli_says_which_models_played(tmp_path):
     p = subprocess.run([sys.executable, "-m", "bowsynth", "render", "--fb", fb, "--vb", "0.2", "-d", "2", str(out)],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
-    assert "played by" in p.stdout and "stick-mid" in p.stdout and out.stat().st_size > 0
+    plan = chain_plan(crescendo(), available_models())  # the bow it was given, as chain_plan plays it
+    assert f"played by {len(plan)} models in turn" in p.stdout, p.stdout
+    assert said_in_turn(p.stdout, [f"{m.path.stem} from" for _, m in plan]), p.stdout
+    assert out.stat().st_size > 0
 
 
 def test_a_stretch_that_fails_says_where_and_fallback_fdm_finishes_the_note(monkeypatch):
@@ -131,9 +147,17 @@ def test_a_score_note_that_crosses_boxes_is_played_not_refused(tmp_path):
     p = subprocess.run([sys.executable, "-m", "bowsynth", "score", "--score", str(score), "--mix", str(out)],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
-    assert "played by" in p.stdout and "-> stick-mid" in p.stdout and out.stat().st_size > 0
-    # its bow stop at F_B / w 1.5: stick-halt's (before it no model covered it and the FDM played it)
-    assert "bow stops: 1 by the operator, 0 by the FDM" in p.stdout and "stick-halt" in p.stdout, p.stdout
+    from bowsynth.music.score import load_score
+
+    [note] = load_score(score)
+    plan = chain_plan(note.rollout_scene(), available_models())
+    assert "played by" in p.stdout and " -> ".join(m.path.stem for _, m in plan) in p.stdout, p.stdout
+    assert out.stat().st_size > 0
+    # its bow stop at F_B / w 1.5 (v_B from 0.2 to 0), by the operator: the model that covers the stop's bows
+    stop = Scene(f0=100, fb=1.5 * W, vb=[(0.0, 0.2), (note.release, 0.0)], duration=note.scene.duration - note.hold)
+    by = covering_model(stop, available_models())
+    assert by is not None and "bow stops: 1 by the operator, 0 by the FDM" in p.stdout, p.stdout
+    assert f"{by.id} ({by.path})" in p.stdout, p.stdout  # the models used: the stop's among them
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -165,14 +189,15 @@ def test_any_moving_bow_gets_a_plan_whose_stretches_its_models_play_or_none(poin
 
 
 def test_the_papers_stick_slip_note_stops_on_the_operator():
-    """The paper's stick-slip scene (F_B 1000 at f0 100, F_B / w 1.59) with its bow stopped: refused before stick-halt
-    (no model reached v_B below 0.075 at these forces). Now one model plays it whole, as the truth: the
-    held part's timbre and pitch, the stop's envelope, and the mass at rest at the end."""
+    """The paper's stick-slip scene (F_B 1000 at f0 100, F_B / w 1.59) with its bow stopped: one model covers its
+    held bow and its stop down to v_B 0, and plays it whole, as the truth: the held part's timbre and pitch, the
+    stop's envelope, and the mass at rest at the end."""
     sc = Scene(f0=100.0, fb=1000.0, vb=[[0.0, 0.2], [0.6, 0.2], [0.8, 0.0]], duration=1.2)
     from bowsynth.api import render
 
+    pick = shipped_pick(sc)  # (raises where no model covers the whole note)
     r = render(sc, windows="auto")  # free windows play the model's own period there: 3.8 cents sharp
-    assert r.info.model_path.endswith("stick-halt.safetensors") and not r.method.fdm_fallback
+    assert r.info.model_path == str(pick.path) and r.info.chain is None and not r.method.fdm_fallback
     truth = render_fdm(sc, oversample=100)
     held = slice(int(0.2 * 44100), int(0.6 * 44100))
     e = listener_errors(r.p[held], truth.p[held], 44100)
@@ -185,16 +210,18 @@ def test_the_papers_stick_slip_note_stops_on_the_operator():
 
 
 def test_a_held_note_that_stops_at_the_space_edge_plays_through_the_tiles_and_locks_its_held_stretch():
-    """F_B / w 2.0 held at v_B 0.12, stopped over 50 ms, at 440 Hz: no one model covers it (the stop ends in
-    halt-edge, below stick-heavy's and floor-long's v_B), so it chains; refused before halt-edge. The held bow's model
-    locks its stretch to the physics' period (free, it played 5.0 cents off per 100 ms frame, measured) and the note
-    rests after the stop, as the truth does."""
+    """F_B / w 2.0 held at v_B 0.12, stopped over 50 ms, at 440 Hz: no one model covers it (the stop ends below the
+    held bow's model's v_B), so it chains, from the model picked for the held bow to the one picked where the bow has
+    stopped. The held bow's model locks its stretch to the physics' period (free, it played 5.0 cents off per 100 ms
+    frame, measured) and the note rests after the stop, as the truth does."""
     from bowsynth.api import render
 
     f0 = 440.0
-    sc = Scene(f0=f0, fb=2.0 * 2 * math.pi * f0, vb=[(1.0, 0.12), (1.05, 0.0)], duration=1.6)
+    fb = 2.0 * 2 * math.pi * f0
+    sc = Scene(f0=f0, fb=fb, vb=[(1.0, 0.12), (1.05, 0.0)], duration=1.6)
+    held, stopped = (shipped_pick(Scene(f0=f0, fb=fb, vb=vb, duration=1.0)).path.stem for vb in (0.12, 0.0))
     r = render(sc, windows="auto")
-    assert r.info.chain and r.info.chain[0][1] == "stick-heavy" and r.info.chain[-1][1] == "halt-edge"
+    assert r.info.chain and r.info.chain[0][1] == held and r.info.chain[-1][1] == stopped, r.info.chain
     truth = render_fdm(sc, oversample=20)
     fe = frame_errors(r.p, truth.p, sc.sample_rate)
     assert fe["cents_median"] < 0.2 and fe["harm_db_median"] < 0.2, fe

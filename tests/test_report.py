@@ -16,9 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_main
-
-import bowsynth
+from conftest import run_main, shipped_models, soft_bow_model
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"
@@ -123,8 +121,14 @@ def assert_table_holds(table: dict, j: dict) -> None:
 # ----------------------------------------------------------------------------------------------------- the pages
 
 def test_compare_report_point_model(browser, tmp_path, capsys, monkeypatch):
+    from bowsynth import Scene
+    from bowsynth.engines.operator.choose import covering_model
+
+    # the shipped point model the renderer would pick for F_B 100, asked for by its name
+    model = covering_model(Scene(fb=100, duration=0.5), [m for m in shipped_models() if not m.domain.is_range])
+    assert model is not None, "no shipped point model plays F_B 100"
     wav, page = tmp_path / "fb100.wav", tmp_path / "fb100.html"
-    code, _, err = run_main(["render", "--model", "paper-fb100", "--fb", "100", "-d", "0.5", str(wav), "-q"],
+    code, _, err = run_main(["render", "--model", model.path.stem, "--fb", "100", "-d", "0.5", str(wav), "-q"],
                             capsys, monkeypatch)
     assert code == 0, err
     page.write_text("old")
@@ -140,7 +144,7 @@ def test_compare_report_point_model(browser, tmp_path, capsys, monkeypatch):
     assert "raised by +" in info["audio"][3]["what"]
     [table] = metrics_cells(info)
     assert_table_holds(table, j)
-    assert "fb100_f0100_vb0.2_a100@" in info["text"] and "point model" in info["text"]
+    assert model.id in info["text"] and "point model" in info["text"]
     # the listener table: a point model's harmonics and pitch are close to the truth's
     [lt] = [t for t in info["tables"] if t["cls"] == "listener"]
     harm = float(lt["rows"][1][1])
@@ -154,8 +158,12 @@ def test_compare_report_point_model(browser, tmp_path, capsys, monkeypatch):
 
 
 def test_compare_report_range_model_crescendo(browser, tmp_path, capsys, monkeypatch):
+    from bowsynth import Scene
+
+    model = soft_bow_model()  # the range model of the whole soft bow, asked for by its name
+    assert model.covers(Scene(fb=[(0.0, 50.0), (1.0, 200.0)], vb=0.15, duration=1.0))
     wav, page = tmp_path / "cresc.wav", tmp_path / "cresc.html"
-    code, _, err = run_main(["render", "--model", "soft-range", "--fb", "50@0,200@1", "--vb", "0.15", "-d", "1",
+    code, _, err = run_main(["render", "--model", model.path.stem, "--fb", "50@0,200@1", "--vb", "0.15", "-d", "1",
                              str(wav), "-q"], capsys, monkeypatch)
     assert code == 0, err
     code, out, err = run_main(["compare", str(wav), "--report", str(page), "--json"], capsys, monkeypatch)
@@ -214,22 +222,29 @@ def read_len(path) -> float:
 def test_models_report(browser, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the shipped models only
     page = tmp_path / "models.html"
-    # a 3 x 3 grid: soft-range's box reaches v_B 0, where the lowest row does not speak; six bows still do. Three
-    # models (--only): one point model, two range models; every model's report renders for a minute
-    code, out, err = run_main(["models", "--report", str(page), "--report-grid", "3", "--only",
-                               "soft-range,paper-fb10,stick-heavy"], capsys, monkeypatch)
+    # a 3 x 3 grid: the soft bow's box reaches v_B 0, where the lowest row does not speak; six bows still do. Three
+    # validated models (--only): one point model, two range models, the other one's box above v_B 0; every model's
+    # report renders for a minute
+    shipped = [m for m in shipped_models() if m.failure is None]
+    low = soft_bow_model()
+    point = next(m for m in shipped if not m.domain.is_range)
+    other = next(m for m in shipped if m.domain.is_range and m.domain.box[2] > 0)
+    assert low.domain.box[2] == 0, low.domain.box
+    names = [m.path.stem for m in (low, point, other)]
+    code, out, err = run_main(["models", "--report", str(page), "--report-grid", "3", "--only", ",".join(names)],
+                              capsys, monkeypatch)
     assert code == 0, err
-    assert "models report: soft-range.safetensors: bow 9/9" in err  # progress lines
+    assert f"models report: {low.path.name}: bow 9/9" in err  # progress lines
     assert "does not speak within" in err
     from bowsynth.engines.operator.choose import scan_models
 
-    found = [(p, m) for p, m, _ in scan_models() if p.stem in ("soft-range", "paper-fb10", "stick-heavy")]
+    found = [(p, m) for p, m, _ in scan_models() if p.stem in names]
     points = [p for p, m in found if m is not None and not m.domain.is_range]
     ranges = [p for p, m in found if m is not None and m.domain.is_range]
     assert len(points) == 1 and len(ranges) == 2
     rows = out.split("report written")[0].splitlines()[1:]  # the table's rows, before the line after it
     listed = [l.split()[0] for l in rows if l.strip()]
-    assert sorted(listed) == ["paper-fb10", "soft-range", "stick-heavy"], out
+    assert sorted(listed) == sorted(names), out
     info = open_report(browser, page)
     # a point model: its own scene, model and truth; a range model: best, median, worst of the held-out bows, each
     # model and truth; all 1 s renders. One map per range model.
@@ -275,9 +290,11 @@ def test_report_path_rules_before_any_work(tmp_path, capsys, monkeypatch):
     code, _, err = run_main(["models", "--report", str(tmp_path / "m.html"), "--report-grid", "0"], capsys,
                             monkeypatch)
     assert code == 2 and "--report-grid" in err
-    for only, words in (("soft-range,no-such-model", "no model named no-such-model"), (" , ", "no name given")):
+    known = [m.path.stem for m in shipped_models()]
+    for only, words in ((f"{known[0]},no-such-model", "no model named no-such-model"), (" , ", "no name given")):
         code, _, err = run_main(["models", "--report", str(tmp_path / "m.html"), "--only", only], capsys, monkeypatch)
-        assert code == 2 and words in err and "soft-range" in err and err.count("\n") == 1, err
+        assert code == 2 and words in err and err.count("\n") == 1, err
+        assert all(name in err for name in known), err  # the models there are, named
     assert not (tmp_path / "m.html").exists()
 
 
@@ -366,10 +383,13 @@ def test_hostile_metadata_in_every_field_is_shown_as_text_never_run(tmp_path, ca
     from safetensors import safe_open
     from safetensors.numpy import save_file
 
+    from bowsynth import Scene
     from bowsynth.engines.operator.modelfile import digest, load_model
     from bowsynth.report.models_page import _meta_card, _validation_table
 
-    src = bowsynth.shipped("models") / "soft-range.safetensors"
+    model = soft_bow_model()  # a range model that plays the render below, its records those of a validated grid
+    assert model.covers(Scene(fb=30, vb=0.2, duration=0.2))
+    src = model.path
     with safe_open(str(src), framework="numpy") as f:
         meta = json.loads(f.metadata()["bowsynth"])
         tensors = {k: f.get_tensor(k) for k in f.keys()}

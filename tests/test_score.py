@@ -1,7 +1,9 @@
 """Many voices: a batched rollout equals the voices rendered one by one; scores and mixes from the CLI."""
 
+from pathlib import Path
+
 import numpy as np
-from conftest import run_main
+from conftest import run_main, shipped_pick
 
 from bowsynth import Scene
 from bowsynth.engines.operator.engine import render_operator
@@ -62,10 +64,13 @@ def test_score_file_and_mix(tmp_path, tiny_model, monkeypatch, capsys):
 
 
 def test_voices_without_a_named_model_share_one_rollout(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # no ./models: the shipped paper-fb100 covers both (same F_B / w, other pitches)
-    renders = render_operator([Scene(fb=100, duration=0.02), Scene(fb=150, f0=150, duration=0.02, q0=0.001)])
+    monkeypatch.chdir(tmp_path)  # no ./models: one shipped model is picked for both (same F_B / w, other pitches)
+    scenes = [Scene(fb=100, duration=0.02), Scene(fb=150, f0=150, duration=0.02, q0=0.001)]
+    pick = shipped_pick(scenes[0])
+    assert shipped_pick(scenes[1]).path == pick.path
+    renders = render_operator(scenes)
     assert [r.info.batched for r in renders] == [2, 2]
-    assert all(r.info.model_path.endswith("paper-fb100.safetensors") for r in renders)
+    assert all(Path(r.info.model_path).resolve() == pick.path.resolve() for r in renders)
 
 
 def test_score_fallback_finishes_stray_voices(tmp_path, tiny_model, monkeypatch, capsys):
@@ -308,9 +313,9 @@ def test_batched_releases_are_the_fdm_of_each_release(loop):
 
 def test_a_score_note_with_an_attack_locks_to_its_held_bow_whichever_path_plays_it(tmp_path):
     """A note whose force or speed rises from 0 to the bow it holds (an attack curve) locks its windows as a plain
-    note does (Scene.held_bow), both where its model plays it whole with its bow stop (`soft-range` at v_B 0.27, the bow
-    starting from v_B 0: its box reaches v_B 0, soft-fast's does not) and where the bow stop is handed over
-    (`slow-soft` at v_B 0.1, the force rising from 0); a crescendo note rolls free."""
+    note does (Scene.held_bow), both where its model plays it whole with its bow stop (v_B rising from 0 to 0.27: the
+    model picked for it has a box that reaches v_B 0) and where the bow stop is handed over (v_B 0.1, the force rising
+    from 0: the model picked for its sustain does not cover the stop); a crescendo note rolls free."""
     from bowsynth.music.perform import _plays_whole, render_notes
 
     p = tmp_path / "s.toml"
