@@ -5,7 +5,7 @@ BOW    := $(VENV)/bin/bowsynth
 STAMP  := $(VENV)/.installed-stamp
 OUTDIR := out
 
-.PHONY: setup demo test models tables docs docs-models bench bench-quick clean chromium jackd core
+.PHONY: setup demo test models tables docs docs-models bench bench-docs bench-quick clean chromium jackd core
 
 $(STAMP): pyproject.toml CMakeLists.txt $(wildcard src/core/*)
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -86,6 +86,11 @@ jackd:
 
 bench: $(STAMP)
 	$(BOW) bench --out docs/bench
+
+# the docs' generated tables (docs/BENCHMARKS.md's `<!-- generated: ... -->` blocks), each rewritten with what its
+# command prints now (~15 minutes here)
+bench-docs: $(STAMP)
+	$(PY) benchmarks/refresh_docs.py
 
 bench-quick: $(STAMP)
 	$(BOW) bench --quick

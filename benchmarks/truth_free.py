@@ -2,7 +2,8 @@
 every reference entry point raising (no FDM at any rate, no sounding-ratio solve), from an empty cache, against a
 x100 FDM at the same f0 and bow; each bow judged against what the physics can answer there.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/truth_free.py [--n 32] [--seed 7901] [--seconds 2] [--json out.json]
+    PYTHONPATH=. .venv/bin/python benchmarks/truth_free.py [--n 32] [--seed 7901 | --seeds 7902,7903] [--table]
+                                                          [--seconds 2] [--json out.json]
                                                           [--windows auto|free|physics|locked] [--rel 1e-3]
 
 Bows: F_B / w log-uniform over 0.02-2, v_B uniform over 0-0.28, f0 log-uniform over 65-880 Hz. Per bow, the truth's
@@ -11,7 +12,7 @@ either way (four more x100 renders). A bow meets the worst-case targets when its
 its pitch within max(1 cent, s_cents) and its onset within max(5 ms, 2 % of the truth's); the medians are held to
 0.2 dB and 0.2 cents. The onset's own conditioning (how far it moves for the same bows) is measured too, and an onset
 miss where the truth's onset moves more than the target is counted apart. Printed: a row per bow, then the summary
-and the count of bows where s exceeds the target.
+and the count of bows where s exceeds the target; with --table only the summary table docs/BENCHMARKS.md shows.
 """
 
 from __future__ import annotations
@@ -125,39 +126,7 @@ def judged(r: dict) -> dict:
             "ill": r["s_db"] > TARGET_DB or r["s_cents"] > TARGET_CENTS, "onset_ill": r["s_onset_ms"] > lim_on}
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=32)
-    ap.add_argument("--seed", type=int, default=7901)
-    ap.add_argument("--seconds", type=float, default=2.0)
-    ap.add_argument("--windows", default=None)
-    ap.add_argument("--rel", type=float, default=1e-3)
-    ap.add_argument("--json", default=None)
-    a = ap.parse_args(argv)
-    os.environ["BOWSYNTH_CACHE"] = tempfile.mkdtemp(prefix="truth-free-cache-")  # a cold cache: nothing measured
-    rows = []
-    print("| f0 | F_B / w | v_B | model | harmonics worst (dB) | pitch (cents) | onset (ms) | s dB / cents / onset | "
-          "render (s) | verdict |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for f0, beta, vb in draw(a.n, a.seed):
-        r = one(f0, beta, vb, a.seconds, a.windows, a.rel)
-        rows.append(r)
-        head = f"| {f0:.1f} | {beta:.4g} | {vb:.4g} |"
-        if r["op"] is None:
-            print(f"{head} not played: {r['why']} | | | | | | {'rests' if r['silent'] else 'MISS'} |", flush=True)
-            continue
-        e = r["op"]
-        if r["silent"]:
-            verdict = "rests" if not e["sounds"] else "MISS (sounds where the truth rests)"
-            print(f"{head} {r['model']} | | | | | {r['op_seconds']:.2f} | {verdict} |", flush=True)
-            continue
-        j = r["judged"] = judged(r)
-        verdict = "ok" if j["harm_ok"] and j["pitch_ok"] and j["onset_ok"] else (
-            "MISS (onset; the truth's moves more)" if j["harm_ok"] and j["pitch_ok"] and j["onset_ok_conditioned"]
-            else "MISS")
-        print(f"{head} {r['model']} | {e['harm_db_max']:.3g} | {e['cents']:+.3g} | {e['onset_err_ms']:+.3g} | "
-              f"{r['s_db']:.2g} / {r['s_cents']:.2g} / {r['s_onset_ms']:.2g} ms{' (ill)' if j['ill'] else ''}"
-              f"{' (onset ill)' if j['onset_ill'] else ''} | {r['op_seconds']:.2f} | {verdict} |", flush=True)
+def summarise(rows: list[dict]) -> dict:
     sounding = [r for r in rows if not r["silent"]]
     played = [r for r in sounding if r["op"] is not None]
     harm = [h for r in played for h in r["op"]["harm_db"] if h is not None and math.isfinite(h)]
@@ -165,8 +134,9 @@ def main(argv=None):
     fdm_c = [abs(r["fdm"]["cents"]) for r in sounding if math.isfinite(r["fdm"]["cents"])]
     ok = [r for r in played if all(r["judged"][k] for k in ("harm_ok", "pitch_ok", "onset_ok"))]
     ok_c = [r for r in played if all(r["judged"][k] for k in ("harm_ok", "pitch_ok", "onset_ok_conditioned"))]
-    summary = {
+    return {
         "bows": len(rows), "sounding": len(sounding), "played": len(played),
+        "silent": len(rows) - len(sounding),
         "rest_ok": sum(1 for r in rows if r["silent"] and (r["op"] is None or not r["op"]["sounds"])),
         "harm_db_median": float(np.median(harm)) if harm else None,
         "cents_median": float(np.median(cents)) if cents else None, "cents_max": max(cents) if cents else None,
@@ -177,10 +147,78 @@ def main(argv=None):
         "render_seconds_median": float(np.median([r["op_seconds"] for r in played])) if played else None,
         "render_seconds_max": max(r["op_seconds"] for r in played) if played else None,
     }
-    print(json.dumps(summary, indent=1))
+
+
+def table_row(seed: int, s: dict) -> str:
+    """The summary as a row of the table docs/BENCHMARKS.md shows (TABLE_HEAD)."""
+    return (f"| seed {seed} | {s['sounding']} | {s['played']} | {s['rest_ok']} of {s['silent']} | "
+            f"{s['harm_db_median']:.3f} dB | {s['cents_median']:.3f} / {s['cents_max']:.2f} cents | "
+            f"{s['within_worst_targets']} of {s['sounding']} | {s['ill_conditioned']} |")
+
+
+TABLE_HEAD = ("| draw | sounding | played by the operator | rests as the truth rests | harmonics median | "
+              "pitch median / worst | within every worst-case target | ill (s > target) |\n|---|---|---|---|---|---|---|---|")
+
+
+def run_draw(a, seed: int, out) -> tuple[list[dict], dict]:
+    """Every bow of one draw, a row each printed to `out` as it is judged; (rows, summary)."""
+    os.environ["BOWSYNTH_CACHE"] = tempfile.mkdtemp(prefix="truth-free-cache-")  # a cold cache: nothing measured
+    rows = []
+    print("| f0 | F_B / w | v_B | model | harmonics worst (dB) | pitch (cents) | onset (ms) | s dB / cents / onset | "
+          "render (s) | verdict |", file=out)
+    print("|---|---|---|---|---|---|---|---|---|---|", file=out)
+    for f0, beta, vb in draw(a.n, seed):
+        r = one(f0, beta, vb, a.seconds, a.windows, a.rel)
+        rows.append(r)
+        head = f"| {f0:.1f} | {beta:.4g} | {vb:.4g} |"
+        if r["op"] is None:
+            print(f"{head} not played: {r['why']} | | | | | | {'rests' if r['silent'] else 'MISS'} |", file=out,
+                  flush=True)
+            continue
+        e = r["op"]
+        if r["silent"]:
+            verdict = "rests" if not e["sounds"] else "MISS (sounds where the truth rests)"
+            print(f"{head} {r['model']} | | | | | {r['op_seconds']:.2f} | {verdict} |", file=out, flush=True)
+            continue
+        j = r["judged"] = judged(r)
+        verdict = "ok" if j["harm_ok"] and j["pitch_ok"] and j["onset_ok"] else (
+            "MISS (onset; the truth's moves more)" if j["harm_ok"] and j["pitch_ok"] and j["onset_ok_conditioned"]
+            else "MISS")
+        print(f"{head} {r['model']} | {e['harm_db_max']:.3g} | {e['cents']:+.3g} | {e['onset_err_ms']:+.3g} | "
+              f"{r['s_db']:.2g} / {r['s_cents']:.2g} / {r['s_onset_ms']:.2g} ms{' (ill)' if j['ill'] else ''}"
+              f"{' (onset ill)' if j['onset_ill'] else ''} | {r['op_seconds']:.2f} | {verdict} |", file=out,
+              flush=True)
+    return rows, summarise(rows)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=32)
+    ap.add_argument("--seed", type=int, default=7901)
+    ap.add_argument("--seeds", default=None, help="several draws (comma-separated seeds): with --table, a row each")
+    ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--windows", default=None)
+    ap.add_argument("--rel", type=float, default=1e-3)
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--table", action="store_true",
+                    help="print only the summary table (a row a draw); the bows' rows go to stderr")
+    a = ap.parse_args(argv)
+    seeds = [int(x) for x in a.seeds.split(",")] if a.seeds else [a.seed]
+    out = sys.stderr if a.table else sys.stdout
+    done = []
+    for seed in seeds:
+        rows, summary = run_draw(a, seed, out)
+        done.append((seed, rows, summary))
+        if not a.table:
+            print(json.dumps(summary, indent=1))
+    if a.table:
+        print(TABLE_HEAD)
+        for seed, _, summary in done:
+            print(table_row(seed, summary))
     if a.json:
         with open(a.json, "w") as f:
-            json.dump({"args": vars(a), "rows": rows, "summary": summary}, f, indent=1, default=str)
+            json.dump([{"args": vars(a), "seed": seed, "rows": rows, "summary": summary}
+                       for seed, rows, summary in done], f, indent=1, default=str)
 
 
 if __name__ == "__main__":
