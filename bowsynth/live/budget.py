@@ -105,9 +105,10 @@ class Budgeted:
     def _shares(self, f0: float, beta: float, plays: bool, sounding) -> tuple[bool, float, float]:
         """A note at f0: (does the operator play it, its windows per sample (0 for the FDM), its FDM's share of real
         time (the note whole, or its release tail)). Scalar arithmetic: the operator's window as start_operator
-        finds it (locked or free; none fits: the FDM plays it), the FDM's stride as start_slot finds it."""
+        finds it (locked or free; none fits: the FDM plays it), the FDM's stride as start_slot finds it (for the
+        highest pitch the bend and vibrato reach)."""
         sr = self.sample_rate
-        fdm = sr * self.costs.step * physics.min_oversample(beta * physics.omega(f0), self.a, sr, f0)
+        fdm = sr * self.costs.step * self.fdm_stride(f0, beta, self.a, self.reach)
         if not plays:
             return False, 0.0, fdm
         window = None if sounding is None else locked_window(self.op.window, f0, sounding)
@@ -168,6 +169,29 @@ class Budgeted:
             self.mode[slot] = V.FREE
             self.load -= self.cost[slot]
         return slot
+
+    def _shed(self) -> None:
+        """A bend or vibrato took the sounding voices' reservations past the budget: end voices, as a steal does,
+        until they fit again: the releasing voice nearest its end first, then the oldest held one; each counted
+        (`shed`). Without it the callback runs past its period for as long as those notes sound (a bend of 24
+        semitones rolls four times the windows a second)."""
+        while self.load > self.budget:
+            slot = self._releasing(0.0)
+            if slot < 0:
+                left = self._left
+                np.copyto(left, self.start)
+                np.equal(self.mode, V.FREE, out=self._skip)
+                np.copyto(left, NEVER, where=self._skip)
+                slot = int(np.argmin(left))
+                if left[slot] == NEVER:
+                    return
+            if self.key[slot] >= 0:
+                self.sounding[self.key[slot]] = -1
+            self.key[slot] = -1
+            self.mode[slot] = V.FREE
+            self.load -= self.cost[slot]
+            self.cost[slot] = 0.0
+            self.counts["shed"] += 1
 
     def _releasing(self, at_least: float) -> int:
         """The releasing voice nearest its end among those reserving at least `at_least`, or -1: in numpy calls on

@@ -256,7 +256,8 @@ def _status(stream, xruns: int, period: int, rate: int) -> str:
     c = stream.counts
     return (f"voices {stream.voices_sounding():3d}/{stream.n_voices}  load {stream.load:4.0%} of {stream.budget:.0%}  "
             f"callback p50 {p50:.2f} p99 {p99:.2f} max {mx:.2f} ms of {1e3 * period / rate:.2f}  xruns {xruns}  "
-            f"notes {c['notes']}  dropped {c['dropped'] + c['dropped_busy'] + c['dropped_bytes']}")
+            f"notes {c['notes']}  dropped {c['dropped'] + c['dropped_busy'] + c['dropped_bytes']}"
+            + (f"  shed {c['shed']}" if c['shed'] else ""))
 
 
 def _summary(stream, xruns: int, period: int, rate: int, seconds: float) -> str:

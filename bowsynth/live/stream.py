@@ -99,7 +99,8 @@ class Stream(Budgeted, VoiceBank):
       of its sustain and its FDM release tail (which may end it earlier), with its channel's bend and vibrato; a
       note-on that would take their sum (`load`) past `budget` takes a releasing voice whose reservation frees
       enough (`stolen`), else it is not started (`dropped`). A bend or vibrato moved while notes sound adds to the
-      load of those notes (it is not refused): later note-ons wait for it to fall;
+      load of those notes (it is not refused); where that passes the budget, voices end until it fits, the
+      releasing one nearest its end first, then the oldest held (`shed`);
     - note-ons beyond what the block's time allows (`busy_fraction` of the period spent) wait for the next block and
       start at its first frame, in order (`deferred`, `max_defer` frames late); one that waited at most a block is
       caught up there (`_catch_up`: the note struck at its own frame, less the samples before the block), one that
@@ -135,6 +136,9 @@ class Stream(Budgeted, VoiceBank):
         # free: the trained windows; locked: a note held at its pitch in windows locked to it, as `score` renders it
         self.windows = check_windows(windows, LIVE_WINDOWS)
         self.a4, self.bend_range = check_a4(a4), float(bend_range)
+        # the semitones a note's pitch may rise while it sounds: its FDM's stride is chosen for the top of them (a
+        # note bent two octaves up past the stride chosen at its own pitch broke the scheme's bounds: NaN)
+        self.reach = self.bend_range + M.VIBRATO_DEPTH
         self.release_s = RELEASE if release is None else float(release)
         self.amp, self.busy_fraction = float(amp), float(busy_fraction)
         self.a = 100.0  # the friction shape every MIDI note plays (Scene's default, as the file reader's notes)
@@ -220,7 +224,7 @@ class Stream(Budgeted, VoiceBank):
         self._left = np.zeros(nv, np.int64)
         self._skip, self._skip2 = np.zeros(nv, np.bool_), np.zeros(nv, np.bool_)
         self.counts = dict(notes=0, dropped_bytes=0, dropped_busy=0, deferred=0, max_defer=0, stolen=0, dropped=0,
-                           fdm_notes=0, fallbacks=0, silent=0, out_of_range=0, ignored=0, zero_length=0)
+                           shed=0, fdm_notes=0, fallbacks=0, silent=0, out_of_range=0, ignored=0, zero_length=0)
 
     def _warm(self) -> None:
         """Run every path once, then reset: the first note after activation costs what every later note costs (the
@@ -433,7 +437,7 @@ class Stream(Budgeted, VoiceBank):
             return -1
         self.c_op[slot], self.c_wps[slot], self.c_fdm[slot], self.cost[slot] = op, wps, fdm, cost
         self.load += cost
-        self.start_slot(slot, f0, beta, vb, self.a)
+        self.start_slot(slot, f0, beta, vb, self.a, self.reach)
         self.start[slot], self.key[slot], self.vb_hold[slot], self.chan[slot] = self.frame + off, key, vb, ch
         pm, pp = self.pit[0], self.pit[1]
         pp[slot, V.P_B0] = pp[slot, V.P_B1] = self.bend[ch]
@@ -492,6 +496,8 @@ class Stream(Budgeted, VoiceBank):
             cost = self._reserve(self.c_op[slot], self.c_wps[slot], self.c_fdm[slot], ch)
             self.load += cost - self.cost[slot]
             self.cost[slot] = cost
+        if self.load > self.budget:
+            self._shed()
 
     def _plays(self, beta: float, vb: float) -> bool:
         """Does the model play this bow (Domain.box_contains for one bow, in scalars)? A point model plays only

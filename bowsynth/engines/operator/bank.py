@@ -101,13 +101,21 @@ class VoiceBank:
         """Add m samples of every sounding slot, times amp, to out[off:off + m] (and their p to outp)."""
         self.voices.render(out, self._nop if outp is None else outp, off, m, amp)
 
-    def start_slot(self, slot: int, f0: float, beta: float, vb: float, a: float) -> None:
-        """A note from rest in the slot: its FDM parameters (used whole, or for the release), pitch held at f0."""
+    def fdm_stride(self, f0: float, beta: float, a: float, reach: float = 0.0) -> int:
+        """The FDM's steps a sample for a note at f0 whose pitch may rise `reach` semitones (a live bend and
+        vibrato): the stride that keeps the scheme within its bounds at the highest of them (physics.min_oversample;
+        F_B / w held, so F_B rises with the pitch)."""
+        top = f0 * 2.0 ** (max(reach, 0.0) / 12.0)
+        return physics.min_oversample(beta * physics.omega(top), a, self.sample_rate, top)
+
+    def start_slot(self, slot: int, f0: float, beta: float, vb: float, a: float, reach: float = 0.0) -> None:
+        """A note from rest in the slot: its FDM parameters (used whole, or for the release), pitch held at f0;
+        reach: the semitones its pitch may rise (fdm_stride)."""
         w = physics.omega(f0)
         fb = beta * w
         sr = self.sample_rate
         fst, fint, vb_t, vb_v, nvb, fb_t, fb_v = self.fdm[:7]
-        stride = physics.min_oversample(fb, a, sr, f0)
+        stride = self.fdm_stride(f0, beta, a, reach)
         fst[slot, 3], fst[slot, 4], fst[slot, 5], fst[slot, 6] = 1.0 / (sr * stride), w, a, fb
         fint[slot, 1] = stride
         fb_t[slot, 0], fb_v[slot, 0] = 0.0, fb
