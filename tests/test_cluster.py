@@ -264,3 +264,26 @@ def test_a_bench_map_on_the_cluster_is_the_map_of_one_process(cluster, tmp_path)
     strip = [{k: v for k, v in c.items() if k != "op_seconds"} for c in a]
     assert len(a) == 4 and strip == [{k: v for k, v in c.items() if k != "op_seconds"} for c in b]
     assert {c["status"] for c in a} <= {"played", "silent", "not played"} and any(c["status"] == "played" for c in a)
+
+
+def test_a_bench_equal_on_the_cluster_measures_what_one_process_does(cluster, tmp_path):
+    """`bench equal`'s models as tasks on the two-node cluster: the rows in the models' order, each model's accuracy
+    and the FDM it matches those of one process (the times apart: each task times its own renders)."""
+    import json
+
+    def accuracy_only(row):
+        row = {k: v for k, v in row.items() if k != "ratio"}
+        row["operator"] = {k: v for k, v in row["operator"].items() if k not in ("sec_per_audio_s", "gmac_per_s")}
+        row["fdm"] = [{k: v for k, v in e.items() if k != "sec_per_audio_s"} for e in row["fdm"]]
+        return row
+
+    args = ("bench", "equal", "--quick", "--model", "paper-fb10,paper-fb100", "--json")
+    alone = bow(*args, cwd=tmp_path)
+    spread = bow(*args, "--workers", "2", "--address", cluster.address, cwd=tmp_path)
+    assert alone.returncode == 0 and spread.returncode == 0, alone.stderr + spread.stderr
+    a, b = (json.loads(p.stdout)["equal_accuracy"] for p in (alone, spread))
+    assert [r["model"] for r in a] == [r["model"] for r in b] == ["paper-fb10", "paper-fb100"]
+    assert [accuracy_only(r) for r in a] == [accuracy_only(r) for r in b]
+    assert all(r["fdm"] and "harm_db" in r["operator"] for r in a)
+    bad = bow("bench", "equal", "--quick", "--model", "paper-fb10,no-such-model", cwd=tmp_path)
+    assert bad.returncode == 1 and len(bad.stderr.strip().splitlines()) == 1 and "no-such-model" in bad.stderr

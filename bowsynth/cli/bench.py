@@ -23,13 +23,13 @@ def bench(
     f0: str = typer.Option("110,440", "--f0", help="map: the pitches (Hz), comma-separated."),
     grid: str = typer.Option("10x8", "--grid", help="map: cells, F_B / w x v_B (F_B / w 0.02-2 log-spaced, v_B 0-0.28)."),
     seconds: float = typer.Option(2.0, "--seconds", help="map: each note's length from rest (s); errors over its second half."),
-    model: Optional[str] = typer.Option(None, "--model", help="map: this model (a path, or a name in ./models or the shipped ones) plays every cell it covers, instead of the renderer's pick: a candidate before it ships."),
+    model: Optional[str] = typer.Option(None, "--model", help="map: this model (a path, or a name in ./models or the shipped ones) plays every cell it covers, instead of the renderer's pick: a candidate before it ships; equal: these models (comma-separated) instead of the shipped ones."),
     windows: Optional[str] = typer.Option(None, "--windows",
                                           help="map and equal: the operator's windows, as render's (free, locked, "
                                                "physics or auto); default auto, what a render plays (free: the "
                                                "trained windows)."),
-    workers: int = typer.Option(1, "--workers", "-j", min=1, max=1024, help="map: the cells as tasks on Ray workers of this machine (1: one after another here)."),
-    address: Optional[str] = typer.Option(None, "--address", help="map: a Ray cluster's address (default RAY_ADDRESS)."),
+    workers: int = typer.Option(1, "--workers", "-j", min=1, max=1024, help="map and equal: the cells (a model each) as tasks on Ray workers of this machine (1: one after another here)."),
+    address: Optional[str] = typer.Option(None, "--address", help="map and equal: a Ray cluster's address (default RAY_ADDRESS)."),
 ):
     """Benchmark speed against error: FDM at several rates and each operator, against a high-rate FDM."""
     import json
@@ -61,7 +61,14 @@ def bench(
         _bench_map(map_args, out_prefix, json_out, force, model, windows, workers, address)
         return
     if what == "equal":
-        res = B.run_equal(quick=quick, out_prefix=out_prefix, windows=windows)
+        models = [m.strip() for m in model.split(",") if m.strip()] if model else None
+        if models:
+            from ..engines.operator.choose import as_model
+
+            for m in models:
+                as_model(m)  # read here: a bad name or file is one line before any task starts
+        res = B.run_equal(quick=quick, out_prefix=out_prefix, windows=windows, models=models, workers=workers,
+                          address=address)
         md, js = B.equal_table(res), json.dumps(B.to_json(res), indent=2)
         _write(out_prefix, md, js, force)
         out.print(js if json_out else md, soft_wrap=True)

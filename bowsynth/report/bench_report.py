@@ -72,23 +72,39 @@ def plot_pareto(rows, path) -> None:
     plt.close(fig)
 
 
-def run_equal(quick: bool = False, out_prefix=None, windows: str | None = None) -> dict:
+def run_equal(quick: bool = False, out_prefix=None, windows: str | None = None, models=None, workers: int = 1,
+              address: str | None = None) -> dict:
     """Speed at equal accuracy for every shipped model family at 100, 440 and 880 Hz (quick: one model at 100 Hz,
     FDM x1 and x2), with the machine's matrix-product speed measured in the same run; the operator in these windows
-    (api.render's; None its default)."""
-    from ..engines.operator.choose import SHIPPED_DIR, as_model
+    (api.render's; None its default). models: these instead (paths or names). workers / address: a model a task
+    (`io.cluster.Pool`: Ray, or processes), its rows back in the models' order; each task times its own renders,
+    so tasks that share a machine share its memory and caches while they time."""
+    from ..engines.operator.choose import SHIPPED_DIR, model_path
+    from ..io.cluster import Pool
     from ..music.engine_tuning import check_windows
 
     windows = check_windows(windows)
-    paths = sorted(SHIPPED_DIR.glob("*.safetensors"))
-    if quick:
+    paths = [model_path(m) for m in models] if models else sorted(SHIPPED_DIR.glob("*.safetensors"))
+    if quick and not models:
         paths = [p for p in paths if p.stem == "paper-fb100"][:1]
     kw = dict(f0s=(100.0,), duration=1.0, repeats=1, oversamples=(1, 2)) if quick else {}
-    rows = [r for p in paths for r in equal_accuracy(as_model(p), windows=windows, **kw)]
+    # a shipped model goes by its name, which a cluster's node finds among its own shipped models
+    jobs = [(p.stem if p.parent.resolve() == SHIPPED_DIR.resolve() else str(p), windows, kw) for p in paths]
+    with Pool(workers, address) as pool:
+        done = dict(pool.map(_equal_task, jobs))
+    rows = [r for i in range(len(jobs)) for r in done[i]]
     res = {"equal_accuracy": rows, "blas_gmac_per_s": blas_gmacs(), "windows": windows}
     if out_prefix and any("failed" not in r for r in rows):
         plot_equal(rows, f"{out_prefix}.png")
     return res
+
+
+def _equal_task(job) -> list[dict]:
+    """A task of run_equal: one model's rows."""
+    from ..engines.operator.choose import as_model
+
+    model, windows, kw = job
+    return equal_accuracy(as_model(model), windows=windows, **kw)
 
 
 def equal_table(res: dict) -> str:
