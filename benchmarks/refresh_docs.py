@@ -6,7 +6,8 @@ becomes COMMAND and what it prints now (run by the shell from the checkout's top
 `make bench-docs` runs it over docs/BENCHMARKS.md (about 15 minutes on this 2-core machine). --only: the blocks whose
 command contains TEXT; --list: print the commands and stop. A command that fails leaves its block as it was, says so,
 and the run ends with exit 1. Each block ends with a line naming the machine and its load when the command started,
-since the numbers' times depend on them.
+since the numbers' times depend on them. What each command printed on stderr (a benchmark's rows bow by bow) is kept
+in build/bench-docs/, a file a block.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-BLOCK = re.compile(r"(<!-- generated: (?P<cmd>.+?) -->\n)(?P<body>.*?)(<!-- end generated -->)", re.DOTALL)
+LOGS = ROOT / "build" / "bench-docs"
+BLOCK = re.compile(r"(<!-- generated: (?P<cmd>[^\n]+?) -->\n)(?P<body>.*?)(<!-- end generated -->)", re.DOTALL)
 
 
 def blocks(text: str) -> list[re.Match]:
@@ -41,9 +43,9 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the start"
 
 
-def refresh(path: Path, only: str | None = None, run=None) -> list[str]:
+def refresh(path: Path, only: str | None = None, run=None, logs: Path | None = LOGS) -> list[str]:
     """Rewrite the blocks of one document whose command contains `only` (all where None); returns the commands that
-    failed. `run(cmd) -> (exit code, stdout, stderr)`, the shell by default."""
+    failed. `run(cmd) -> (exit code, stdout, stderr)`, the shell by default; each command's stderr kept in `logs`."""
     def shell(cmd):
         p = subprocess.run(cmd, shell=True, cwd=ROOT, capture_output=True, text=True)
         return p.returncode, p.stdout, p.stderr
@@ -60,6 +62,10 @@ def refresh(path: Path, only: str | None = None, run=None) -> list[str]:
             where = machine()
             print(f"{path.name}: {cmd}", file=sys.stderr, flush=True)
             code, stdout, stderr = run(cmd)
+            if logs is not None:
+                logs.mkdir(parents=True, exist_ok=True)
+                (logs / (re.sub(r"[^A-Za-z0-9]+", "-", cmd.split("benchmarks/")[-1]).strip("-")[:120] + ".log")) \
+                    .write_text(stderr)
             if code == 0 and stdout.strip():
                 body = f"    {cmd}\n\n{stdout.strip()}\n\n(measured on {where})\n"
             else:

@@ -15,7 +15,8 @@ import refresh_docs  # noqa: E402
 
 DOC = """# Numbers
 
-Prose before.
+Prose before, that names the markers inline: the tables between `<!-- generated: COMMAND -->` and
+`<!-- end generated -->` are written by COMMAND.
 
 <!-- generated: echo one -->
 | old | table |
@@ -41,24 +42,25 @@ def fake_run(cmd):
 def test_a_refresh_rewrites_each_block_with_its_command_and_output_and_leaves_the_rest(tmp_path):
     doc = tmp_path / "doc.md"
     doc.write_text(DOC)
-    failed = refresh_docs.refresh(doc, run=fake_run)
+    failed = refresh_docs.refresh(doc, run=fake_run, logs=tmp_path / "logs")
     text = doc.read_text()
     assert failed == ["false"]
+    assert (tmp_path / "logs" / "false.log").read_text() == "it broke\n"  # what each command said on stderr
     assert "    echo one\n\n| one |\n\n(measured on " in text and "    echo two\n\n| two |" in text
     assert "| old | table |" not in text and "stale" not in text
     assert "| a table a failed command leaves |" in text  # kept as it was
-    for kept in ("# Numbers\n\nProse before.\n\n", "Prose between, kept as written.", "Prose after.\n"):
+    for kept in ("# Numbers\n\nProse before, that names the markers inline", "Prose between, kept as written.", "Prose after.\n"):
         assert kept in text
     assert len(refresh_docs.blocks(text)) == 3
     again = text
-    refresh_docs.refresh(doc, only="two", run=fake_run)  # only the blocks whose command holds "two"
+    refresh_docs.refresh(doc, only="two", run=fake_run, logs=None)  # only the blocks whose command holds "two"
     assert doc.read_text().split("echo two")[0] == again.split("echo two")[0]
 
 
 def test_the_shell_runs_the_command_from_the_checkout(tmp_path):
     doc = tmp_path / "doc.md"
     doc.write_text("<!-- generated: test -f pyproject.toml && echo here -->\nx\n<!-- end generated -->\n")
-    assert refresh_docs.refresh(doc) == []
+    assert refresh_docs.refresh(doc, logs=None) == []
     assert "    test -f pyproject.toml && echo here\n\nhere\n" in doc.read_text()
 
 
