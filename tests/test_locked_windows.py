@@ -333,16 +333,19 @@ def test_frame_wander_reads_a_steady_tone_as_steady_and_a_wandering_one_as_it_wa
 
 
 def test_auto_windows_judge_a_held_note_whole():
-    """A held note is heard whole (its pitch over its steady part), so a free cycle that wanders frame to frame about
-    the physics' period keeps it, where the bow stop above locks: F_B / w 1.9, v_B 0.15 held at 150 Hz plays free
-    windows within 0.2 dB and 0.2 cent of the truth. At 384 Hz, F_B / w 0.52, v_B 0.085 the lock would keep the
-    pitch and move the ninth harmonic 2 dB (measured); the held note plays free within 1 dB and 1 cent."""
+    """A held note is heard whole (its pitch over its steady part). A free cycle whose long-run period holds the map's
+    plays free however it wanders frame to frame, where the bow stop above locks: F_B / w 1.9, v_B 0.15 held at 150
+    Hz plays free within 0.2 dB and 0.2 cent of the truth; at 384 Hz, F_B / w 0.52, v_B 0.085 (2 cents a frame) the
+    lock would move the ninth harmonic 2 dB (measured): free, within 1 dB and 1 cent. One whose long-run pitch misses
+    is judged by its frames too: at 141 Hz, F_B / w 0.58, v_B 0.107 (0.9 cents long-run, 3.3 a frame) it locks,
+    within 1 dB and 1 cent, where free windows play 1.6 dB off."""
     from bowsynth.metrics import listener_errors
     from bowsynth.engines.fdm import render_fdm
 
-    for f0, beta, vb, limit in ((150.0, 1.9, 0.15, 0.2), (384.4466, 0.5234962, 0.08492599, 1.0)):
+    for f0, beta, vb, locks, limit in ((150.0, 1.9, 0.15, False, 0.2), (384.4466, 0.5234962, 0.08492599, False, 1.0),
+                                       (141.05571, 0.58010902, 0.10702624, True, 1.0)):
         sc = Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=2.0)
         auto = render(sc, windows="auto")
-        assert not auto.info.windows, (f0, auto.info.windows)
+        assert bool(auto.info.windows) == locks, (f0, auto.info.windows)
         e = listener_errors(auto.p, render_fdm(sc, oversample=100).p, sc.sample_rate)
         assert e["harm_db_max"] < limit and abs(e["cents"]) < limit, (f0, e)

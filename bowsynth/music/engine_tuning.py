@@ -59,10 +59,12 @@ def held_lock(model, windows: str, beta: float, vb: float, a: float, f0: float |
 # too (a cycle that wanders frame to frame is heard so there), the lock by how far it moves the note's harmonics from
 # the free note's (a lock puts the network's error on them). Each error over its worst-case target (1 cent, 1 dB); the
 # smaller plays. Free windows within FREE_CENTS of the map's period play without the lock's measurement.
-# A held note is heard whole (its pitch over its steady part): there a cycle that wanders frame to frame about the
-# right period keeps its pitch, and locking it moves its harmonics (at 384 Hz, F_B / w 0.52, v_B 0.085, free windows
-# wander 1.2 cents a frame and play 0.78 dB / 0.04 cents from the x100 FDM, the lock 2.06 dB / 0.003 cents;
-# benchmarks/auto_rule.py).
+# A held note is heard whole (its pitch over its steady part): a free cycle whose long-run period lies within
+# FREE_CENTS of the map's wanders frame to frame about the right pitch, and plays free (at 384 Hz, F_B / w 0.52, v_B
+# 0.085: 0.05 cents over the long run, 2 cents a frame; free windows play 0.78 dB / 0.04 cents from the x100 FDM, the
+# lock 2.06 dB / 0.003 cents). One whose long-run pitch misses is judged by its frames too: its wander says the model
+# does not hold the cycle (at 141 Hz, F_B / w 0.58, v_B 0.107: 0.89 cents long-run, 3.3 a frame; free 1.63 dB / -0.49
+# cents, the lock 0.97 dB / 0.002 cents). benchmarks/auto_rule.py prints these measurements beside the truth's.
 FREE_CENTS = 0.2
 TARGET_CENTS, TARGET_DB = 1.0, 1.0
 NOTE_SECONDS = 2.0  # the held note each measures: from rest until the map's settling time and this much more
@@ -98,16 +100,14 @@ def auto_lock(model, beta: float, vb: float, a: float, f0: float | None = None, 
         return lock if hit["lock"] else None
     own = own_ratio(m, beta, vb, a)
     free_score = abs(cents(own, float(lock))) / TARGET_CENTS if own else math.inf
-    free = None  # the free note, rendered where a measurement reads it
-    if frames:
+    free = None  # the free note: rendered where its frames count (held: where its long-run pitch already misses)
+    if frames or free_score > FREE_CENTS / TARGET_CENTS:
         sc, free = _held_note(m, beta, vb, a, None)
         if free is not None:
             free_score = max(free_score, frame_wander(free.q, sc.sample_rate, sc.f0 * float(lock), frame)
                              / TARGET_CENTS)
     use = False
     if free_score > FREE_CENTS / TARGET_CENTS:
-        if free is None and not frames:
-            free = _held_note(m, beta, vb, a, None)[1]
         use = lock_harmonic_shift(m, beta, vb, a, lock, free) / TARGET_DB < free_score
     _choices.put(key, {"lock": bool(use)})
     return lock if use else None
