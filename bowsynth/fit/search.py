@@ -40,7 +40,7 @@ class Candidate:
     vb: float
     f0: float
     loss: float
-    model: str = ""
+    model: str = ""  # the model that played it: a shipped model's name, else its file (model_ref)
     locked: bool = False  # windows locked to the target's period (else the trained T)
     parts: dict = field(default_factory=dict)
 
@@ -61,6 +61,16 @@ def f0_for(pitch: float, beta: float, vb: float, a: float = 100.0) -> float | No
         return pitch / physics_ratio(beta, vb, a).r
     except (SilentNoteError, DomainError, ValueError):
         return None
+
+
+def model_ref(m) -> str:
+    """What names a model to `render --model` and `score --model`: a shipped model's name, another's file, or (a
+    model not saved) its own name."""
+    from ..engines.operator.choose import SHIPPED_DIR
+
+    if m.path is None:
+        return m.meta.name
+    return m.path.stem if m.path.parent.resolve() == SHIPPED_DIR.resolve() else str(m.path)
 
 
 class Scorer:
@@ -113,7 +123,7 @@ class Scorer:
                 continue
             if not np.all(np.isfinite(q)) or np.ptp(q) == 0:
                 continue
-            c = Candidate(beta, vb, f0, self.loss.value(q), m.meta.name, lk)
+            c = Candidate(beta, vb, f0, self.loss.value(q), model_ref(m), lk)
             if best is None or c.loss < best.loss:
                 best = c
         return best
@@ -202,7 +212,7 @@ def descend(scorer: Scorer, start: Candidate, steps: int = STEPS, deadline: floa
         if trace is not None:
             trace.append((beta, vb, f0, total))
         if total < best.loss:
-            best = Candidate(beta, vb, f0, total, m.meta.name, start.locked,
+            best = Candidate(beta, vb, f0, total, model_ref(m), start.locked,
                              {k: float(v.detach()) for k, v in parts.items()} | {"pitch_cents": c})
         opt.zero_grad()
         (parts["spectral"] + parts["onset"]).backward()

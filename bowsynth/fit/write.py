@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .held import TOLERANCE, Fit
+from .held import TOLERANCE, Fit, play_windows
 
 PARTS = {"beta": "F_B / w", "vb": "v_B"}
 
@@ -27,7 +27,8 @@ def score_text(fit: Fit, target_name: str, seconds: float) -> str:
     checked = ch and (f"# the fitted note against the target: harmonics {ch['harmonics_db']:.2f} dB (median), pitch "
                       f"{ch['pitch_cents']:+.2f} cents, onset {ch['onset_ms']:+.1f} ms")
     lines += _closing(checked, fit.interrupted, "bow")
-    return _voice(lines, target_name, b.f0, f"{fit.fb:.9g}", f"{b.vb:.9g}", seconds)
+    how = f" --model {b.model} --windows {play_windows(b)}" if b.model else ""
+    return _voice(lines, target_name, b.f0, f"{fit.fb:.9g}", f"{b.vb:.9g}", seconds, how)
 
 
 def _closing(checked: str | None, interrupted: bool, what: str) -> list[str]:
@@ -36,9 +37,9 @@ def _closing(checked: str | None, interrupted: bool, what: str) -> list[str]:
         [f"# the fit was interrupted: the best {what} found until then"] if interrupted else [])
 
 
-def _voice(lines: list, target_name: str, f0: float, fb: str, vb: str, seconds: float) -> str:
-    """The comment lines, then the score's one voice."""
-    lines = lines + ["# play it: bowsynth score --score THIS.toml --mix fitted.wav", "",
+def _voice(lines: list, target_name: str, f0: float, fb: str, vb: str, seconds: float, how: str = "") -> str:
+    """The comment lines, then the score's one voice; `how`: the score command's options that play it as fitted."""
+    lines = lines + [f"# play it: bowsynth score --score THIS.toml{how} --mix fitted.wav", "",
                      f"title = {_quote('fitted to ' + target_name)}", "", "[[voice]]", 'name = "fit"',
                      f"f0 = {f0:.9g}", f"fb = {fb}", f"vb = {vb}", f"duration = {seconds:.9g}", ""]
     return "\n".join(lines)
