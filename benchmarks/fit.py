@@ -4,12 +4,13 @@ beside it CMA-ES (the `cma` package) from the same start on the same loss until 
 or spends four times its notes.
 
     .venv/bin/python benchmarks/fit.py --n 6 --seed 8301
+    .venv/bin/python benchmarks/fit.py --draws 8301:5,8302:8   # two draws in one table (docs/fit.md)
     .venv/bin/python benchmarks/fit.py --gestures      # a crescendo, a bow-speed change, a stop, fitted as curves
     .venv/bin/python benchmarks/fit.py --n 5 --seed 8301 --fdm   # and the fit through the FDM beside it
 
-Per target: the bow's error (F_B / w, v_B, %) and whether the fit called each part identifiable, the fitted note as
-render plays it against the target (harmonics median dB, pitch cents, onset ms), the fit's seconds, and the descent's
-and CMA-ES's seconds and losses from the same start.
+Per target: the bow's error (F_B / w, v_B, %) and whether the fit called each part identifiable, the fitted note
+against the target as its written score plays it (the fit's model and windows: harmonics median dB, pitch cents,
+onset ms), the fit's seconds, and the descent's and CMA-ES's seconds and losses from the same start.
 """
 
 from __future__ import annotations
@@ -149,18 +150,23 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=8301)
     ap.add_argument("--gestures", action="store_true")
     ap.add_argument("--fdm", action="store_true", help="also fit through the FDM (x4), from the operator fit's bow")
+    ap.add_argument("--draws", default=None, help="several draws in one table: SEED:N,SEED:N (instead of --seed, --n)")
     args = ap.parse_args()
     if args.gestures:
         gestures()
         return
-    rng = np.random.default_rng(args.seed)
+    draws = ([tuple(int(x) for x in d.split(":")) for d in args.draws.split(",")] if args.draws
+             else [(args.seed, args.n)])
     tmp = Path(tempfile.mkdtemp(prefix="bowsynth-fit-bench-"))
     print("| f0 | F_B / w | v_B | F_B / w err % (id) | v_B err % (id) | harmonics dB | pitch cents | onset ms | fit s |"
           " descent s / loss | CMA-ES s / loss (notes) |" + (" FDM fit: F_B / w err %, v_B err %, loss (operator's), "
                                                              "renders, s |" if args.fdm else ""))
     print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.fdm else ""))
-    for _ in range(args.n):
-        f0, beta, vb = draw(rng)
+    targets = []
+    for seed, n in draws:
+        rng = np.random.default_rng(seed)
+        targets += [draw(rng) for _ in range(n)]
+    for f0, beta, vb in targets:
         path = tmp / f"t-{f0:.1f}-{beta:.3f}-{vb:.3f}.wav"
         write_wav(path, api.render_fdm(note_scene(f0, beta, vb, 2.0, 44100), oversample=100))
         t0 = time.monotonic()
