@@ -87,8 +87,8 @@ jackd:
 bench: $(STAMP)
 	$(BOW) bench --out docs/bench
 
-# the docs' generated tables (docs/BENCHMARKS.md's `<!-- generated: ... -->` blocks), each rewritten with what its
-# command prints now (~15 minutes here)
+# the docs' generated tables (the `<!-- generated: ... -->` blocks of docs/*.md), each rewritten with what its
+# command prints now (~40 minutes here)
 bench-docs: $(STAMP)
 	$(PY) benchmarks/refresh_docs.py
 

@@ -3,7 +3,8 @@ becomes COMMAND and what it prints now (run by the shell from the checkout's top
 
     .venv/bin/python benchmarks/refresh_docs.py [docs/BENCHMARKS.md ...] [--only TEXT] [--list]
 
-`make bench-docs` runs it over docs/BENCHMARKS.md (about 15 minutes on this 2-core machine). --only: the blocks whose
+`make bench-docs` runs it over every page of docs/ (BENCHMARKS.md about 15 minutes on this 2-core machine, fit.md's
+fits about 25 more). --only: the blocks whose
 command contains TEXT; --list: print the commands and stop. A command that fails leaves its block as it was, says so,
 and the run ends with exit 1. Each block ends with a line naming the machine and its load when the command started,
 since the numbers' times depend on them. What each command printed on stderr (a benchmark's rows bow by bow) is kept
@@ -85,7 +86,7 @@ def refresh(path: Path, only: str | None = None, run=None, logs: Path | None = L
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("docs", nargs="*", type=Path, default=[ROOT / "docs" / "BENCHMARKS.md"])
+    ap.add_argument("docs", nargs="*", type=Path, default=sorted((ROOT / "docs").glob("*.md")))
     ap.add_argument("--only", default=None)
     ap.add_argument("--list", action="store_true")
     a = ap.parse_args(argv)

@@ -64,8 +64,8 @@ def test_the_shell_runs_the_command_from_the_checkout(tmp_path):
     assert "    test -f pyproject.toml && echo here\n\nhere\n" in doc.read_text()
 
 
-@pytest.mark.parametrize("cmd", [m.group("cmd") for m in refresh_docs.blocks((ROOT / "docs" / "BENCHMARKS.md")
-                                                                          .read_text())])
+@pytest.mark.parametrize("cmd", [m.group("cmd") for doc in sorted((ROOT / "docs").glob("*.md"))
+                                 for m in refresh_docs.blocks(doc.read_text())])
 def test_every_generated_table_names_a_benchmark_that_runs(cmd):
     """Each block's command is a benchmark script of this checkout whose options parse (its --help answers)."""
     words = shlex.split(cmd)
