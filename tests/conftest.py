@@ -1,4 +1,5 @@
 import atexit
+import functools
 import math
 import os
 import shutil
@@ -132,3 +133,22 @@ def soft_bow_model(models=None):
             if m.failure is None and m.domain.is_range and m.domain.plays_below]
     assert soft, "no validated range model plays below its box"
     return max(soft, key=lambda m: m.domain.bow_extent)
+
+
+@functools.cache
+def shipped_stages() -> tuple:
+    """The stages shipped refinements were made through (models/stages): kept to rebuild them, never picked."""
+    from bowsynth.engines.operator.choose import SHIPPED_DIR
+    from bowsynth.engines.operator.modelfile import load_model
+
+    return tuple(load_model(p) for p in sorted((SHIPPED_DIR / "stages").glob("*.safetensors"))
+                 if not p.name.endswith(".ckpt.safetensors"))
+
+
+def refined_from(m):
+    """The shipped model or stage that `m` was refined from (the id its training's 'refined_from' names)."""
+    parent = m.meta.training.get("refined_from")
+    assert parent, f"{m.path.name} was not refined from another model"
+    found = [p for p in [*shipped_models(), *shipped_stages()] if p.id == parent]
+    assert found, f"{m.path.name} was refined from {parent}, which is neither a shipped model nor a stage"
+    return found[0]

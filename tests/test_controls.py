@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import run_main
+from conftest import run_main, shipped_pick
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -118,13 +118,15 @@ def test_cli_refuses_bad_gestures_in_one_line(flag, needle, tmp_path, monkeypatc
 
 def test_operator_refuses_a_gesture_it_cannot_follow(tmp_path, monkeypatch, capsys):
     """A crescendo past every model's range: one line naming the value, the time it leaves and the train command;
-    nothing written. A shipped soft range model follows one inside its box (velocity-soft's)."""
+    nothing written. A shipped soft range model follows one inside its box (the renderer's pick for it)."""
     out = tmp_path / "x.wav"
     code, _, err = run_main(["render", "--fb", "50@0,3000@0.2", str(out)], capsys, monkeypatch)
     assert code == 1 and "--method fdm" in err and err.count("\n") == 1
     assert "F_B = " in err and "t = " in err and "bowsynth train --fb 50:3000" in err and not out.exists()
+    pick = shipped_pick(Scene(fb=[(0.0, 50.0), (0.2, 200.0)], duration=0.3))
+    assert pick.domain.is_range, pick.path
     code, so, err = run_main(["render", "--fb", "50@0,200@0.2", "-d", "0.3", str(out)], capsys, monkeypatch)
-    assert code == 0 and "method operator" in so + err and "velocity-soft" in so + err and "range_fb" in so + err
+    assert code == 0 and "method operator" in so + err and pick.path.name in so + err and "range_fb" in so + err
 
 
 def test_after_shifts_a_curve_to_start_at_t0():

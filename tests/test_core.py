@@ -16,6 +16,8 @@ from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.rollout import rollout_states
 
+from conftest import soft_bow_model
+
 ROOT = Path(__file__).resolve().parents[1]
 FB100 = SHIPPED_DIR / "paper-fb100.safetensors"
 
@@ -250,7 +252,8 @@ def test_the_avx512_and_avx2_loops_play_alike(tmp_path):
 
 
 # Every loop that runs one voice's branch a row at a time (one voice, the voice-after-voice loop, a batch's rows left
-# over by fours, a live voice), for a width-128 range model and the width-64 paper model, into an .npz
+# over by fours, a live voice), for a width-128 range model (the file argv[2] names) and the width-64 paper model,
+# into the .npz argv[1] names
 _PANEL_PLAY = """
 import sys, numpy as np
 from bowsynth import compiled as core
@@ -259,8 +262,9 @@ from bowsynth.engines.operator.choose import SHIPPED_DIR
 from bowsynth.engines.operator.modelfile import load_model
 from bowsynth.engines.operator.rollout import rollout_states
 out = {}
-for name, bow in (("soft-range", [0.15, 0.2]), ("paper-fb100", None)):
-    m = load_model(SHIPPED_DIR / f"{name}.safetensors")
+models = (("range", sys.argv[2], [0.15, 0.2]), ("paper-fb100", SHIPPED_DIR / "paper-fb100.safetensors", None))
+for name, path, bow in models:
+    m = load_model(path)
     kw = {} if bow is None else {"params": np.array(bow)}
     x0 = np.stack([np.linspace(-0.02, 0.02, 5), np.linspace(0.01, -0.01, 5)], 1)
     dtau = 2 * np.pi * np.array([880.0, 440.0, 311.1, 150.0, 100.0]) / 44100
@@ -286,13 +290,16 @@ def test_the_weights_in_panels_change_no_sample(tmp_path):
     rows in a row: the products add in the same order, so every loop that uses them (one voice, voice after voice,
     a batch's rows left over by fours, a live voice) plays the same samples to the bit as the strided products a
     process with BOWSYNTH_NO_PANELS=1 runs, in the AVX-512 and the AVX2 loops."""
+    soft = soft_bow_model()
+    box = soft.domain.box  # the range model's bow (F_B / w 0.15, v_B 0.2) is inside it, its width two panels
+    assert box[0] <= 0.15 <= box[1] and box[2] <= 0.2 <= box[3] and soft.cfg.width == 128, (soft.path, box)
     for extra in ({}, {"BOWSYNTH_NO_AVX512": "1"}):
         runs = {}
         for panels in ("0", "1"):
             f = tmp_path / f"{panels}{len(extra)}.npz"
             env = {**os.environ, **extra, "BOWSYNTH_NO_PANELS": "1" if panels == "0" else "0"}
-            r = subprocess.run([sys.executable, "-c", _PANEL_PLAY, str(f)], capture_output=True, text=True,
-                               timeout=300, env=env)
+            r = subprocess.run([sys.executable, "-c", _PANEL_PLAY, str(f), str(soft.path)], capture_output=True,
+                               text=True, timeout=300, env=env)
             assert r.returncode == 0 and r.stdout.strip() == ("True" if panels == "1" else "False"), r.stderr
             runs[panels] = np.load(f)
         assert sorted(runs["1"].files) == sorted(runs["0"].files) and len(runs["1"].files) == 7
@@ -309,8 +316,8 @@ def test_the_weights_and_bases_the_loops_read_start_on_64_byte_lines():
     The values are the model's."""
     from bowsynth.engines.operator.basis import window_bases, numpy_operator
 
-    for name in ("paper-fb100", "soft-range"):
-        m = load_model(SHIPPED_DIR / f"{name}.safetensors")
+    for path in (FB100, soft_bow_model().path):
+        m = load_model(path)
         op = numpy_operator(m)
         assert all(a.ctypes.data % 64 == 0 and a.flags.c_contiguous and a.dtype == np.float32 for a in op.weights)
         assert np.array_equal(op.weights[-2], m.weights["branch.out.weight"].T)

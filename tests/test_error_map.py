@@ -10,17 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import bowsynth
 from bowsynth import Scene
 from bowsynth.analysis import error_map as E
 from bowsynth.metrics import listener_errors
 from bowsynth.api import render
 from bowsynth.report.error_map import table
 
-SOFT = bowsynth.shipped("models") / "soft-range.safetensors"
-# stages/stick-slow-1, the stage the shipped stick-slow is refined from, whose own pitch is off: the case windows
-# locked to the physics are for
-SLOW_1 = str(bowsynth.shipped("models") / "stages" / "stick-slow-1.safetensors")
+from conftest import refined_from, shipped_pick, soft_bow_model
+
+
+def held(f0, beta, vb, seconds=1.0):
+    return Scene(f0=f0, fb=beta * 2 * math.pi * f0, vb=vb, duration=seconds)
 
 
 def test_grid_spans_the_playing_space_log_in_force_linear_in_speed():
@@ -33,11 +33,12 @@ def test_grid_spans_the_playing_space_log_in_force_linear_in_speed():
 
 
 def test_a_played_cell_carries_the_listener_errors_of_the_operator_against_the_truth():
-    cell = E.map_cell(100.0, 0.1, 0.15, 1.0, model=SOFT)
-    assert cell["status"] == "played" and cell["model_name"] == "soft-range"
-    sc = Scene(f0=100.0, fb=0.1 * 2 * math.pi * 100.0, vb=0.15, duration=1.0)
+    soft = soft_bow_model().path
+    cell = E.map_cell(100.0, 0.1, 0.15, 1.0, model=soft)
+    assert cell["status"] == "played" and cell["model_name"] == soft.stem
+    sc = held(100.0, 0.1, 0.15)
     truth = render(sc, engine="fdm", oversample=100)
-    want = listener_errors(render(sc, model=SOFT).p, truth.p, sc.sample_rate)
+    want = listener_errors(render(sc, model=soft).p, truth.p, sc.sample_rate)
     assert cell["op"]["cents"] == pytest.approx(want["cents"], abs=1e-9)
     assert cell["op"]["harm_db_median"] == pytest.approx(want["harm_db_median"], abs=1e-9)
     # the audio-rate FDM beside it, against the same truth: a few hundredths of a cent at 100 Hz
@@ -45,10 +46,12 @@ def test_a_played_cell_carries_the_listener_errors_of_the_operator_against_the_t
 
 
 def test_a_cell_in_physics_windows_plays_the_physical_pitch_where_free_windows_do_not():
-    """SLOW_1 at F_B / w 1.324, v_B 0.149 (110 Hz): its own pitch is 2.4 cents sharp of the physics (measured);
-    the map's cell in windows locked to the physics' period, which the model holds, is within a hundredth."""
-    free = E.map_cell(110.0, 1.324, 0.149, 2.0, model=SLOW_1, windows="free")
-    phys = E.map_cell(110.0, 1.324, 0.149, 2.0, model=SLOW_1, windows="physics")
+    """The stage the shipped pick at F_B / w 1.324, v_B 0.149 (110 Hz) was refined from: its own pitch is 2.4 cents
+    sharp of the physics there (measured), the case windows locked to the physics are for; the map's cell in windows
+    locked to the physics' period, which the model holds, is within a hundredth."""
+    stage = str(refined_from(shipped_pick(held(110.0, 1.324, 0.149, 2.0))).path)
+    free = E.map_cell(110.0, 1.324, 0.149, 2.0, model=stage, windows="free")
+    phys = E.map_cell(110.0, 1.324, 0.149, 2.0, model=stage, windows="physics")
     assert free["status"] == phys["status"] == "played"
     assert abs(free["op"]["cents"]) > 0.5 and abs(phys["op"]["cents"]) < 0.01
     res = {"cells": [phys], "seconds": 2.0, "windows": "physics", "f0": [110.0], "beta": [1.324], "vb": [0.149]}
@@ -56,10 +59,11 @@ def test_a_cell_in_physics_windows_plays_the_physical_pitch_where_free_windows_d
 
 
 def test_cells_no_model_plays_and_silent_cells_are_named_not_scored():
-    far = E.map_cell(100.0, 2.0, 0.29, 0.5)  # stick-slip at F_B / w 2, v_B 0.29: above stick-high, no model covers it
+    far = E.map_cell(100.0, 2.0, 0.29, 0.5)  # stick-slip at F_B / w 2, v_B 0.29, which no model covers
     assert far["status"] == "not played" and "no model covers" in far["why"] and "op" not in far
     assert "fdm" in far  # the truth sounds there: the cell counts against the operator's coverage
-    stopped = E.map_cell(100.0, 0.05, 0.0, 0.5, model=SOFT)  # a stopped bow on a mass at rest: nothing moves
+    # a stopped bow on a mass at rest: nothing moves
+    stopped = E.map_cell(100.0, 0.05, 0.0, 0.5, model=soft_bow_model().path)
     assert stopped["status"] == "silent" and "op" not in stopped and "fdm" not in stopped
     s = E.summary({"cells": [far, stopped], "seconds": 0.5})
     assert (s["sounding"], s["played"], s["silent"]) == (1, 0, 1)
@@ -75,9 +79,10 @@ def test_bench_map_writes_the_grid_the_plot_and_json(tmp_path):
     assert len(cells) == 4 and res["f0"] == [100.0]
     assert res["windows"] == "auto"  # no --windows: what a render plays
     assert cells[(0.02, 0.0)]["status"] == "silent"
-    # the heaviest bow stopped: halt-edge plays it (refused before) and rests, as the truth does
+    # the heaviest bow stopped: the renderer's pick there plays it (refused before) and rests, as the truth does
     edge = cells[(2.0, 0.0)]
-    assert edge["status"] == "silent" and edge["op_silent"] and edge["model_name"] == "halt-edge", edge
+    pick = shipped_pick(held(100.0, 2.0, 0.0, 0.5))
+    assert edge["status"] == "silent" and edge["op_silent"] and edge["model_name"] == pick.path.stem, edge
     assert prefix.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     md = prefix.with_suffix(".md").read_text()
     assert md.strip() == table(res).strip() and "| 0.28 |" in md and "f0 100 Hz" in md

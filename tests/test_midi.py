@@ -8,7 +8,7 @@ import mido
 import numpy as np
 import pytest
 import soundfile as sf
-from conftest import run_main
+from conftest import run_main, shipped_models, shipped_pick
 
 from bowsynth.metrics import cents, f0_estimate
 from bowsynth.errors import UsageError
@@ -207,7 +207,7 @@ def _type2(p):
 def test_notes_outside_every_model_are_reported_before_rendering(tmp_path, capsys, monkeypatch):
     mid = mido.MidiFile(type=0, ticks_per_beat=TPB)
     # the second note, on its own channel, bowed at full pressure (CC2 127: 4x the force of velocity 120, F_B / w 2.2,
-    # deep in stick-slip where no model plays; velocity 120 alone is velocity-loud's)
+    # deep in stick-slip where no model plays; velocity 120 alone is a loud range model's)
     mid.tracks.append(mido.MidiTrack([mido.Message("control_change", channel=1, control=2, value=127, time=0),
                                       mido.Message("note_on", note=60, velocity=64, time=0),  # paper-fb100's scene
                                       mido.Message("note_off", note=60, time=TPB),
@@ -338,7 +338,7 @@ def test_parts_on_their_own_tracks_sharing_a_channel_are_voices(tmp_path, capsys
     assert "bow stops" not in out  # the FDM plays whole notes: nothing was handed over
     code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "o.wav")],
                               capsys, monkeypatch)
-    # who played the bow stops, counted: the shipped soft-range reaches v_B = 0, so it plays every note whole
+    # who played the bow stops, counted: the shipped soft bow's model reaches v_B = 0, so it plays every note whole
     assert code == 0 and "rendered 8 notes" in out and "bow stops: 8 by the operator, 0 by the FDM" in out, out + err
     # as the live engine plays them: every bow stop by the FDM from the hold
     code, out, err = run_main(["score", "--score", str(tmp_path / "chorale.mid"), "--mix", str(tmp_path / "l.wav"),
@@ -386,10 +386,13 @@ def test_a_header_announcing_more_tracks_than_present_is_truncated(tmp_path):
 
 
 def test_loud_notes_past_the_stick_slip_boundary_play_with_the_operator_in_tune(tmp_path, capsys, monkeypatch):
-    # velocity 110-127 bows at F_B / w 0.44-0.64 (music.midi.bow_beta), just into stick-slip: the shipped
-    # velocity-loud plays them (without it no model would and `score` would refuse the piece); measured 0.02-0.16
-    # cents from equal temperament, tuned with the model's own sounding ratio. Their bow stops (v_B -> 0 at that
-    # force) leave its box: loud-stops plays those, so no FDM is in the piece's path.
+    # velocity 110-127 bows at F_B / w 0.44-0.64 (music.midi.bow_beta), just into stick-slip: the shipped range
+    # models the renderer picks for their held bows play them (without them no model would and `score` would refuse
+    # the piece); measured 0.02-0.16 cents from equal temperament, tuned with the model's own sounding ratio. Their
+    # bow stops (v_B -> 0 at that force) leave those boxes: a model that covers the whole note plays each, so no FDM
+    # is in the piece's path.
+    from bowsynth.engines.operator.choose import covering_model
+
     mid = mido.MidiFile(type=1, ticks_per_beat=TPB)
     tr = mido.MidiTrack()
     for note, vel in ((48, 112), (60, 120), (67, 127)):
@@ -399,8 +402,11 @@ def test_loud_notes_past_the_stick_slip_boundary_play_with_the_operator_in_tune(
     mid.save(tmp_path / "loud.mid")
     code, out, err = run_main(["score", "--score", str(tmp_path / "loud.mid"), "--mix", str(tmp_path / "l.wav"),
                                "--stems", str(tmp_path / "stems")], capsys, monkeypatch)
-    assert code == 0 and "velocity-loud.safetensors" in out and "bow stops: 3 by the operator, 0 by the FDM" in out
-    assert "loud-stops.safetensors" in out
+    assert code == 0 and "bow stops: 3 by the operator, 0 by the FDM" in out, out + err
+    for n in load_score(tmp_path / "loud.mid"):
+        held, whole = shipped_pick(n.rollout_scene()), covering_model(n.scene, shipped_models())
+        assert held.domain.is_range and not held.covers(n.scene) and whole is not None, n.describe()
+        assert held.path.name in out and whole.path.name in out, (n.describe(), held.path.name, whole.path.name, out)
     stems = sorted((tmp_path / "stems").glob("ch1-*.wav"))
     assert len(stems) == 3
     for path, note in zip(stems, (48, 60, 67)):

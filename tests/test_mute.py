@@ -1,6 +1,6 @@
 """A held note must speak where the physics grows it (engines/operator/onset.mute_from): a model whose note sits at
-its rest point there (stick-high at the playing space's corner, F_B / w 2, v_B 0.28) is stopped like a rollout that
-leaves its states, instead of playing a silent wrong note."""
+its rest point there (a stick-slip tile at the playing space's corner, F_B / w 2, v_B 0.28) is stopped like a rollout
+that leaves its states, instead of playing a silent wrong note."""
 
 import math
 import subprocess
@@ -14,6 +14,8 @@ from hypothesis import strategies as st
 from bowsynth import DomainError, Scene, physics
 from bowsynth.api import render
 from bowsynth.engines.operator.onset import MUTE_SAFETY, mute_from
+
+from conftest import refined_from, shipped_pick
 
 
 def held(f0, beta, vb, seconds):
@@ -43,15 +45,17 @@ def test_the_truth_always_speaks_where_the_check_would_ask_it_to(f0, beta, vb):
 
 
 def test_the_corner_note_is_refused_in_one_line_and_finished_by_the_fdm_on_request(tmp_path):
-    """stick-high, asked for by name (the default pick there is stick-top, which speaks)."""
+    """The model the default pick there (which speaks) was refined from, asked for by its file."""
     sc = held(110.0, 2.0, 0.28, 1.0)
+    m = refined_from(shipped_pick(sc))
+    assert m.failure is None and m.covers(sc), m.path
     with pytest.raises(DomainError, match="still silent, though its bow drives the mass"):
-        render(sc, engine="operator", model="stick-high")
-    r = render(sc, engine="operator", model="stick-high", fallback="fdm")
+        render(sc, engine="operator", model=m)
+    r = render(sc, engine="operator", model=m, fallback="fdm")
     assert r.method.fdm_fallback and np.ptp(r.p[-4410:]) > 1.0  # the truth's stick-slip cycle spans ~2.5
     out = tmp_path / "corner.wav"
     fb = f"{2 * 2 * math.pi * 110:.2f}"
-    cmd = ["render", "--f0", "110", "--fb", fb, "--vb", "0.28", "-d", "1", "--model", "stick-high", str(out)]
+    cmd = ["render", "--f0", "110", "--fb", fb, "--vb", "0.28", "-d", "1", "--model", str(m.path), str(out)]
     p = subprocess.run([sys.executable, "-m", "bowsynth", *cmd], capture_output=True, text=True, timeout=300)
     assert p.returncode != 0 and "still silent" in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not out.exists()

@@ -17,6 +17,8 @@ from bowsynth import compiled as core
 from bowsynth.engines.operator import voices as V
 from bowsynth.engines.operator.bank import VoiceBank
 
+from conftest import shipped_models, soft_bow_model
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -155,7 +157,7 @@ def test_the_dc_blocker_and_the_slot_picker():
 def test_a_stream_loads_no_numba():
     """What `bowsynth play` runs per callback, with a note, a bend, vibrato and a release: numba is no dependency."""
     code = ("import sys\nfrom bowsynth.live import Stream\n"
-            "s = Stream(block=512, voices=2, model='soft-range')\n"
+            f"s = Stream(block=512, voices=2, model={str(soft_bow_model().path)!r})\n"
             "for ev in ([(0, b'\\x90\\x45\\x40')], [(3, b'\\xe0\\x00\\x50'), (9, b'\\xb0\\x01\\x40')], [],"
             " [(7, b'\\x80\\x45\\x00')], [], []):\n"
             "    s.process(512, ev)\n"
@@ -190,8 +192,12 @@ def test_a_live_voices_window_basis_is_the_offline_one(which):
     from bowsynth.engines.operator.choose import SHIPPED_DIR
     from bowsynth.engines.operator.modelfile import load_model
 
-    name = "paper-fb100" if which == "rotation" else "scratch-g2"
-    m = load_model(SHIPPED_DIR / f"{name}.safetensors")
+    if which == "rotation":
+        m = load_model(SHIPPED_DIR / "paper-fb100.safetensors")
+    else:  # a shipped point model of the rest-linearised flow (NetConfig.rest_linear)
+        rest = [m.path for m in shipped_models() if not m.domain.is_range and m.cfg.rest_linear]
+        assert rest, "no shipped point model is rest-linearised"
+        m = load_model(rest[0])
     assert (m.cfg.rest_linear and numpy_operator(m).lin is not None) == (which == "rest-linearised")
     b = VoiceBank(44100, 64, 1, "operator", m, 90.0)
     dtau = physics.dtau(147.3, 44100)
