@@ -143,7 +143,7 @@ def main() -> None:
                   "over the bins within " + ", ".join(f"{f:.0f} dB of the peak: {v:.2f} dB" for f, v in lsd.items()))
         for proc in procs:
             said = [ln for ln in outs[proc].splitlines() if "wrote" in ln or "note" in ln.lower()][:3]
-            print(f"\n{proc} said:\n" + "\n".join(f"    {ln}" for ln in said))
+            print(f"\n{proc} said:\n" + "\n".join(f"    {ln}" for ln in said), file=sys.stderr)
 
 
 if __name__ == "__main__":
