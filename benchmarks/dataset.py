@@ -41,6 +41,7 @@ def main() -> None:
     spec = tmp / "spec.toml"
     spec.write_text(f"count = {args.count}\nseed = 11\nduration = 2.0\ngestures = 0.25\n")
     print(f"spec: {spec.read_text().strip().replace(chr(10), '; ')}; load before: {os.getloadavg()[0]:.2f}")
+    print()
     one = run(spec, tmp / "one", 1, tmp / "cache-one")
     many = run(spec, tmp / "many", args.workers, tmp / "cache-many")
     tasks = -(-args.count // BATCH)
@@ -48,7 +49,7 @@ def main() -> None:
     overhead = (many - one / args.workers) / tasks * args.workers  # each task's share of what the parallel run lost
     print(f"| workers | wall s | notes / s |\n|---|---|---|\n| 1 (one process) | {one:.1f} | {args.count / one:.1f} |\n"
           f"| {args.workers} (Ray) | {many:.1f} | {args.count / many:.1f} |")
-    print(f"speed-up {one / many:.2f}x; a task ({BATCH} notes) {per_task:.2f} s in one process; Ray's cost per task "
+    print(f"\nspeed-up {one / many:.2f}x; a task ({BATCH} notes) {per_task:.2f} s in one process; Ray's cost per task "
           f"{overhead:.3f} s ({100 * overhead / per_task:.1f} % of a task, Ray's start-up included)")
 
 
