@@ -35,6 +35,20 @@ def ncc(x, ref) -> float:
 CROSS_DIP = 0.25
 
 
+def median(a) -> float:
+    """np.median of the values (NaN where one is NaN or there are none), without the import of numpy.ma that
+    np.median's NaN check makes on first use: ~10 ms of a render's process, which measures pitches.
+
+    >>> median([3.0, 1.0, 2.0, 10.0]), median([])
+    (2.5, nan)
+    """
+    s = np.sort(np.asarray(a, float).ravel())
+    if len(s) == 0 or np.isnan(s[-1]):
+        return float("nan")
+    m = len(s) // 2
+    return float(s[m]) if len(s) % 2 else float((s[m - 1] + s[m]) / 2)
+
+
 def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     """Fundamental from interpolated upward zero crossings of the last `tail` fraction (the steady state)."""
     x = np.asarray(x, float)
@@ -52,7 +66,7 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     deep = dips <= CROSS_DIP * dips.min()
     if not deep[1:].all():
         if deep.sum() >= 2:
-            period = np.median(np.diff(i[deep]))
+            period = median(np.diff(i[deep]))
             lo, hi = np.searchsorted(i, i - period), np.searchsorted(i, i + period, side="right")
             deep = dips <= CROSS_DIP * np.array([dips[a:b].min() for a, b in zip(lo, hi)])
             # the first crossing's dip is cut by the segment's start: it counts where the next counted one follows a
@@ -64,7 +78,7 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
             return float("nan")
     t = i + x[i] / (x[i] - x[i + 1])  # linear interpolation of each crossing
     # crossings closer than half the median period are noise on a slow edge: drop them
-    period = np.median(np.diff(t))
+    period = median(np.diff(t))
     keep = [t[0]]
     for tc in t[1:]:
         if tc - keep[-1] > 0.5 * period:
@@ -74,7 +88,7 @@ def f0_estimate(x, sample_rate: float, tail: float = 0.5) -> float:
     # the estimate is the span between the end crossings, so each end keeps, of its cluster (crossings within half a
     # period), the one on the grid of the others: a segment that starts on a creep's slow fall through the mean can
     # cross there twice, its first crossing 418 samples of 2626 off the grid (0.9 % low, harmonics 36 dB)
-    step = np.median(np.diff(keep[1:-1])) if len(keep) > 3 else np.median(np.diff(keep))
+    step = median(np.diff(keep[1:-1])) if len(keep) > 3 else median(np.diff(keep))
     first = t[t <= keep[0] + 0.5 * period]
     last = t[(t >= keep[-1]) & (t <= keep[-1] + 0.5 * period)]
     keep[0] = first[np.argmin(np.abs(keep[1] - first - step))]
@@ -314,7 +328,7 @@ def listener_errors(x, ref, sample_rate: float, steady_seconds: float = 1.0) -> 
     return {
         "cents": cents(fx, fr),
         "harm_db": err.tolist(),
-        "harm_db_median": float(np.median(scored)) if len(scored) else (float("inf") if missing else 0.0),
+        "harm_db_median": median(scored) if len(scored) else (float("inf") if missing else 0.0),
         "harm_db_max": float("inf") if missing else (float(np.max(scored)) if len(scored) else 0.0),
         "onset_ms": 1e3 * ox,
         "onset_ref_ms": 1e3 * orf,
@@ -367,9 +381,9 @@ def frame_errors(x, ref, sample_rate: float, frame: float = FRAME_SECONDS, harmo
         off.append(c)
     pitched = np.isfinite(off)
     return {"t": t, "harm_db": harm, "cents": off, "frames": len(harm),
-            "harm_db_median": float(np.median(harm)) if harm else float("nan"),
+            "harm_db_median": median(harm) if harm else float("nan"),
             "harm_db_worst_frame": float(np.max(harm)) if harm else float("nan"),
-            "cents_median": float(np.median(np.asarray(off)[pitched])) if pitched.any() else float("nan"),
+            "cents_median": median(np.asarray(off)[pitched]) if pitched.any() else float("nan"),
             "unpitched_frames": int(np.sum(~pitched))}
 
 

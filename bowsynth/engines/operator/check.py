@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from ... import physics
+from ...metrics import median
 from . import npnet
 from .basis import numpy_operator
 from .modelfile import OperatorModel
@@ -98,7 +99,7 @@ def _cycle_error(q, p, rq, rp, lq, lp, dtau: float, floor: float) -> float:
         return math.inf
     ref = rq[a:] - rq[a:].mean()
     up = np.flatnonzero((ref[:-1] < 0) & (ref[1:] >= 0))
-    half = int(math.ceil(np.median(np.diff(up)) / 2)) if len(up) >= 3 else 0
+    half = int(math.ceil(median(np.diff(up)) / 2)) if len(up) >= 3 else 0
     half = min(half, (n - a) // 4)
     lo, hi = a + half, n - half  # the compared span: every shift stays inside the rollout
     corr = max(np.mean((rq[lo:hi] - lq[lo:hi]) ** 2 + (rp[lo:hi] - lp[lo:hi]) ** 2), floor)
