@@ -523,3 +523,20 @@ def test_play_refuses_what_no_callback_could_hold_before_it_starts(args, what):
     assert r.returncode == 2, r.stdout + r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error") and what in lines[0], r.stderr
+
+
+def test_high_notes_bent_two_octaves_up_play_finite_through_jack(jackd, player):
+    """`play --bend-range 24`: a chord at MIDI 104-111, then the pitch wheel at its top (notes past 13 kHz) and a full
+    vibrato, through a real jackd: the take is finite and bounded (perform counts a NaN sample as a lost cycle, and a
+    player that streamed NaN loses every take), the player ends with its summary; a bend the budget cannot hold ends
+    voices (`shed`) rather than the callback running late."""
+    chord = range(104, 112)
+    ev = [(0.0, on(n)) for n in chord] + [(0.4, bytes((0xE0, 0x7F, 0x7F))), (0.5, bytes((0xB0, 1, 127)))]
+    ev += [(1.4, off(n)) for n in chord]
+    rec, frames, code, out = played(player, jackd[0], ("--bend-range", "24"), ev, 1.8)
+    assert code == 130
+    s = _summary(out)
+    assert _reports_its_timing(s) and "8 note(s)" in s, s
+    assert np.all(np.isfinite(rec)) and np.max(np.abs(rec)) <= 1.0
+    bent = rec[frames[1] + int(0.2 * RATE):frames[-1]]
+    assert np.std(bent) > 0, "the bent chord is silent"
