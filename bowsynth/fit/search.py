@@ -64,13 +64,11 @@ def f0_for(pitch: float, beta: float, vb: float, a: float = 100.0) -> float | No
 
 
 def model_ref(m) -> str:
-    """What names a model to `render --model` and `score --model`: a shipped model's name, another's file, or (a
-    model not saved) its own name."""
-    from ..engines.operator.choose import SHIPPED_DIR
+    """What names a model to `render --model` and `score --model` (choose.model_ref), or a model not saved its own
+    name."""
+    from ..engines.operator.choose import model_ref as file_ref
 
-    if m.path is None:
-        return m.meta.name
-    return m.path.stem if m.path.parent.resolve() == SHIPPED_DIR.resolve() else str(m.path)
+    return m.meta.name if m.path is None else file_ref(m.path)
 
 
 class Scorer:

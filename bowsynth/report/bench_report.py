@@ -79,7 +79,7 @@ def run_equal(quick: bool = False, out_prefix=None, windows: str | None = None, 
     (api.render's; None its default). models: these instead (paths or names). workers / address: a model a task
     (`io.cluster.Pool`: Ray, or processes), its rows back in the models' order; each task times its own renders,
     so tasks that share a machine share its memory and caches while they time."""
-    from ..engines.operator.choose import SHIPPED_DIR, model_path
+    from ..engines.operator.choose import SHIPPED_DIR, model_path, model_ref
     from ..io.cluster import Pool
     from ..music.engine_tuning import check_windows
 
@@ -88,8 +88,7 @@ def run_equal(quick: bool = False, out_prefix=None, windows: str | None = None, 
     if quick and not models:
         paths = [p for p in paths if p.stem == "paper-fb100"][:1]
     kw = dict(f0s=(100.0,), duration=1.0, repeats=1, oversamples=(1, 2)) if quick else {}
-    # a shipped model goes by its name, which a cluster's node finds among its own shipped models
-    jobs = [(p.stem if p.parent.resolve() == SHIPPED_DIR.resolve() else str(p), windows, kw) for p in paths]
+    jobs = [(model_ref(p), windows, kw) for p in paths]  # a shipped model by name: a cluster's node has its own
     with Pool(workers, address) as pool:
         done = dict(pool.map(_equal_task, jobs))
     rows = [r for i in range(len(jobs)) for r in done[i]]

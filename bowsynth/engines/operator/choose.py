@@ -51,6 +51,13 @@ def model_path(name) -> Path:
                          f"shipped models ({', '.join(names) or 'none'})")
 
 
+def model_ref(path) -> str:
+    """What names a model file to `--model` (model_path's inverse): a shipped model's name, which any install finds
+    among its own shipped models (a cluster's node, a score's reader), else the file's path."""
+    path = Path(path)
+    return path.stem if path.parent.resolve() == SHIPPED_DIR.resolve() else str(path)
+
+
 def as_model(model) -> OperatorModel:
     """An OperatorModel as given, or read from a file path or a model's name (model_path)."""
     return model if isinstance(model, OperatorModel) else load_model(model_path(model))
