@@ -163,12 +163,17 @@ class Budgeted:
             busy = True
         if busy:  # stolen
             self.counts["stolen"] += 1
-            if self.key[slot] >= 0:
-                self.sounding[self.key[slot]] = -1
-            self.key[slot] = -1
-            self.mode[slot] = V.FREE
-            self.load -= self.cost[slot]
+            self._end_voice(slot)
         return slot
+
+    def _end_voice(self, slot: int) -> None:
+        """The slot's voice ended at once (stolen or shed): its key no longer sounding, its reservation given back."""
+        if self.key[slot] >= 0:
+            self.sounding[self.key[slot]] = -1
+        self.key[slot] = -1
+        self.mode[slot] = V.FREE
+        self.load -= self.cost[slot]
+        self.cost[slot] = 0.0
 
     def _shed(self) -> None:
         """A bend or vibrato took the sounding voices' reservations past the budget: end voices, as a steal does,
@@ -185,12 +190,7 @@ class Budgeted:
                 slot = int(np.argmin(left))
                 if left[slot] == NEVER:
                     return
-            if self.key[slot] >= 0:
-                self.sounding[self.key[slot]] = -1
-            self.key[slot] = -1
-            self.mode[slot] = V.FREE
-            self.load -= self.cost[slot]
-            self.cost[slot] = 0.0
+            self._end_voice(slot)
             self.counts["shed"] += 1
 
     def _releasing(self, at_least: float) -> int:
